@@ -1,0 +1,243 @@
+//! Scene errors that say where: file, line, column, key, and what is wrong.
+//!
+//! Validation works on plain structs and names the offending value by its key path
+//! (`body[1].mass`); [`locate`] maps that path back to a span with a second, spanned parse of the
+//! same text (`toml::de::DeTable`). Serde's own errors come the other way round, with a span and
+//! no path, and [`key_at`] recovers the path. Both end up as one [`Diagnostic`].
+
+use std::fmt;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use toml::de::{DeTable, DeValue};
+
+/// One step of a key path.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Seg {
+    /// A table key.
+    Key(String),
+    /// An index into an array (or array of tables).
+    Index(usize),
+}
+
+/// A key path such as `body[1].structural.stiffness`.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct KeyPath(pub Vec<Seg>);
+
+impl KeyPath {
+    /// The empty path: the document itself.
+    pub fn root() -> Self {
+        Self(Vec::new())
+    }
+    /// This path extended by a key.
+    pub fn key(&self, key: &str) -> Self {
+        let mut p = self.clone();
+        p.0.push(Seg::Key(key.to_owned()));
+        p
+    }
+    /// This path extended by an index.
+    pub fn index(&self, i: usize) -> Self {
+        let mut p = self.clone();
+        p.0.push(Seg::Index(i));
+        p
+    }
+}
+
+impl fmt::Display for KeyPath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0.is_empty() {
+            return f.write_str("(document)");
+        }
+        for (i, seg) in self.0.iter().enumerate() {
+            match seg {
+                Seg::Key(k) if i == 0 => write!(f, "{k}")?,
+                Seg::Key(k) => write!(f, ".{k}")?,
+                Seg::Index(n) => write!(f, "[{n}]")?,
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A located problem in a scene file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnostic {
+    /// The scene file (or `<inline>` for text not read from a file).
+    pub file: PathBuf,
+    /// 1-based line, 0 when unknown.
+    pub line: usize,
+    /// 1-based column, 0 when unknown.
+    pub column: usize,
+    /// The key the problem is about.
+    pub key: KeyPath,
+    /// What is wrong, in words.
+    pub message: String,
+    /// The source line, for display.
+    pub source_line: String,
+}
+
+impl fmt::Display for Diagnostic {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if self.line > 0 {
+            write!(f, ":{}:{}", self.line, self.column)?;
+        }
+        write!(f, ": {}: {}", self.key, self.message)?;
+        if !self.source_line.is_empty() {
+            let n = self.line.to_string();
+            let pad = " ".repeat(n.len());
+            write!(
+                f,
+                "\n{pad} |\n{n} | {}\n{pad} | {}^",
+                self.source_line,
+                " ".repeat(self.column.saturating_sub(1))
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Everything that can go wrong loading a scene.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// The scene file (or a file it names) could not be read.
+    #[error("{}: cannot read: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file was read but is not a valid scene.
+    #[error("{0}")]
+    Invalid(Box<Diagnostic>),
+}
+
+impl SceneError {
+    /// The diagnostic, where the error has one.
+    pub fn diagnostic(&self) -> Option<&Diagnostic> {
+        match self {
+            SceneError::Invalid(d) => Some(d),
+            SceneError::Io { .. } => None,
+        }
+    }
+}
+
+/// An unlocated validation failure: a key path and a message.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Invalid {
+    /// Which value.
+    pub key: KeyPath,
+    /// What is wrong with it.
+    pub message: String,
+}
+
+impl Invalid {
+    /// A failure at `key`.
+    pub fn new(key: KeyPath, message: impl Into<String>) -> Self {
+        Self {
+            key,
+            message: message.into(),
+        }
+    }
+
+    /// Locates this failure in `text` (the file's contents) and turns it into a [`SceneError`].
+    pub fn locate(self, file: &Path, text: &str) -> SceneError {
+        let span = locate(text, &self.key);
+        diagnostic(file, text, span, self.key, self.message)
+    }
+}
+
+/// Turns a serde/TOML error into a located [`SceneError`].
+pub(crate) fn from_toml(file: &Path, text: &str, err: &toml::de::Error) -> SceneError {
+    let key = err.span().map(|s| key_at(text, s.start)).unwrap_or_default();
+    diagnostic(file, text, err.span(), key, err.message().trim().to_owned())
+}
+
+fn diagnostic(file: &Path, text: &str, span: Option<Range<usize>>, key: KeyPath, message: String) -> SceneError {
+    let (line, column, source_line) = match span {
+        Some(s) => line_col(text, s.start),
+        None => (0, 0, String::new()),
+    };
+    SceneError::Invalid(Box::new(Diagnostic {
+        file: file.to_owned(),
+        line,
+        column,
+        key,
+        message,
+        source_line,
+    }))
+}
+
+/// 1-based line and column (in characters) of a byte offset, and that line's text.
+fn line_col(text: &str, offset: usize) -> (usize, usize, String) {
+    let offset = offset.min(text.len());
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let column = text[start..offset].chars().count() + 1;
+    let end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+    (line, column, text[start..end].trim_end_matches('\r').to_owned())
+}
+
+/// The span of the value at `key`, or of the deepest existing table on its way (a missing key is
+/// reported where it should have been).
+pub fn locate(text: &str, key: &KeyPath) -> Option<Range<usize>> {
+    let doc = DeTable::parse(text).ok()?;
+    let mut span = doc.span();
+    let mut node: Option<&DeValue<'_>> = None;
+    let table = doc.get_ref();
+    for (depth, seg) in key.0.iter().enumerate() {
+        let next = match (depth, seg, node) {
+            (0, Seg::Key(k), _) => table.get(k.as_str()),
+            (_, Seg::Key(k), Some(DeValue::Table(t))) => t.get(k.as_str()),
+            (_, Seg::Index(i), Some(DeValue::Array(a))) => a.get(*i),
+            _ => None,
+        };
+        match next {
+            Some(v) => {
+                span = v.span();
+                node = Some(v.get_ref());
+            }
+            None => break,
+        }
+    }
+    Some(span)
+}
+
+/// The key path of the deepest value or key whose span holds `offset`.
+pub fn key_at(text: &str, offset: usize) -> KeyPath {
+    let mut path = KeyPath::root();
+    let Ok(doc) = DeTable::parse(text) else {
+        return path;
+    };
+    let mut table = Some(doc.get_ref());
+    let mut array: Option<&[toml::Spanned<DeValue<'_>>]> = None;
+    loop {
+        let mut next: Option<&DeValue<'_>> = None;
+        if let Some(t) = table.take() {
+            for (k, v) in t.iter() {
+                if k.span().contains(&offset) || v.span().contains(&offset) {
+                    path.0.push(Seg::Key(k.get_ref().to_string()));
+                    if v.span().contains(&offset) {
+                        next = Some(v.get_ref());
+                    }
+                    break;
+                }
+            }
+        } else if let Some(a) = array.take() {
+            for (i, v) in a.iter().enumerate() {
+                if v.span().contains(&offset) {
+                    path.0.push(Seg::Index(i));
+                    next = Some(v.get_ref());
+                    break;
+                }
+            }
+        }
+        match next {
+            Some(DeValue::Table(t)) => table = Some(t),
+            Some(DeValue::Array(a)) => array = Some(a.as_ref()),
+            _ => return path,
+        }
+    }
+}

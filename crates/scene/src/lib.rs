@@ -1,0 +1,97 @@
+//! The scene side of `softbody`: the TOML scene format, its validation, the spring topology, and
+//! the model and state layout shared by every solver.
+//!
+//! ```
+//! use softbody_scene::{Model, Scene};
+//! let scene = Scene::from_toml(r#"
+//!     [simulation]
+//!     dt = 0.001
+//!     duration = 1.0
+//!     [[body]]
+//!     kind = "cuboid"
+//!     size = [1.0, 1.0, 1.0]
+//!     resolution = [3, 3, 3]
+//!     mass = 1.0
+//!     structural = { stiffness = 100.0 }
+//! "#, "inline.toml".as_ref()).unwrap();
+//! let (model, state) = Model::build(&scene);
+//! assert_eq!(model.len(), 27);
+//! assert_eq!(model.springs.len(), 54);
+//! assert_eq!(state.x.len(), 27);
+//! ```
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod format;
+pub mod mesh;
+pub mod model;
+pub mod scene;
+pub mod solver;
+pub mod topology;
+mod validate;
+
+use std::fmt;
+use std::str::FromStr;
+
+pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
+pub use format::FrictionModel;
+pub use model::{Adjacency, BodyRange, Model, Springs, State};
+pub use scene::{
+    Body, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene, Simulation, SpringCounts,
+    SpringParams, Terrain, TerrainShape, TriangleMesh, rotation_from_degrees,
+};
+pub use solver::{Energies, Instability, Solver, Statistics, StepError};
+
+/// The time integrators, by the names scene files and the command line use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Integrator {
+    /// x' = x + h v, v' = v + h a(x, v).
+    ExplicitEuler,
+    /// v' = v + h a(x, v), x' = x + h v'.
+    SymplecticEuler,
+    /// The midpoint (RK2) method on (x, v).
+    Midpoint,
+    /// Classic fourth-order Runge–Kutta on (x, v).
+    Rk4,
+    /// Backward Euler, linearised once per step and solved by preconditioned CG.
+    ImplicitEuler,
+}
+
+impl Integrator {
+    /// Every integrator, in the order tables list them.
+    pub const ALL: [Integrator; 5] = [
+        Integrator::ExplicitEuler,
+        Integrator::SymplecticEuler,
+        Integrator::Midpoint,
+        Integrator::Rk4,
+        Integrator::ImplicitEuler,
+    ];
+
+    /// The name used in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Integrator::ExplicitEuler => "explicit-euler",
+            Integrator::SymplecticEuler => "symplectic-euler",
+            Integrator::Midpoint => "midpoint",
+            Integrator::Rk4 => "rk4",
+            Integrator::ImplicitEuler => "implicit-euler",
+        }
+    }
+}
+
+impl fmt::Display for Integrator {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Integrator {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Integrator::ALL.into_iter().find(|i| i.name() == s).ok_or_else(|| {
+            let names: Vec<_> = Integrator::ALL.iter().map(|i| i.name()).collect();
+            format!("unknown integrator `{s}`; expected one of {}", names.join(", "))
+        })
+    }
+}

@@ -1,0 +1,267 @@
+//! The model both solvers step: particles, springs and their CSR adjacency, bodies, terrain.
+//!
+//! A [`Model`] is immutable once built; the changing part is the [`State`] (positions and
+//! velocities). Springs are stored as a structure of arrays, and each particle's springs as one
+//! contiguous run of the adjacency (compressed sparse rows), so that per-particle force sums are
+//! gathers in a fixed order: the same bits whatever the thread count, and the scheme the GPU
+//! uses too, since WGSL has no float atomics.
+
+use glam::DVec3;
+
+use crate::scene::{BodyShape, Scene, Simulation, SpringCounts, Terrain};
+use crate::topology::{self, SpringKind};
+
+/// Most particles a scene may hold (indices are u32).
+pub const MAX_PARTICLES: u64 = u32::MAX as u64 - 1;
+/// Most springs a scene may hold (the adjacency stores `2·spring + side` in a u32).
+pub const MAX_SPRINGS: u64 = (u32::MAX >> 1) as u64;
+
+/// Upper estimate of what a solver holds per particle: state, mass, adjacency offsets and the
+/// largest integrator scratch (RK4 keeps four stage derivatives and a trial state).
+pub const BYTES_PER_PARTICLE: u64 = 512;
+/// Upper estimate per spring: topology, parameters, two adjacency entries, per-spring force and
+/// the implicit solver's Jacobian data.
+pub const BYTES_PER_SPRING: u64 = 144;
+
+/// Estimated bytes a solver needs for a scene of this size (saturating).
+pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
+    particles
+        .saturating_mul(BYTES_PER_PARTICLE)
+        .saturating_add(springs.saturating_mul(BYTES_PER_SPRING))
+}
+
+/// Memory available to this process, where the platform says (Linux: `MemAvailable`).
+pub fn available_memory() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Springs as a structure of arrays; spring s joins `a[s]` and `b[s]`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Springs {
+    /// First particle.
+    pub a: Vec<u32>,
+    /// Second particle.
+    pub b: Vec<u32>,
+    /// Rest length r, metres.
+    pub rest: Vec<f64>,
+    /// Stiffness k_s, N/m.
+    pub stiffness: Vec<f64>,
+    /// Damping k_d, N·s/m.
+    pub damping: Vec<f64>,
+}
+
+impl Springs {
+    /// Number of springs.
+    pub fn len(&self) -> usize {
+        self.a.len()
+    }
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.a.is_empty()
+    }
+    fn push(&mut self, a: u32, b: u32, rest: f64, stiffness: f64, damping: f64) {
+        self.a.push(a);
+        self.b.push(b);
+        self.rest.push(rest);
+        self.stiffness.push(stiffness);
+        self.damping.push(damping);
+    }
+}
+
+/// Each particle's springs in compressed sparse rows: particle i's entries are
+/// `entries[offsets[i]..offsets[i + 1]]`, each `2·s + side` with side 0 when i is `a[s]` (the
+/// spring force acts with a + sign) and 1 when i is `b[s]` (− sign), in ascending spring order.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Adjacency {
+    /// n + 1 offsets into `entries`.
+    pub offsets: Vec<u32>,
+    /// 2·springs entries.
+    pub entries: Vec<u32>,
+}
+
+impl Adjacency {
+    /// Builds the adjacency of `n` particles by a counting sort over the springs.
+    pub fn build(n: usize, springs: &Springs) -> Adjacency {
+        let mut offsets = vec![0u32; n + 1];
+        for (&a, &b) in springs.a.iter().zip(&springs.b) {
+            offsets[a as usize + 1] += 1;
+            offsets[b as usize + 1] += 1;
+        }
+        for i in 0..n {
+            offsets[i + 1] += offsets[i];
+        }
+        let mut next: Vec<u32> = offsets[..n].to_vec();
+        let mut entries = vec![0u32; 2 * springs.len()];
+        for (s, (&a, &b)) in springs.a.iter().zip(&springs.b).enumerate() {
+            for (p, side) in [(a, 0), (b, 1)] {
+                entries[next[p as usize] as usize] = 2 * s as u32 + side;
+                next[p as usize] += 1;
+            }
+        }
+        Adjacency { offsets, entries }
+    }
+
+    /// The entries of particle i.
+    pub fn of(&self, i: usize) -> &[u32] {
+        &self.entries[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+}
+
+/// Where a body's particles sit in the global arrays.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BodyRange {
+    /// The body's name.
+    pub name: String,
+    /// Index of its first particle.
+    pub first: u32,
+    /// Number of particles.
+    pub count: u32,
+}
+
+/// Positions and velocities: what a step changes.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct State {
+    /// x_i, metres.
+    pub x: Vec<DVec3>,
+    /// v_i, m/s.
+    pub v: Vec<DVec3>,
+}
+
+/// Everything about a scene that does not change during a run.
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// Time stepping and global forces.
+    pub simulation: Simulation,
+    /// m_i, kg.
+    pub mass: Vec<f64>,
+    /// 1/m_i, and 0 for pinned particles (so they never accelerate).
+    pub inv_mass: Vec<f64>,
+    /// All springs.
+    pub springs: Springs,
+    /// Each particle's springs.
+    pub adjacency: Adjacency,
+    /// Springs of each family.
+    pub spring_counts: SpringCounts,
+    /// Bodies in particle order.
+    pub bodies: Vec<BodyRange>,
+    /// Terrain shapes.
+    pub terrain: Vec<Terrain>,
+}
+
+impl Model {
+    /// Builds the model and its initial state from a validated scene. Pinned particles start at
+    /// rest whatever velocity the scene gives them: they never move.
+    pub fn build(scene: &Scene) -> (Model, State) {
+        let n = scene.particle_count() as usize;
+        let mut state = State {
+            x: Vec::with_capacity(n),
+            v: Vec::with_capacity(n),
+        };
+        let mut mass = Vec::with_capacity(n);
+        let mut springs = Springs::default();
+        let mut bodies = Vec::with_capacity(scene.bodies.len());
+        let mut pinned = vec![false; n];
+        for body in &scene.bodies {
+            let first = state.x.len() as u32;
+            match &body.shape {
+                BodyShape::Cuboid(c) => {
+                    let x = topology::cuboid_positions(c);
+                    let m = c.mass / x.len() as f64;
+                    state.v.extend(std::iter::repeat_n(c.velocity, x.len()));
+                    mass.extend(std::iter::repeat_n(m, x.len()));
+                    let params = |kind| match kind {
+                        SpringKind::Structural => c.structural,
+                        SpringKind::Shear => c.shear,
+                        SpringKind::Bending => c.bending,
+                    };
+                    topology::for_each_cuboid_spring(c.resolution, |a, b, kind| {
+                        if let Some(p) = params(kind) {
+                            let rest = x[a as usize].distance(x[b as usize]);
+                            springs.push(first + a, first + b, rest, p.stiffness, p.damping);
+                        }
+                    });
+                    state.x.extend(x);
+                }
+                BodyShape::Particles(p) => {
+                    state.x.extend(&p.positions);
+                    state.v.extend(&p.velocities);
+                    mass.extend(&p.masses);
+                    for s in &p.springs {
+                        let rest = s
+                            .rest
+                            .unwrap_or_else(|| p.positions[s.a as usize].distance(p.positions[s.b as usize]));
+                        springs.push(first + s.a, first + s.b, rest, s.stiffness, s.damping);
+                    }
+                }
+            }
+            let count = state.x.len() as u32 - first;
+            for &p in &body.pinned {
+                pinned[(first + p) as usize] = true;
+            }
+            bodies.push(BodyRange {
+                name: body.name.clone(),
+                first,
+                count,
+            });
+        }
+        let inv_mass = mass
+            .iter()
+            .zip(&pinned)
+            .map(|(&m, &p)| if p { 0.0 } else { 1.0 / m })
+            .collect();
+        for (v, &p) in state.v.iter_mut().zip(&pinned) {
+            if p {
+                *v = DVec3::ZERO;
+            }
+        }
+        let adjacency = Adjacency::build(n, &springs);
+        let model = Model {
+            simulation: scene.simulation,
+            mass,
+            inv_mass,
+            springs,
+            adjacency,
+            spring_counts: scene.spring_counts(),
+            bodies,
+            terrain: scene.terrain.clone(),
+        };
+        (model, state)
+    }
+
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.mass.len()
+    }
+
+    /// Whether the model has no particles.
+    pub fn is_empty(&self) -> bool {
+        self.mass.is_empty()
+    }
+
+    /// Whether particle i is pinned.
+    pub fn is_pinned(&self, i: usize) -> bool {
+        self.inv_mass[i] == 0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn adjacency_lists_every_spring_twice_in_order() {
+        let mut s = Springs::default();
+        for (a, b) in [(0, 1), (1, 2), (0, 2), (2, 3)] {
+            s.push(a, b, 1.0, 1.0, 0.0);
+        }
+        let adj = Adjacency::build(4, &s);
+        assert_eq!(adj.offsets, vec![0, 2, 4, 7, 8]);
+        assert_eq!(adj.of(0), &[0, 4]); // spring 0 side a, spring 2 side a
+        assert_eq!(adj.of(1), &[1, 2]); // spring 0 side b, spring 1 side a
+        assert_eq!(adj.of(2), &[3, 5, 6]);
+        assert_eq!(adj.of(3), &[7]);
+    }
+}

@@ -1,0 +1,557 @@
+//! The validated scene: what the solvers build a [`crate::Model`] from.
+//!
+//! A scene comes from a TOML file ([`Scene::from_file`]) or is built in code; either way
+//! [`Scene::validate`] runs the same checks, and reports each failure by the key path the file
+//! would use (`body[0].mass`), so a file's errors can be located on their line.
+
+use std::path::{Path, PathBuf};
+
+use glam::{DQuat, DVec3, EulerRot};
+
+use crate::error::{Invalid, KeyPath, SceneError};
+use crate::format::{BodyFile, BodyKind, FrictionModel, SceneFile, TerrainFile, TerrainKind};
+use crate::{Integrator, topology};
+
+/// `[simulation]`, validated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Simulation {
+    /// The time integrator.
+    pub integrator: Integrator,
+    /// Time step h, seconds.
+    pub dt: f64,
+    /// Simulated time, seconds; the run takes `round(duration / dt)` steps.
+    pub duration: f64,
+    /// Frames per simulated second; frame 0 is the initial state.
+    pub frame_rate: f64,
+    /// Gravitational acceleration, m/s².
+    pub gravity: DVec3,
+    /// Linear drag coefficient, 1/s: force `−drag·m·v`.
+    pub drag: f64,
+    /// Contact distance ε, metres: a particle closer than this to a surface is in contact.
+    pub contact_distance: f64,
+}
+
+impl Simulation {
+    /// Number of steps of the run: `round(duration / dt)`.
+    pub fn steps(&self) -> u64 {
+        (self.duration / self.dt).round() as u64
+    }
+
+    /// The step at which frame `k` is taken: `round(k / (frame_rate·dt))`.
+    pub fn frame_step(&self, k: u64) -> u64 {
+        (k as f64 / (self.frame_rate * self.dt)).round() as u64
+    }
+
+    /// Number of frames of the run: every `k` with `frame_step(k) <= steps()`.
+    pub fn frame_count(&self) -> u64 {
+        let steps = self.steps();
+        let mut k = (steps as f64 * self.frame_rate * self.dt).floor() as u64;
+        while self.frame_step(k + 1) <= steps {
+            k += 1;
+        }
+        while k > 0 && self.frame_step(k) > steps {
+            k -= 1;
+        }
+        k + 1
+    }
+}
+
+/// Stiffness and damping of one spring family.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpringParams {
+    /// k_s, N/m.
+    pub stiffness: f64,
+    /// k_d, N·s/m.
+    pub damping: f64,
+}
+
+/// A box of particles on a regular grid, joined by structural, shear and bending springs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cuboid {
+    /// Edge lengths, metres.
+    pub size: DVec3,
+    /// Particles per axis, each >= 2.
+    pub resolution: [u32; 3],
+    /// Centre of the box, metres.
+    pub center: DVec3,
+    /// Rotation, degrees about x, then y, then z (extrinsic).
+    pub rotation: DVec3,
+    /// Initial velocity of every particle, m/s.
+    pub velocity: DVec3,
+    /// Total mass, kg, spread evenly.
+    pub mass: f64,
+    /// Axis neighbours one cell apart; `None` leaves the family out.
+    pub structural: Option<SpringParams>,
+    /// Face and body diagonals of each cell.
+    pub shear: Option<SpringParams>,
+    /// Axis neighbours two cells apart.
+    pub bending: Option<SpringParams>,
+}
+
+/// One spring of a [`ParticleSet`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExplicitSpring {
+    /// First particle, index within the body.
+    pub a: u32,
+    /// Second particle, index within the body.
+    pub b: u32,
+    /// k_s, N/m.
+    pub stiffness: f64,
+    /// k_d, N·s/m.
+    pub damping: f64,
+    /// Rest length, metres; `None` takes the initial distance.
+    pub rest: Option<f64>,
+}
+
+/// Free particles and explicit springs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParticleSet {
+    /// Positions, metres.
+    pub positions: Vec<DVec3>,
+    /// Velocities, m/s (same length as positions).
+    pub velocities: Vec<DVec3>,
+    /// Masses, kg.
+    pub masses: Vec<f64>,
+    /// Springs between them.
+    pub springs: Vec<ExplicitSpring>,
+}
+
+/// What a body is made of.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BodyShape {
+    /// `kind = "cuboid"`.
+    Cuboid(Cuboid),
+    /// `kind = "particles"`.
+    Particles(ParticleSet),
+}
+
+/// One `[[body]]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Body {
+    /// Name, unique in the scene.
+    pub name: String,
+    /// Shape and springs.
+    pub shape: BodyShape,
+    /// Indices (within the body) of particles that never move.
+    pub pinned: Vec<u32>,
+}
+
+impl Body {
+    /// Number of particles, saturating (validation refuses scenes where it saturates).
+    pub fn particle_count(&self) -> u64 {
+        match &self.shape {
+            BodyShape::Cuboid(c) => c.resolution.iter().fold(1u64, |n, &r| n.saturating_mul(r as u64)),
+            BodyShape::Particles(p) => p.positions.len() as u64,
+        }
+    }
+
+    /// Number of springs of each family.
+    pub fn spring_counts(&self) -> SpringCounts {
+        match &self.shape {
+            BodyShape::Cuboid(c) => topology::cuboid_spring_counts(c),
+            BodyShape::Particles(p) => SpringCounts {
+                structural: p.springs.len() as u64,
+                ..SpringCounts::default()
+            },
+        }
+    }
+}
+
+/// Springs of each family; springs of `particles` bodies count as structural.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SpringCounts {
+    /// Axis neighbours one cell apart (and explicit springs).
+    pub structural: u64,
+    /// Cell diagonals.
+    pub shear: u64,
+    /// Axis neighbours two cells apart.
+    pub bending: u64,
+}
+
+impl SpringCounts {
+    /// All springs.
+    pub fn total(&self) -> u64 {
+        self.structural + self.shear + self.bending
+    }
+}
+
+impl std::ops::Add for SpringCounts {
+    type Output = SpringCounts;
+    fn add(self, o: SpringCounts) -> SpringCounts {
+        SpringCounts {
+            structural: self.structural + o.structural,
+            shear: self.shear + o.shear,
+            bending: self.bending + o.bending,
+        }
+    }
+}
+
+/// A regular grid of heights; cell (row r, column c) spans x in origin.x + c·cell_size[0] and
+/// z in origin.z + r·cell_size[1], height origin.y + heights[r][c].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Heightfield {
+    /// Rows (along z) of heights (along x), at least 2×2, all rows the same length.
+    pub heights: Vec<Vec<f64>>,
+    /// Grid spacing along x and z, metres.
+    pub cell_size: [f64; 2],
+    /// World position of `heights[0][0]` at height zero.
+    pub origin: DVec3,
+}
+
+/// A triangle mesh loaded from an OBJ file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TriangleMesh {
+    /// The file it came from.
+    pub path: PathBuf,
+    /// Vertices, metres.
+    pub vertices: Vec<DVec3>,
+    /// Triangles, counter-clockwise seen from outside (free space).
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// The geometry of one terrain shape.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TerrainShape {
+    /// The half-space below a plane through `point` with outward `normal` (unit length here).
+    Plane {
+        /// A point on the plane.
+        point: DVec3,
+        /// Unit outward normal.
+        normal: DVec3,
+    },
+    /// A solid oriented box.
+    Box {
+        /// Centre.
+        center: DVec3,
+        /// Half edge lengths.
+        half_extents: DVec3,
+        /// Rotation, degrees about x, then y, then z.
+        rotation: DVec3,
+    },
+    /// A solid ball.
+    Sphere {
+        /// Centre.
+        center: DVec3,
+        /// Radius.
+        radius: f64,
+    },
+    /// The inside of a sphere is free space; particles are kept inside.
+    Bowl {
+        /// Centre.
+        center: DVec3,
+        /// Radius.
+        radius: f64,
+    },
+    /// Terrain below a height grid.
+    Heightfield(Heightfield),
+    /// A triangle mesh; the side its normals point away from is solid.
+    Mesh(TriangleMesh),
+}
+
+/// One `[[terrain]]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Terrain {
+    /// Geometry.
+    pub shape: TerrainShape,
+    /// Coefficient of restitution k_r in [0, 1].
+    pub restitution: f64,
+    /// Friction coefficient (μ for Coulomb, k_f for viscous).
+    pub friction: f64,
+    /// Friction law.
+    pub friction_model: FrictionModel,
+}
+
+/// A complete, validated scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// Time stepping and global forces.
+    pub simulation: Simulation,
+    /// The bodies, in file order; their particles are numbered in this order.
+    pub bodies: Vec<Body>,
+    /// The terrain shapes, in file order.
+    pub terrain: Vec<Terrain>,
+}
+
+/// Rotation matrix for `[x, y, z]` degrees applied about x first, then y, then z.
+pub fn rotation_from_degrees(deg: DVec3) -> DQuat {
+    DQuat::from_euler(
+        EulerRot::ZYX,
+        deg.z.to_radians(),
+        deg.y.to_radians(),
+        deg.x.to_radians(),
+    )
+}
+
+impl Scene {
+    /// Reads, parses and validates a scene file. Mesh paths are relative to the file.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Scene::from_toml(&text, path)
+    }
+
+    /// Parses and validates scene text; `origin` names it in messages and anchors mesh paths.
+    pub fn from_toml(text: &str, origin: &Path) -> Result<Scene, SceneError> {
+        let file: SceneFile =
+            toml::from_str(text).map_err(|e| crate::error::from_toml(origin, text, &e))?;
+        let base = origin.parent().unwrap_or(Path::new("."));
+        let scene = convert(file, base).map_err(|e| e.locate(origin, text))?;
+        scene.validate().map_err(|e| e.locate(origin, text))?;
+        Ok(scene)
+    }
+
+    /// Total particle count (saturating).
+    pub fn particle_count(&self) -> u64 {
+        self.bodies.iter().fold(0u64, |n, b| n.saturating_add(b.particle_count()))
+    }
+
+    /// Springs of each family over all bodies.
+    pub fn spring_counts(&self) -> SpringCounts {
+        self.bodies
+            .iter()
+            .fold(SpringCounts::default(), |n, b| n + b.spring_counts())
+    }
+
+    /// Total mass, kg.
+    pub fn total_mass(&self) -> f64 {
+        self.bodies
+            .iter()
+            .map(|b| match &b.shape {
+                BodyShape::Cuboid(c) => c.mass,
+                BodyShape::Particles(p) => p.masses.iter().sum(),
+            })
+            .sum()
+    }
+
+    /// Checks every value; the error names the key the file would use.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        crate::validate::scene(self)
+    }
+}
+
+/// File structs → scene structs: each kind gets exactly its keys; meshes are loaded.
+fn convert(file: SceneFile, base: &Path) -> Result<Scene, Invalid> {
+    let s = file.simulation;
+    let simulation = Simulation {
+        integrator: s.integrator,
+        dt: s.dt,
+        duration: s.duration,
+        frame_rate: s.frame_rate,
+        gravity: s.gravity.into(),
+        drag: s.drag,
+        contact_distance: s.contact_distance,
+    };
+    let bodies = file
+        .bodies
+        .into_iter()
+        .enumerate()
+        .map(|(i, b)| convert_body(b, i, &KeyPath::root().key("body").index(i)))
+        .collect::<Result<_, _>>()?;
+    let terrain = file
+        .terrain
+        .into_iter()
+        .enumerate()
+        .map(|(i, t)| convert_terrain(t, base, &KeyPath::root().key("terrain").index(i)))
+        .collect::<Result<_, _>>()?;
+    Ok(Scene {
+        simulation,
+        bodies,
+        terrain,
+    })
+}
+
+/// Refuses keys that belong to another kind.
+fn forbid(at: &KeyPath, kind: &str, present: &[(&str, bool)]) -> Result<(), Invalid> {
+    match present.iter().find(|(_, p)| *p) {
+        Some((key, _)) => Err(Invalid::new(
+            at.key(key),
+            format!("`{key}` is not a key of a `{kind}`"),
+        )),
+        None => Ok(()),
+    }
+}
+
+fn require<T>(at: &KeyPath, kind: &str, key: &str, v: Option<T>) -> Result<T, Invalid> {
+    v.ok_or_else(|| Invalid::new(at.clone(), format!("a `{kind}` needs the key `{key}`")))
+}
+
+fn index(at: KeyPath, i: u64) -> Result<u32, Invalid> {
+    u32::try_from(i).map_err(|_| Invalid::new(at, format!("index {i} is out of range")))
+}
+
+fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
+    let name = b.name.unwrap_or_else(|| format!("body{i}"));
+    let pinned = b
+        .pinned
+        .iter()
+        .enumerate()
+        .map(|(j, &p)| index(at.key("pinned").index(j), p))
+        .collect::<Result<_, _>>()?;
+    let shape = match b.kind {
+        BodyKind::Cuboid => {
+            let k = "cuboid body";
+            forbid(
+                at,
+                k,
+                &[
+                    ("positions", b.positions.is_some()),
+                    ("velocities", b.velocities.is_some()),
+                    ("masses", b.masses.is_some()),
+                    ("springs", b.springs.is_some()),
+                ],
+            )?;
+            let res = require(at, k, "resolution", b.resolution)?;
+            let mut resolution = [0u32; 3];
+            for (axis, r) in res.iter().enumerate() {
+                resolution[axis] = u32::try_from(*r).map_err(|_| {
+                    Invalid::new(
+                        at.key("resolution").index(axis),
+                        format!("resolution {r} is far too large"),
+                    )
+                })?;
+            }
+            let spring = |s: Option<crate::format::SpringFile>| {
+                s.map(|s| SpringParams {
+                    stiffness: s.stiffness,
+                    damping: s.damping,
+                })
+            };
+            BodyShape::Cuboid(Cuboid {
+                size: require(at, k, "size", b.size)?.into(),
+                resolution,
+                center: b.center.unwrap_or_default().into(),
+                rotation: b.rotation.unwrap_or_default().into(),
+                velocity: b.velocity.unwrap_or_default().into(),
+                mass: require(at, k, "mass", b.mass)?,
+                structural: spring(b.structural),
+                shear: spring(b.shear),
+                bending: spring(b.bending),
+            })
+        }
+        BodyKind::Particles => {
+            let k = "particles body";
+            forbid(
+                at,
+                k,
+                &[
+                    ("size", b.size.is_some()),
+                    ("resolution", b.resolution.is_some()),
+                    ("center", b.center.is_some()),
+                    ("rotation", b.rotation.is_some()),
+                    ("velocity", b.velocity.is_some()),
+                    ("mass", b.mass.is_some()),
+                    ("structural", b.structural.is_some()),
+                    ("shear", b.shear.is_some()),
+                    ("bending", b.bending.is_some()),
+                ],
+            )?;
+            let positions: Vec<DVec3> = require(at, k, "positions", b.positions)?
+                .into_iter()
+                .map(DVec3::from)
+                .collect();
+            let velocities = match b.velocities {
+                Some(v) => v.into_iter().map(DVec3::from).collect(),
+                None => vec![DVec3::ZERO; positions.len()],
+            };
+            let springs = b
+                .springs
+                .unwrap_or_default()
+                .iter()
+                .enumerate()
+                .map(|(j, s)| {
+                    let sp = at.key("springs").index(j);
+                    Ok(ExplicitSpring {
+                        a: index(sp.key("a"), s.a)?,
+                        b: index(sp.key("b"), s.b)?,
+                        stiffness: s.stiffness,
+                        damping: s.damping,
+                        rest: s.rest,
+                    })
+                })
+                .collect::<Result<_, Invalid>>()?;
+            BodyShape::Particles(ParticleSet {
+                positions,
+                velocities,
+                masses: require(at, k, "masses", b.masses)?,
+                springs,
+            })
+        }
+    };
+    Ok(Body {
+        name,
+        shape,
+        pinned,
+    })
+}
+
+fn convert_terrain(t: TerrainFile, base: &Path, at: &KeyPath) -> Result<Terrain, Invalid> {
+    let has = |keys: &[&str]| -> Vec<(&'static str, bool)> {
+        let all: [(&'static str, bool); 10] = [
+            ("point", t.point.is_some()),
+            ("normal", t.normal.is_some()),
+            ("center", t.center.is_some()),
+            ("half_extents", t.half_extents.is_some()),
+            ("rotation", t.rotation.is_some()),
+            ("radius", t.radius.is_some()),
+            ("heights", t.heights.is_some()),
+            ("cell_size", t.cell_size.is_some()),
+            ("origin", t.origin.is_some()),
+            ("path", t.path.is_some()),
+        ];
+        all.into_iter().filter(|(k, _)| !keys.contains(k)).collect()
+    };
+    let shape = match t.kind {
+        TerrainKind::Plane => {
+            let k = "plane";
+            forbid(at, k, &has(&["point", "normal"]))?;
+            TerrainShape::Plane {
+                point: t.point.unwrap_or_default().into(),
+                normal: require(at, k, "normal", t.normal)?.into(),
+            }
+        }
+        TerrainKind::Box => {
+            let k = "box";
+            forbid(at, k, &has(&["center", "half_extents", "rotation"]))?;
+            TerrainShape::Box {
+                center: t.center.unwrap_or_default().into(),
+                half_extents: require(at, k, "half_extents", t.half_extents)?.into(),
+                rotation: t.rotation.unwrap_or_default().into(),
+            }
+        }
+        TerrainKind::Sphere | TerrainKind::Bowl => {
+            let k = if t.kind == TerrainKind::Sphere { "sphere" } else { "bowl" };
+            forbid(at, k, &has(&["center", "radius"]))?;
+            let center = t.center.unwrap_or_default().into();
+            let radius = require(at, k, "radius", t.radius)?;
+            if t.kind == TerrainKind::Sphere {
+                TerrainShape::Sphere { center, radius }
+            } else {
+                TerrainShape::Bowl { center, radius }
+            }
+        }
+        TerrainKind::Heightfield => {
+            let k = "heightfield";
+            forbid(at, k, &has(&["heights", "cell_size", "origin"]))?;
+            TerrainShape::Heightfield(Heightfield {
+                heights: require(at, k, "heights", t.heights)?,
+                cell_size: require(at, k, "cell_size", t.cell_size)?,
+                origin: t.origin.unwrap_or_default().into(),
+            })
+        }
+        TerrainKind::Mesh => {
+            let k = "mesh";
+            forbid(at, k, &has(&["path"]))?;
+            let rel = require(at, k, "path", t.path)?;
+            TerrainShape::Mesh(crate::mesh::load_obj(&base.join(&rel)).map_err(|m| Invalid::new(at.key("path"), m))?)
+        }
+    };
+    Ok(Terrain {
+        shape,
+        restitution: t.restitution,
+        friction: t.friction,
+        friction_model: t.friction_model,
+    })
+}

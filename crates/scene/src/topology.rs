@@ -1,0 +1,177 @@
+//! Spring topology of a cuboid body.
+//!
+//! Particle (i, j, k) has index `i + nx·(j + ny·k)` and sits on a regular grid spanning `size`,
+//! rotated, then centred. Springs join a particle p to p + o for each offset o below whose most
+//! significant non-zero component (k, then j, then i) is positive, so each pair appears once,
+//! with `a < b`:
+//! - structural: axis neighbours one cell apart (3 offsets);
+//! - shear: pairs inside one cell that differ in two coordinates (face diagonals, 6 offsets) or
+//!   three (body diagonals, 4 offsets);
+//! - bending: axis neighbours two cells apart (3 offsets).
+//!
+//! Springs come out in ascending `a`, each particle's in the offset order below.
+
+use glam::DVec3;
+
+use crate::scene::{Cuboid, SpringCounts, rotation_from_degrees};
+
+/// The three spring families.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SpringKind {
+    /// Axis neighbours one cell apart (and the explicit springs of `particles` bodies).
+    Structural,
+    /// Face and body diagonals of a cell.
+    Shear,
+    /// Axis neighbours two cells apart.
+    Bending,
+}
+
+/// Grid offsets (di, dj, dk) and the family each belongs to.
+pub const OFFSETS: [([i32; 3], SpringKind); 16] = {
+    use SpringKind::*;
+    [
+        ([1, 0, 0], Structural),
+        ([0, 1, 0], Structural),
+        ([0, 0, 1], Structural),
+        ([1, 1, 0], Shear),
+        ([-1, 1, 0], Shear),
+        ([1, 0, 1], Shear),
+        ([-1, 0, 1], Shear),
+        ([0, 1, 1], Shear),
+        ([0, -1, 1], Shear),
+        ([1, 1, 1], Shear),
+        ([-1, 1, 1], Shear),
+        ([1, -1, 1], Shear),
+        ([-1, -1, 1], Shear),
+        ([2, 0, 0], Bending),
+        ([0, 2, 0], Bending),
+        ([0, 0, 2], Bending),
+    ]
+};
+
+/// Initial particle positions of a cuboid, in index order.
+pub fn cuboid_positions(c: &Cuboid) -> Vec<DVec3> {
+    let [nx, ny, nz] = c.resolution.map(|r| r as usize);
+    let spacing = c.size / DVec3::new((nx - 1) as f64, (ny - 1) as f64, (nz - 1) as f64);
+    let rot = rotation_from_degrees(c.rotation);
+    let mut out = Vec::with_capacity(nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let local = DVec3::new(i as f64, j as f64, k as f64) * spacing - 0.5 * c.size;
+                out.push(c.center + rot * local);
+            }
+        }
+    }
+    out
+}
+
+/// Calls `f(a, b, kind)` for every spring of a grid of `resolution` particles, in order.
+pub fn for_each_cuboid_spring(resolution: [u32; 3], mut f: impl FnMut(u32, u32, SpringKind)) {
+    let [nx, ny, nz] = resolution.map(|r| r as i64);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let p = i + nx * (j + ny * k);
+                for ([di, dj, dk], kind) in OFFSETS {
+                    let (qi, qj, qk) = (i + di as i64, j + dj as i64, k + dk as i64);
+                    if (0..nx).contains(&qi) && (0..ny).contains(&qj) && (0..nz).contains(&qk) {
+                        f(p as u32, (qi + nx * (qj + ny * qk)) as u32, kind);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Springs of each family in a cuboid, by formula (no allocation: validation uses it to refuse
+/// scenes too large for memory). Families a body leaves out count zero.
+pub fn cuboid_spring_counts(c: &Cuboid) -> SpringCounts {
+    let counts = grid_spring_counts(c.resolution);
+    SpringCounts {
+        structural: if c.structural.is_some() { counts.structural } else { 0 },
+        shear: if c.shear.is_some() { counts.shear } else { 0 },
+        bending: if c.bending.is_some() { counts.bending } else { 0 },
+    }
+}
+
+/// Springs of each family on a full grid of `resolution` particles (saturating).
+pub fn grid_spring_counts(resolution: [u32; 3]) -> SpringCounts {
+    let n = resolution.map(|r| r as u64);
+    let m = |o: [i32; 3]| -> u64 {
+        (0..3).fold(1u64, |acc, a| acc.saturating_mul(n[a].saturating_sub(o[a].unsigned_abs() as u64)))
+    };
+    let mut counts = SpringCounts::default();
+    for (o, kind) in OFFSETS {
+        let slot = match kind {
+            SpringKind::Structural => &mut counts.structural,
+            SpringKind::Shear => &mut counts.shear,
+            SpringKind::Bending => &mut counts.bending,
+        };
+        *slot = slot.saturating_add(m(o));
+    }
+    counts
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn enumerate(res: [u32; 3]) -> (SpringCounts, Vec<(u32, u32)>) {
+        let mut c = SpringCounts::default();
+        let mut pairs = Vec::new();
+        for_each_cuboid_spring(res, |a, b, kind| {
+            pairs.push((a, b));
+            match kind {
+                SpringKind::Structural => c.structural += 1,
+                SpringKind::Shear => c.shear += 1,
+                SpringKind::Bending => c.bending += 1,
+            }
+        });
+        (c, pairs)
+    }
+
+    #[test]
+    fn counts_match_the_formula_and_the_peer_benchmark() {
+        // The peer benchmark's 10³ cube has 12,876 springs: 2,700 + 7,776 + 2,400.
+        let (c, _) = enumerate([10, 10, 10]);
+        assert_eq!((c.structural, c.shear, c.bending), (2700, 7776, 2400));
+        for res in [[2, 2, 2], [3, 4, 5], [2, 7, 3], [6, 2, 2]] {
+            assert_eq!(enumerate(res).0, grid_spring_counts(res), "{res:?}");
+        }
+    }
+
+    #[test]
+    fn a_single_cell_has_every_pair_once() {
+        // 8 corners, 28 pairs: 12 edges, 12 face diagonals, 4 body diagonals; no bending.
+        let (c, mut pairs) = enumerate([2, 2, 2]);
+        assert_eq!((c.structural, c.shear, c.bending), (12, 16, 0));
+        pairs.sort();
+        pairs.dedup();
+        assert_eq!(pairs.len(), 28);
+        assert!(pairs.iter().all(|(a, b)| a < b));
+    }
+
+    #[test]
+    fn grid_is_centred_rotated_and_indexed() {
+        let c = Cuboid {
+            size: DVec3::new(2.0, 1.0, 1.0),
+            resolution: [3, 2, 2],
+            center: DVec3::new(0.0, 5.0, 0.0),
+            rotation: DVec3::new(0.0, 0.0, 90.0),
+            velocity: DVec3::ZERO,
+            mass: 1.0,
+            structural: None,
+            shear: None,
+            bending: None,
+        };
+        let x = cuboid_positions(&c);
+        assert_eq!(x.len(), 12);
+        let mean = x.iter().sum::<DVec3>() / 12.0;
+        assert!((mean - c.center).length() < 1e-12);
+        // (i, j, k) = (2, 0, 0) is local (1, -0.5, -0.5); 90° about z maps (x, y) to (-y, x).
+        assert!((x[2] - DVec3::new(0.5, 6.0, -0.5)).length() < 1e-12, "{:?}", x[2]);
+        // index i + nx·(j + ny·k): (0, 1, 1) is 0 + 3·(1 + 2·1) = 9, local (-1, 0.5, 0.5).
+        assert!((x[9] - DVec3::new(-0.5, 4.0, 0.5)).length() < 1e-12, "{:?}", x[9]);
+    }
+}

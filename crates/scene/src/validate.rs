@@ -1,0 +1,296 @@
+//! Value checks on a [`Scene`]: every failure names the key a scene file would use.
+//!
+//! A scene that passes can be built and stepped without any further check: masses are positive,
+//! every index names a particle, no spring has zero length, every number is finite, and the
+//! whole scene fits in the memory this machine has (refused before anything is allocated).
+
+use glam::DVec3;
+
+use crate::error::{Invalid, KeyPath};
+use crate::scene::{BodyShape, Scene, SpringParams, TerrainShape};
+use crate::model;
+
+type Check = Result<(), Invalid>;
+
+fn finite(at: KeyPath, x: f64) -> Check {
+    if x.is_finite() {
+        Ok(())
+    } else {
+        Err(Invalid::new(at, format!("must be a finite number, not {x}")))
+    }
+}
+
+fn finite3(at: KeyPath, v: DVec3) -> Check {
+    for (i, x) in v.to_array().into_iter().enumerate() {
+        finite(at.index(i), x)?;
+    }
+    Ok(())
+}
+
+fn positive(at: KeyPath, x: f64) -> Check {
+    finite(at.clone(), x)?;
+    if x > 0.0 {
+        Ok(())
+    } else {
+        Err(Invalid::new(at, format!("must be greater than zero, not {x}")))
+    }
+}
+
+fn non_negative(at: KeyPath, x: f64) -> Check {
+    finite(at.clone(), x)?;
+    if x >= 0.0 {
+        Ok(())
+    } else {
+        Err(Invalid::new(at, format!("must not be negative, not {x}")))
+    }
+}
+
+fn spring_params(at: KeyPath, p: &SpringParams) -> Check {
+    non_negative(at.key("stiffness"), p.stiffness)?;
+    non_negative(at.key("damping"), p.damping)
+}
+
+pub(crate) fn scene(scene: &Scene) -> Check {
+    let sim = &scene.simulation;
+    let s = KeyPath::root().key("simulation");
+    positive(s.key("dt"), sim.dt)?;
+    non_negative(s.key("duration"), sim.duration)?;
+    positive(s.key("frame_rate"), sim.frame_rate)?;
+    finite3(s.key("gravity"), sim.gravity)?;
+    non_negative(s.key("drag"), sim.drag)?;
+    non_negative(s.key("contact_distance"), sim.contact_distance)?;
+    if sim.duration / sim.dt > 1e15 {
+        return Err(Invalid::new(
+            s.key("duration"),
+            format!("{} / dt = {:e} steps is more than can be run", sim.duration, sim.duration / sim.dt),
+        ));
+    }
+    if sim.frame_rate * sim.dt > 1.0 + 1e-9 {
+        return Err(Invalid::new(
+            s.key("frame_rate"),
+            format!(
+                "{} frames/s asks for more than one frame per step of dt = {} s (at most {})",
+                sim.frame_rate,
+                sim.dt,
+                1.0 / sim.dt
+            ),
+        ));
+    }
+
+    let mut names = std::collections::HashMap::new();
+    for (i, body) in scene.bodies.iter().enumerate() {
+        let at = KeyPath::root().key("body").index(i);
+        if body.name.is_empty() {
+            return Err(Invalid::new(at.key("name"), "must not be empty"));
+        }
+        if let Some(j) = names.insert(body.name.as_str(), i) {
+            return Err(Invalid::new(
+                at.key("name"),
+                format!("`{}` is already the name of body {j}", body.name),
+            ));
+        }
+        body_values(&at, &body.shape)?;
+        let count = body.particle_count();
+        for (j, &p) in body.pinned.iter().enumerate() {
+            if p as u64 >= count {
+                return Err(Invalid::new(
+                    at.key("pinned").index(j),
+                    format!("particle {p} does not exist: the body has {count} particles"),
+                ));
+            }
+        }
+    }
+
+    // Size limits before anything is allocated: indices are u32 (springs are stored as 2s+side in
+    // the adjacency), and the estimated footprint must fit in memory.
+    let particles = scene.particle_count();
+    let springs = scene.spring_counts().total();
+    let at_bodies = KeyPath::root().key("body");
+    if particles > model::MAX_PARTICLES {
+        return Err(Invalid::new(
+            at_bodies,
+            format!("{particles} particles is more than the {} supported", model::MAX_PARTICLES),
+        ));
+    }
+    if springs > model::MAX_SPRINGS {
+        return Err(Invalid::new(
+            at_bodies,
+            format!("{springs} springs is more than the {} supported", model::MAX_SPRINGS),
+        ));
+    }
+    let need = model::estimated_bytes(particles, springs);
+    if let Some(have) = model::available_memory() {
+        if need > have {
+            return Err(Invalid::new(
+                at_bodies,
+                format!(
+                    "the scene needs about {:.1} GiB ({particles} particles, {springs} springs) and this machine has {:.1} GiB available",
+                    need as f64 / (1u64 << 30) as f64,
+                    have as f64 / (1u64 << 30) as f64
+                ),
+            ));
+        }
+    }
+
+    for (i, t) in scene.terrain.iter().enumerate() {
+        let at = KeyPath::root().key("terrain").index(i);
+        finite(at.key("restitution"), t.restitution)?;
+        if !(0.0..=1.0).contains(&t.restitution) {
+            return Err(Invalid::new(
+                at.key("restitution"),
+                format!("must lie in [0, 1], not {}", t.restitution),
+            ));
+        }
+        non_negative(at.key("friction"), t.friction)?;
+        terrain_values(&at, &t.shape)?;
+    }
+    Ok(())
+}
+
+fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
+    match shape {
+        BodyShape::Cuboid(c) => {
+            for axis in 0..3 {
+                positive(at.key("size").index(axis), c.size[axis])?;
+                if c.resolution[axis] < 2 {
+                    return Err(Invalid::new(
+                        at.key("resolution").index(axis),
+                        format!("must be at least 2 particles per axis, not {}", c.resolution[axis]),
+                    ));
+                }
+            }
+            finite3(at.key("center"), c.center)?;
+            finite3(at.key("rotation"), c.rotation)?;
+            finite3(at.key("velocity"), c.velocity)?;
+            positive(at.key("mass"), c.mass)?;
+            for (key, p) in [("structural", &c.structural), ("shear", &c.shear), ("bending", &c.bending)] {
+                if let Some(p) = p {
+                    spring_params(at.key(key), p)?;
+                }
+            }
+        }
+        BodyShape::Particles(p) => {
+            if p.positions.is_empty() {
+                return Err(Invalid::new(at.key("positions"), "must hold at least one particle"));
+            }
+            let n = p.positions.len();
+            for (key, len) in [("velocities", p.velocities.len()), ("masses", p.masses.len())] {
+                if len != n {
+                    return Err(Invalid::new(
+                        at.key(key),
+                        format!("has {len} entries but `positions` has {n}"),
+                    ));
+                }
+            }
+            for (i, x) in p.positions.iter().enumerate() {
+                finite3(at.key("positions").index(i), *x)?;
+            }
+            for (i, v) in p.velocities.iter().enumerate() {
+                finite3(at.key("velocities").index(i), *v)?;
+            }
+            for (i, &m) in p.masses.iter().enumerate() {
+                positive(at.key("masses").index(i), m)?;
+            }
+            for (i, s) in p.springs.iter().enumerate() {
+                let sp = at.key("springs").index(i);
+                for (key, idx) in [("a", s.a), ("b", s.b)] {
+                    if idx as usize >= n {
+                        return Err(Invalid::new(
+                            sp.key(key),
+                            format!("particle {idx} does not exist: the body has {n} particles"),
+                        ));
+                    }
+                }
+                if s.a == s.b {
+                    return Err(Invalid::new(sp.key("b"), format!("a spring joins particle {} to itself", s.a)));
+                }
+                non_negative(sp.key("stiffness"), s.stiffness)?;
+                non_negative(sp.key("damping"), s.damping)?;
+                let length = p.positions[s.a as usize].distance(p.positions[s.b as usize]);
+                if length == 0.0 {
+                    return Err(Invalid::new(
+                        sp.clone(),
+                        format!("zero-length spring: particles {} and {} coincide", s.a, s.b),
+                    ));
+                }
+                if let Some(rest) = s.rest {
+                    positive(sp.key("rest"), rest)?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
+    match shape {
+        TerrainShape::Plane { point, normal } => {
+            finite3(at.key("point"), *point)?;
+            finite3(at.key("normal"), *normal)?;
+            if normal.length_squared() == 0.0 {
+                return Err(Invalid::new(at.key("normal"), "must not be the zero vector"));
+            }
+        }
+        TerrainShape::Box {
+            center,
+            half_extents,
+            rotation,
+        } => {
+            finite3(at.key("center"), *center)?;
+            finite3(at.key("rotation"), *rotation)?;
+            for axis in 0..3 {
+                positive(at.key("half_extents").index(axis), half_extents[axis])?;
+            }
+        }
+        TerrainShape::Sphere { center, radius } | TerrainShape::Bowl { center, radius } => {
+            finite3(at.key("center"), *center)?;
+            positive(at.key("radius"), *radius)?;
+        }
+        TerrainShape::Heightfield(h) => {
+            let rows = h.heights.len();
+            let cols = h.heights.first().map_or(0, Vec::len);
+            if rows < 2 || cols < 2 {
+                return Err(Invalid::new(
+                    at.key("heights"),
+                    format!("must be at least 2×2, not {rows}×{cols}"),
+                ));
+            }
+            for (r, row) in h.heights.iter().enumerate() {
+                if row.len() != cols {
+                    return Err(Invalid::new(
+                        at.key("heights").index(r),
+                        format!("has {} heights but row 0 has {cols}", row.len()),
+                    ));
+                }
+                for (c, &y) in row.iter().enumerate() {
+                    finite(at.key("heights").index(r).index(c), y)?;
+                }
+            }
+            positive(at.key("cell_size").index(0), h.cell_size[0])?;
+            positive(at.key("cell_size").index(1), h.cell_size[1])?;
+            finite3(at.key("origin"), h.origin)?;
+        }
+        TerrainShape::Mesh(m) => {
+            if m.triangles.is_empty() {
+                return Err(Invalid::new(
+                    at.key("path"),
+                    format!("{} holds no triangles", m.path.display()),
+                ));
+            }
+            if let Some(v) = m.vertices.iter().position(|v| !v.is_finite()) {
+                return Err(Invalid::new(
+                    at.key("path"),
+                    format!("{}: vertex {v} is not finite", m.path.display()),
+                ));
+            }
+            let n = m.vertices.len();
+            if let Some(t) = m.triangles.iter().position(|t| t.iter().any(|&i| i as usize >= n)) {
+                return Err(Invalid::new(
+                    at.key("path"),
+                    format!("{}: triangle {t} names a missing vertex", m.path.display()),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
