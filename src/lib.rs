@@ -1,1 +1,113 @@
+//! `softbody`: mass-spring soft bodies, simulated on the CPU (f64, rayon) or a GPU (wgpu).
+//!
+//! The crate ties the pieces together for programs that embed it and for the `softbody` CLI:
+//! load a [`Scene`], open a [`Solver`] on a [`Backend`], and [`run`](run::run) it frame by
+//! frame into a [`FrameSink`](output::FrameSink) (JSON Lines, CSV or NPZ).
+//!
+//! ```
+//! use softbody::{Backend, Scene, Solver};
+//! let scene = Scene::from_toml(r#"
+//!     [simulation]
+//!     integrator = "symplectic-euler"
+//!     dt = 0.001
+//!     duration = 0.5
+//!     [[body]]
+//!     kind = "cuboid"
+//!     size = [1.0, 1.0, 1.0]
+//!     resolution = [4, 4, 4]
+//!     center = [0.0, 1.0, 0.0]
+//!     mass = 1.0
+//!     structural = { stiffness = 500.0, damping = 1.0 }
+//!     shear = { stiffness = 500.0, damping = 1.0 }
+//!     [[terrain]]
+//!     kind = "plane"
+//!     normal = [0.0, 1.0, 0.0]
+//! "#, "inline.toml".as_ref()).unwrap();
+//! let mut solver = softbody::open(&scene, Backend::Cpu, None).unwrap();
+//! solver.advance(500).unwrap();
+//! let lowest = solver.state().unwrap().x.iter().map(|x| x.y).fold(f64::INFINITY, f64::min);
+//! assert!(lowest > -1e-9); // resting on the ground, not through it
+//! ```
+#![warn(missing_docs)]
 
+pub mod output;
+pub mod run;
+
+use std::fmt;
+use std::str::FromStr;
+
+/// The CPU solver crate.
+pub use softbody_cpu as cpu;
+pub use softbody_cpu::CpuSolver;
+/// The scene crate: format, validation, topology, model.
+pub use softbody_scene as scene;
+pub use softbody_scene::{
+    Energies, Instability, Integrator, Model, Scene, SceneError, Solver, State, Statistics,
+    StepError,
+};
+
+/// Which solver runs a scene.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Backend {
+    /// The CPU reference solver (f64).
+    #[default]
+    Cpu,
+}
+
+impl Backend {
+    /// The name used on the command line and in output headers.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Cpu => "cpu",
+        }
+    }
+}
+
+impl fmt::Display for Backend {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Backend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(Backend::Cpu),
+            _ => Err(format!("unknown backend `{s}`; expected `cpu`")),
+        }
+    }
+}
+
+/// Why a solver could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// The CPU thread pool could not be built.
+    #[error("cannot start {threads} CPU threads: {source}")]
+    Threads {
+        /// Threads asked for.
+        threads: usize,
+        /// Why.
+        source: softbody_cpu::ThreadPoolBuildError,
+    },
+}
+
+/// Builds the model of `scene` and opens a solver for it on `backend`; `threads` applies to
+/// the CPU (all cores when `None`).
+pub fn open(
+    scene: &Scene,
+    backend: Backend,
+    threads: Option<usize>,
+) -> Result<Box<dyn Solver>, OpenError> {
+    let (model, state) = Model::build(scene);
+    match backend {
+        Backend::Cpu => {
+            let solver =
+                CpuSolver::new(model, state, threads).map_err(|source| OpenError::Threads {
+                    threads: threads.unwrap_or(0),
+                    source,
+                })?;
+            Ok(Box::new(solver))
+        }
+    }
+}

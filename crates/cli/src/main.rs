@@ -1,1 +1,343 @@
-fn main() {}
+//! `softbody`: the command-line tool. Argument parsing, progress and output; the simulation
+//! itself lives in the `softbody` library.
+//!
+//! Exit status: 0 done; 1 the output could not be written; 2 bad input (scene file or
+//! arguments); 3 the simulation became unstable (the frames before it are written).
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use softbody::output::{self, Format};
+use softbody::run::RunError;
+use softbody::{Backend, Integrator, Model, Scene};
+
+/// Exit statuses (documented in the README).
+mod status {
+    pub const OUTPUT: u8 = 1;
+    pub const BAD_INPUT: u8 = 2;
+    pub const UNSTABLE: u8 = 3;
+}
+
+#[derive(Parser)]
+#[command(
+    name = "softbody",
+    version,
+    about = "Mass-spring soft bodies: run scenes, write frames"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scene and write its frames.
+    Run(RunArgs),
+    /// Validate a scene and describe it.
+    Check(CheckArgs),
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// The scene file (TOML).
+    scene: PathBuf,
+    /// Integrator: explicit-euler, symplectic-euler, midpoint, rk4 or implicit-euler.
+    #[arg(long)]
+    integrator: Option<Integrator>,
+    /// Time step, seconds.
+    #[arg(long, value_parser = positive)]
+    dt: Option<f64>,
+    /// Simulated time, seconds.
+    #[arg(long, value_parser = non_negative)]
+    duration: Option<f64>,
+    /// Frames per simulated second.
+    #[arg(long, value_parser = positive)]
+    fps: Option<f64>,
+    /// Output file; `-` writes to standard output. Default: out/<scene>.<format>.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Output format; default from the --out extension, else jsonl.
+    #[arg(long)]
+    format: Option<Format>,
+    /// CPU threads (default: all cores).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    threads: Option<u16>,
+    /// Solver backend.
+    #[arg(long, default_value = "cpu")]
+    backend: Backend,
+    /// No progress bar and no summary.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct CheckArgs {
+    /// The scene file (TOML).
+    scene: PathBuf,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+fn positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!("`{s}` is not a finite number greater than zero")),
+    }
+}
+
+fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
+        _ => Err(format!("`{s}` is not a finite number of at least zero")),
+    }
+}
+
+/// A failure with its exit status.
+struct Failure {
+    status: u8,
+    error: anyhow::Error,
+}
+
+impl<E: Into<anyhow::Error>> From<E> for Failure {
+    fn from(e: E) -> Self {
+        Failure {
+            status: status::OUTPUT,
+            error: e.into(),
+        }
+    }
+}
+
+fn bad_input(error: impl Into<anyhow::Error>) -> Failure {
+    Failure {
+        status: status::BAD_INPUT,
+        error: error.into(),
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Run(args) => run(args),
+        Command::Check(args) => check(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(f) => {
+            eprintln!("error: {:#}", f.error);
+            ExitCode::from(f.status)
+        }
+    }
+}
+
+fn load(path: &Path) -> Result<Scene, Failure> {
+    Scene::from_file(path).map_err(bad_input)
+}
+
+fn run(args: RunArgs) -> Result<(), Failure> {
+    let mut scene = load(&args.scene)?;
+    let sim = &mut scene.simulation;
+    if let Some(i) = args.integrator {
+        sim.integrator = i;
+    }
+    if let Some(dt) = args.dt {
+        sim.dt = dt;
+    }
+    if let Some(d) = args.duration {
+        sim.duration = d;
+    }
+    if let Some(fps) = args.fps {
+        sim.frame_rate = fps;
+    }
+    scene.validate().map_err(|e| {
+        bad_input(anyhow::anyhow!(
+            "{}: {}: {} (with the command-line overrides)",
+            args.scene.display(),
+            e.key,
+            e.message
+        ))
+    })?;
+
+    let format =
+        args.format
+            .unwrap_or_else(|| match args.out.as_ref().and_then(|p| p.extension()) {
+                Some(e) if e == "csv" => Format::Csv,
+                Some(e) if e == "npz" => Format::Npz,
+                _ => Format::Jsonl,
+            });
+    let to_stdout = args.out.as_deref() == Some(Path::new("-"));
+    let out_path = match &args.out {
+        Some(p) => p.clone(),
+        None => {
+            let stem = args
+                .scene
+                .file_stem()
+                .map_or("frames".into(), |s| s.to_string_lossy());
+            PathBuf::from("out").join(format!("{stem}.{}", format.extension()))
+        }
+    };
+
+    let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))?;
+
+    // Frames go to a temporary file beside the destination, renamed into place when the run
+    // ends (completed or stopped by an instability): a failed run leaves nothing half-written.
+    let (mut temp, writer): (Option<tempfile::NamedTempFile>, Box<dyn Write>) = if to_stdout {
+        (None, Box::new(std::io::stdout().lock()))
+    } else {
+        let dir = out_path
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let file = tempfile::NamedTempFile::new_in(dir)
+            .with_context(|| format!("cannot write in {}", dir.display()))?;
+        let handle = file.reopen()?;
+        (Some(file), Box::new(std::io::BufWriter::new(handle)))
+    };
+    let mut sink = output::sink(format, writer)?;
+
+    let show = !args.quiet && std::io::stderr().is_terminal();
+    let total = scene.simulation.steps();
+    let bar = if show {
+        let bar = indicatif::ProgressBar::new(total);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} steps, {per_sec}, ETA {eta}",
+            )
+            .expect("static template"),
+        );
+        bar
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let started = Instant::now();
+    let result = softbody::run::run(solver.as_mut(), sink.as_mut(), &mut |done, _| {
+        bar.set_position(done)
+    });
+    bar.finish_and_clear();
+    sink.finish().context("cannot write frames")?;
+    drop(sink);
+    if let Some(file) = temp.take() {
+        file.persist(&out_path)
+            .with_context(|| format!("cannot write {}", out_path.display()))?;
+    }
+    let where_ = if to_stdout {
+        "standard output".to_owned()
+    } else {
+        out_path.display().to_string()
+    };
+    let seconds = started.elapsed().as_secs_f64();
+    match result {
+        Ok(summary) => {
+            if !args.quiet {
+                eprintln!(
+                    "{} frames, {} steps of {} on {} in {seconds:.2} s ({:.0} steps/s): {where_}",
+                    summary.frames,
+                    summary.steps,
+                    scene.simulation.integrator,
+                    solver.device(),
+                    summary.steps as f64 / seconds.max(1e-9),
+                );
+            }
+            Ok(())
+        }
+        Err(RunError::Unstable(i)) => Err(Failure {
+            status: status::UNSTABLE,
+            error: anyhow::anyhow!("{i}\nthe frames before it are in {where_}"),
+        }),
+        Err(e) => Err(e.into()),
+    }
+}
+
+fn check(args: CheckArgs) -> Result<(), Failure> {
+    let scene = load(&args.scene)?;
+    let (model, _) = Model::build(&scene);
+    let counts = model.spring_counts;
+    let sim = &scene.simulation;
+    let stable_dt = model.stable_dt();
+    let terrain: Vec<&str> = scene
+        .terrain
+        .iter()
+        .map(|t| terrain_kind(&t.shape))
+        .collect();
+    if args.json {
+        let value = serde_json::json!({
+            "particles": model.len(),
+            "springs": {
+                "structural": counts.structural,
+                "shear": counts.shear,
+                "bending": counts.bending,
+                "total": counts.total(),
+            },
+            "total_mass": scene.total_mass(),
+            "stable_dt": stable_dt,
+            "bodies": model.bodies.iter().map(|b| serde_json::json!({"name": b.name, "first": b.first, "count": b.count})).collect::<Vec<_>>(),
+            "terrain": terrain,
+            "integrator": sim.integrator.name(),
+            "dt": sim.dt,
+            "steps": sim.steps(),
+            "frames": sim.frame_count(),
+        });
+        println!("{value}");
+        return Ok(());
+    }
+    println!("{}: valid", args.scene.display());
+    println!("  particles   {}", model.len());
+    for b in &model.bodies {
+        println!("    {:<10} {} particles from {}", b.name, b.count, b.first);
+    }
+    println!(
+        "  springs     {} ({} structural, {} shear, {} bending)",
+        counts.total(),
+        counts.structural,
+        counts.shear,
+        counts.bending
+    );
+    println!("  total mass  {} kg", scene.total_mass());
+    println!(
+        "  terrain     {}",
+        if terrain.is_empty() {
+            "none".to_owned()
+        } else {
+            terrain.join(", ")
+        }
+    );
+    println!(
+        "  integrator  {}, dt = {} s, {} steps, {} frames",
+        sim.integrator,
+        sim.dt,
+        sim.steps(),
+        sim.frame_count()
+    );
+    match stable_dt {
+        Some(h) => {
+            println!(
+                "  stable dt   about {h:.3e} s for the explicit integrators (implicit-euler: any)"
+            );
+            if sim.integrator != Integrator::ImplicitEuler && sim.dt > h {
+                println!(
+                    "  warning     dt = {} s is above it: expect this run to become unstable",
+                    sim.dt
+                );
+            }
+        }
+        None => println!("  stable dt   unlimited (no springs)"),
+    }
+    Ok(())
+}
+
+fn terrain_kind(shape: &softbody::scene::TerrainShape) -> &'static str {
+    use softbody::scene::TerrainShape::*;
+    match shape {
+        Plane { .. } => "plane",
+        Box { .. } => "box",
+        Sphere { .. } => "sphere",
+        Bowl { .. } => "bowl",
+        Heightfield(_) => "heightfield",
+        Mesh(_) => "mesh",
+    }
+}

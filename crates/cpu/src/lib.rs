@@ -1,0 +1,243 @@
+//! The CPU reference solver of `softbody`: f64 throughout, parallel with rayon, and the same bits
+//! for any thread count.
+//!
+//! The pipeline of one step reads top to bottom:
+//! [`spring_forces`] (one force per spring, gathered per particle) → [`forces`] (gravity, drag,
+//! springs, then [`contact`] and friction against each [`terrain`] surface) → an
+//! [`integrators`] step → [`collision_response`] (explicit family) → a finiteness check.
+//! Implicit Euler replaces the last four with a linearised backward-Euler solve that treats
+//! contacts as velocity constraints.
+//!
+//! ```
+//! use softbody_cpu::CpuSolver;
+//! use softbody_scene::{Model, Scene, Solver};
+//! let scene = Scene::from_toml(r#"
+//!     [simulation]
+//!     integrator = "rk4"
+//!     dt = 0.001
+//!     duration = 0.1
+//!     [[body]]
+//!     kind = "particles"
+//!     positions = [[0.0, 1.0, 0.0]]
+//!     masses = [1.0]
+//! "#, "inline.toml".as_ref()).unwrap();
+//! let (model, state) = Model::build(&scene);
+//! let mut solver = CpuSolver::new(model, state, Some(1)).unwrap();
+//! solver.advance(100).unwrap();
+//! let y = solver.state().unwrap().x[0].y;
+//! assert!((y - (1.0 - 0.5 * 9.81 * 0.1 * 0.1)).abs() < 1e-12); // RK4 is exact for free fall
+//! ```
+#![warn(missing_docs)]
+
+pub mod collision_response;
+pub mod contact;
+pub mod energy;
+pub mod forces;
+pub mod integrators;
+pub mod reduce;
+pub mod spring_forces;
+pub mod terrain;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use softbody_scene::{
+    Energies, Instability, Integrator, Model, Solver, State, Statistics, StepError,
+};
+
+pub use rayon::ThreadPoolBuildError;
+
+use crate::terrain::Surface;
+
+/// The model, its terrain surfaces, and the scratch a step needs (allocated once).
+pub struct Workspace {
+    /// The model being stepped.
+    pub model: Model,
+    /// One query object per terrain shape.
+    pub surfaces: Vec<Surface>,
+    /// Force on `a` of each spring.
+    per_spring: Vec<DVec3>,
+    /// Accelerations of the last evaluation.
+    a: Vec<DVec3>,
+    /// Stage state of the multi-stage methods.
+    stage_x: Vec<DVec3>,
+    stage_v: Vec<DVec3>,
+    /// RK4's running weighted sums.
+    sum_x: Vec<DVec3>,
+    sum_v: Vec<DVec3>,
+    /// Implicit Euler's solver state.
+    implicit: Option<integrators::implicit_euler::Implicit>,
+}
+
+impl Workspace {
+    /// Builds the terrain surfaces and sizes the scratch for the model's integrator.
+    pub fn new(model: Model) -> Workspace {
+        let n = model.len();
+        let surfaces = model.terrain.iter().map(Surface::new).collect();
+        let zeros = |len: usize| vec![DVec3::ZERO; len];
+        let integrator = model.simulation.integrator;
+        let multi_stage = matches!(integrator, Integrator::Midpoint | Integrator::Rk4);
+        let rk4 = integrator == Integrator::Rk4;
+        let implicit = (integrator == Integrator::ImplicitEuler)
+            .then(|| integrators::implicit_euler::Implicit::new(&model));
+        Workspace {
+            per_spring: zeros(if implicit.is_some() {
+                0
+            } else {
+                model.springs.len()
+            }),
+            a: zeros(if implicit.is_some() { 0 } else { n }),
+            stage_x: zeros(if multi_stage { n } else { 0 }),
+            stage_v: zeros(if multi_stage { n } else { 0 }),
+            sum_x: zeros(if rk4 { n } else { 0 }),
+            sum_v: zeros(if rk4 { n } else { 0 }),
+            implicit,
+            surfaces,
+            model,
+        }
+    }
+
+    /// Evaluates a(x, v) into the workspace's acceleration buffer.
+    fn accelerations(&mut self, x: &[DVec3], v: &[DVec3]) {
+        forces::accelerations(
+            &self.model,
+            &self.surfaces,
+            x,
+            v,
+            &mut self.per_spring,
+            &mut self.a,
+        );
+    }
+
+    /// Advances `state` by one step of the model's integrator.
+    pub fn step(&mut self, state: &mut State) {
+        match self.model.simulation.integrator {
+            Integrator::ExplicitEuler => integrators::explicit_euler::step(self, state),
+            Integrator::SymplecticEuler => integrators::symplectic_euler::step(self, state),
+            Integrator::Midpoint => integrators::midpoint::step(self, state),
+            Integrator::Rk4 => integrators::rk4::step(self, state),
+            Integrator::ImplicitEuler => {
+                let mut implicit = self
+                    .implicit
+                    .take()
+                    .expect("sized for implicit-euler in Workspace::new");
+                implicit.step(&self.model, &self.surfaces, state);
+                self.implicit = Some(implicit);
+                return;
+            }
+        }
+        collision_response::respond(&self.model, &self.surfaces, &mut state.x, &mut state.v);
+    }
+}
+
+/// The first particle with a non-finite position or velocity, and which it is.
+pub fn first_non_finite(state: &State) -> Option<(usize, &'static str)> {
+    let i = state
+        .x
+        .par_iter()
+        .zip(state.v.par_iter())
+        .with_min_len(forces::PARTICLE_CHUNK)
+        .position_first(|(x, v)| !x.is_finite() || !v.is_finite())?;
+    Some((
+        i,
+        if state.x[i].is_finite() {
+            "has a non-finite velocity"
+        } else {
+            "has a non-finite position"
+        },
+    ))
+}
+
+/// The CPU backend: a [`Workspace`], the state, and a rayon pool of a fixed size.
+pub struct CpuSolver {
+    ws: Workspace,
+    state: State,
+    pool: rayon::ThreadPool,
+    threads: usize,
+    steps: u64,
+}
+
+impl CpuSolver {
+    /// A solver for `model` starting from `state`, on `threads` threads (all cores if `None`).
+    pub fn new(
+        model: Model,
+        state: State,
+        threads: Option<usize>,
+    ) -> Result<CpuSolver, rayon::ThreadPoolBuildError> {
+        let threads =
+            threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()?;
+        let ws = pool.install(|| Workspace::new(model));
+        Ok(CpuSolver {
+            ws,
+            state,
+            pool,
+            threads,
+            steps: 0,
+        })
+    }
+}
+
+impl Solver for CpuSolver {
+    fn backend(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn device(&self) -> String {
+        format!(
+            "CPU, {} thread{}",
+            self.threads,
+            if self.threads == 1 { "" } else { "s" }
+        )
+    }
+
+    fn model(&self) -> &Model {
+        &self.ws.model
+    }
+
+    fn advance(&mut self, steps: u64) -> Result<(), StepError> {
+        let (ws, state) = (&mut self.ws, &mut self.state);
+        let dt = ws.model.simulation.dt;
+        let done = &mut self.steps;
+        self.pool.install(|| {
+            for _ in 0..steps {
+                ws.step(state);
+                *done += 1;
+                if let Some((i, what)) = first_non_finite(state) {
+                    return Err(StepError::Unstable(Instability {
+                        step: *done,
+                        time: *done as f64 * dt,
+                        particle: i as u32,
+                        what: what.to_owned(),
+                    }));
+                }
+            }
+            Ok(())
+        })
+    }
+
+    fn steps_taken(&self) -> u64 {
+        self.steps
+    }
+
+    fn state(&mut self) -> Result<&State, StepError> {
+        Ok(&self.state)
+    }
+
+    fn energies(&mut self) -> Result<Energies, StepError> {
+        let (model, state) = (&self.ws.model, &self.state);
+        Ok(self.pool.install(|| energy::energies(model, state)))
+    }
+
+    fn statistics(&self) -> Statistics {
+        let mut s = self
+            .ws
+            .implicit
+            .as_ref()
+            .map(|i| i.statistics)
+            .unwrap_or_default();
+        s.steps = self.steps;
+        s
+    }
+}

@@ -150,11 +150,20 @@ impl Invalid {
 
 /// Turns a serde/TOML error into a located [`SceneError`].
 pub(crate) fn from_toml(file: &Path, text: &str, err: &toml::de::Error) -> SceneError {
-    let key = err.span().map(|s| key_at(text, s.start)).unwrap_or_default();
+    let key = err
+        .span()
+        .map(|s| key_at(text, s.start))
+        .unwrap_or_default();
     diagnostic(file, text, err.span(), key, err.message().trim().to_owned())
 }
 
-fn diagnostic(file: &Path, text: &str, span: Option<Range<usize>>, key: KeyPath, message: String) -> SceneError {
+fn diagnostic(
+    file: &Path,
+    text: &str,
+    span: Option<Range<usize>>,
+    key: KeyPath,
+    message: String,
+) -> SceneError {
     let (line, column, source_line) = match span {
         Some(s) => line_col(text, s.start),
         None => (0, 0, String::new()),
@@ -177,7 +186,11 @@ fn line_col(text: &str, offset: usize) -> (usize, usize, String) {
     let start = before.rfind('\n').map_or(0, |i| i + 1);
     let column = text[start..offset].chars().count() + 1;
     let end = text[start..].find('\n').map_or(text.len(), |i| start + i);
-    (line, column, text[start..end].trim_end_matches('\r').to_owned())
+    (
+        line,
+        column,
+        text[start..end].trim_end_matches('\r').to_owned(),
+    )
 }
 
 /// The span of the value at `key`, or of the deepest existing table on its way (a missing key is

@@ -5,7 +5,10 @@
 //! the source spans, and precise line numbers are part of the contract. [`crate::validate`] checks
 //! that each `kind` gets exactly the keys it needs.
 
-#![allow(missing_docs, reason = "the fields are the TOML keys, documented in docs/scene-format.md")]
+#![allow(
+    missing_docs,
+    reason = "the fields are the TOML keys, documented in docs/scene-format.md"
+)]
 
 use serde::Deserialize;
 

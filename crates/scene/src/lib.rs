@@ -37,8 +37,8 @@ pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
 pub use format::FrictionModel;
 pub use model::{Adjacency, BodyRange, Model, Springs, State};
 pub use scene::{
-    Body, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene, Simulation, SpringCounts,
-    SpringParams, Terrain, TerrainShape, TriangleMesh, rotation_from_degrees,
+    Body, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene, Simulation,
+    SpringCounts, SpringParams, Terrain, TerrainShape, TriangleMesh, rotation_from_degrees,
 };
 pub use solver::{Energies, Instability, Solver, Statistics, StepError};
 
@@ -89,9 +89,15 @@ impl fmt::Display for Integrator {
 impl FromStr for Integrator {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Integrator::ALL.into_iter().find(|i| i.name() == s).ok_or_else(|| {
-            let names: Vec<_> = Integrator::ALL.iter().map(|i| i.name()).collect();
-            format!("unknown integrator `{s}`; expected one of {}", names.join(", "))
-        })
+        Integrator::ALL
+            .into_iter()
+            .find(|i| i.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = Integrator::ALL.iter().map(|i| i.name()).collect();
+                format!(
+                    "unknown integrator `{s}`; expected one of {}",
+                    names.join(", ")
+                )
+            })
     }
 }

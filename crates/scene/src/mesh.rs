@@ -24,8 +24,16 @@ pub fn load_obj(path: &Path) -> Result<TriangleMesh, String> {
     for model in models {
         let base = vertices.len() as u32;
         let m = model.mesh;
-        vertices.extend(m.positions.chunks_exact(3).map(|p| DVec3::new(p[0], p[1], p[2])));
-        triangles.extend(m.indices.chunks_exact(3).map(|t| [base + t[0], base + t[1], base + t[2]]));
+        vertices.extend(
+            m.positions
+                .chunks_exact(3)
+                .map(|p| DVec3::new(p[0], p[1], p[2])),
+        );
+        triangles.extend(
+            m.indices
+                .chunks_exact(3)
+                .map(|t| [base + t[0], base + t[1], base + t[2]]),
+        );
     }
     Ok(TriangleMesh {
         path: path.to_owned(),

@@ -140,7 +140,10 @@ impl Body {
     /// Number of particles, saturating (validation refuses scenes where it saturates).
     pub fn particle_count(&self) -> u64 {
         match &self.shape {
-            BodyShape::Cuboid(c) => c.resolution.iter().fold(1u64, |n, &r| n.saturating_mul(r as u64)),
+            BodyShape::Cuboid(c) => c
+                .resolution
+                .iter()
+                .fold(1u64, |n, &r| n.saturating_mul(r as u64)),
             BodyShape::Particles(p) => p.positions.len() as u64,
         }
     }
@@ -305,7 +308,9 @@ impl Scene {
 
     /// Total particle count (saturating).
     pub fn particle_count(&self) -> u64 {
-        self.bodies.iter().fold(0u64, |n, b| n.saturating_add(b.particle_count()))
+        self.bodies
+            .iter()
+            .fold(0u64, |n, b| n.saturating_add(b.particle_count()))
     }
 
     /// Springs of each family over all bodies.
@@ -522,7 +527,11 @@ fn convert_terrain(t: TerrainFile, base: &Path, at: &KeyPath) -> Result<Terrain,
             }
         }
         TerrainKind::Sphere | TerrainKind::Bowl => {
-            let k = if t.kind == TerrainKind::Sphere { "sphere" } else { "bowl" };
+            let k = if t.kind == TerrainKind::Sphere {
+                "sphere"
+            } else {
+                "bowl"
+            };
             forbid(at, k, &has(&["center", "radius"]))?;
             let center = t.center.unwrap_or_default().into();
             let radius = require(at, k, "radius", t.radius)?;
@@ -545,7 +554,10 @@ fn convert_terrain(t: TerrainFile, base: &Path, at: &KeyPath) -> Result<Terrain,
             let k = "mesh";
             forbid(at, k, &has(&["path"]))?;
             let rel = require(at, k, "path", t.path)?;
-            TerrainShape::Mesh(crate::mesh::load_obj(&base.join(&rel)).map_err(|m| Invalid::new(at.key("path"), m))?)
+            TerrainShape::Mesh(
+                crate::mesh::load_obj(&base.join(&rel))
+                    .map_err(|m| Invalid::new(at.key("path"), m))?,
+            )
         }
     };
     Ok(Terrain {

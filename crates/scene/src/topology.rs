@@ -89,9 +89,17 @@ pub fn for_each_cuboid_spring(resolution: [u32; 3], mut f: impl FnMut(u32, u32, 
 pub fn cuboid_spring_counts(c: &Cuboid) -> SpringCounts {
     let counts = grid_spring_counts(c.resolution);
     SpringCounts {
-        structural: if c.structural.is_some() { counts.structural } else { 0 },
+        structural: if c.structural.is_some() {
+            counts.structural
+        } else {
+            0
+        },
         shear: if c.shear.is_some() { counts.shear } else { 0 },
-        bending: if c.bending.is_some() { counts.bending } else { 0 },
+        bending: if c.bending.is_some() {
+            counts.bending
+        } else {
+            0
+        },
     }
 }
 
@@ -99,7 +107,9 @@ pub fn cuboid_spring_counts(c: &Cuboid) -> SpringCounts {
 pub fn grid_spring_counts(resolution: [u32; 3]) -> SpringCounts {
     let n = resolution.map(|r| r as u64);
     let m = |o: [i32; 3]| -> u64 {
-        (0..3).fold(1u64, |acc, a| acc.saturating_mul(n[a].saturating_sub(o[a].unsigned_abs() as u64)))
+        (0..3).fold(1u64, |acc, a| {
+            acc.saturating_mul(n[a].saturating_sub(o[a].unsigned_abs() as u64))
+        })
     };
     let mut counts = SpringCounts::default();
     for (o, kind) in OFFSETS {
@@ -170,8 +180,16 @@ mod tests {
         let mean = x.iter().sum::<DVec3>() / 12.0;
         assert!((mean - c.center).length() < 1e-12);
         // (i, j, k) = (2, 0, 0) is local (1, -0.5, -0.5); 90° about z maps (x, y) to (-y, x).
-        assert!((x[2] - DVec3::new(0.5, 6.0, -0.5)).length() < 1e-12, "{:?}", x[2]);
+        assert!(
+            (x[2] - DVec3::new(0.5, 6.0, -0.5)).length() < 1e-12,
+            "{:?}",
+            x[2]
+        );
         // index i + nx·(j + ny·k): (0, 1, 1) is 0 + 3·(1 + 2·1) = 9, local (-1, 0.5, 0.5).
-        assert!((x[9] - DVec3::new(-0.5, 4.0, 0.5)).length() < 1e-12, "{:?}", x[9]);
+        assert!(
+            (x[9] - DVec3::new(-0.5, 4.0, 0.5)).length() < 1e-12,
+            "{:?}",
+            x[9]
+        );
     }
 }

@@ -7,8 +7,8 @@
 use glam::DVec3;
 
 use crate::error::{Invalid, KeyPath};
-use crate::scene::{BodyShape, Scene, SpringParams, TerrainShape};
 use crate::model;
+use crate::scene::{BodyShape, Scene, SpringParams, TerrainShape};
 
 type Check = Result<(), Invalid>;
 
@@ -16,7 +16,10 @@ fn finite(at: KeyPath, x: f64) -> Check {
     if x.is_finite() {
         Ok(())
     } else {
-        Err(Invalid::new(at, format!("must be a finite number, not {x}")))
+        Err(Invalid::new(
+            at,
+            format!("must be a finite number, not {x}"),
+        ))
     }
 }
 
@@ -32,7 +35,10 @@ fn positive(at: KeyPath, x: f64) -> Check {
     if x > 0.0 {
         Ok(())
     } else {
-        Err(Invalid::new(at, format!("must be greater than zero, not {x}")))
+        Err(Invalid::new(
+            at,
+            format!("must be greater than zero, not {x}"),
+        ))
     }
 }
 
@@ -62,7 +68,11 @@ pub(crate) fn scene(scene: &Scene) -> Check {
     if sim.duration / sim.dt > 1e15 {
         return Err(Invalid::new(
             s.key("duration"),
-            format!("{} / dt = {:e} steps is more than can be run", sim.duration, sim.duration / sim.dt),
+            format!(
+                "{} / dt = {:e} steps is more than can be run",
+                sim.duration,
+                sim.duration / sim.dt
+            ),
         ));
     }
     if sim.frame_rate * sim.dt > 1.0 + 1e-9 {
@@ -109,13 +119,19 @@ pub(crate) fn scene(scene: &Scene) -> Check {
     if particles > model::MAX_PARTICLES {
         return Err(Invalid::new(
             at_bodies,
-            format!("{particles} particles is more than the {} supported", model::MAX_PARTICLES),
+            format!(
+                "{particles} particles is more than the {} supported",
+                model::MAX_PARTICLES
+            ),
         ));
     }
     if springs > model::MAX_SPRINGS {
         return Err(Invalid::new(
             at_bodies,
-            format!("{springs} springs is more than the {} supported", model::MAX_SPRINGS),
+            format!(
+                "{springs} springs is more than the {} supported",
+                model::MAX_SPRINGS
+            ),
         ));
     }
     let need = model::estimated_bytes(particles, springs);
@@ -155,7 +171,10 @@ fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
                 if c.resolution[axis] < 2 {
                     return Err(Invalid::new(
                         at.key("resolution").index(axis),
-                        format!("must be at least 2 particles per axis, not {}", c.resolution[axis]),
+                        format!(
+                            "must be at least 2 particles per axis, not {}",
+                            c.resolution[axis]
+                        ),
                     ));
                 }
             }
@@ -163,7 +182,11 @@ fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
             finite3(at.key("rotation"), c.rotation)?;
             finite3(at.key("velocity"), c.velocity)?;
             positive(at.key("mass"), c.mass)?;
-            for (key, p) in [("structural", &c.structural), ("shear", &c.shear), ("bending", &c.bending)] {
+            for (key, p) in [
+                ("structural", &c.structural),
+                ("shear", &c.shear),
+                ("bending", &c.bending),
+            ] {
                 if let Some(p) = p {
                     spring_params(at.key(key), p)?;
                 }
@@ -171,10 +194,16 @@ fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
         }
         BodyShape::Particles(p) => {
             if p.positions.is_empty() {
-                return Err(Invalid::new(at.key("positions"), "must hold at least one particle"));
+                return Err(Invalid::new(
+                    at.key("positions"),
+                    "must hold at least one particle",
+                ));
             }
             let n = p.positions.len();
-            for (key, len) in [("velocities", p.velocities.len()), ("masses", p.masses.len())] {
+            for (key, len) in [
+                ("velocities", p.velocities.len()),
+                ("masses", p.masses.len()),
+            ] {
                 if len != n {
                     return Err(Invalid::new(
                         at.key(key),
@@ -202,7 +231,10 @@ fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
                     }
                 }
                 if s.a == s.b {
-                    return Err(Invalid::new(sp.key("b"), format!("a spring joins particle {} to itself", s.a)));
+                    return Err(Invalid::new(
+                        sp.key("b"),
+                        format!("a spring joins particle {} to itself", s.a),
+                    ));
                 }
                 non_negative(sp.key("stiffness"), s.stiffness)?;
                 non_negative(sp.key("damping"), s.damping)?;
@@ -228,7 +260,10 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
             finite3(at.key("point"), *point)?;
             finite3(at.key("normal"), *normal)?;
             if normal.length_squared() == 0.0 {
-                return Err(Invalid::new(at.key("normal"), "must not be the zero vector"));
+                return Err(Invalid::new(
+                    at.key("normal"),
+                    "must not be the zero vector",
+                ));
             }
         }
         TerrainShape::Box {
@@ -284,7 +319,11 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
                 ));
             }
             let n = m.vertices.len();
-            if let Some(t) = m.triangles.iter().position(|t| t.iter().any(|&i| i as usize >= n)) {
+            if let Some(t) = m
+                .triangles
+                .iter()
+                .position(|t| t.iter().any(|&i| i as usize >= n))
+            {
                 return Err(Invalid::new(
                     at.key("path"),
                     format!("{}: triangle {t} names a missing vertex", m.path.display()),

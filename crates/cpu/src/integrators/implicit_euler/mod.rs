@@ -1,0 +1,385 @@
+//! Implicit (backward) Euler, linearised once per step:
+//!
+//! (M − h ∂f/∂v − h² ∂f/∂x) Δv = h (f + h ∂f/∂x v),  v' = v + Δv,  x' = x + h v',
+//!
+//! solved matrix-free by filtered, block-Jacobi-preconditioned CG ([`cg`], [`system`]) to a
+//! relative residual of [`CG_TOLERANCE`] or at most [`CG_MAX_ITERATIONS`] iterations, warm
+//! started from the previous step's Δv.
+//!
+//! Contact and friction live inside the solve, as velocity constraints (Baraff and Witkin's
+//! constraint filtering), because explicit contact forces or position projections pump energy
+//! into a stiff body at large steps. A particle that reaches a surface within the step
+//! (φ + h v·N < ε, the surface with the smallest such value) becomes a contact with a target
+//! normal velocity v_n' = −φ/h, which lands it on the surface without moving positions, plus
+//! k_r times its approach speed on a fresh impact (restitution). A contact either
+//! - sticks: all of Δv is prescribed, v' = v_n' N; or
+//! - slips: only the normal component is prescribed, and kinetic friction enters the
+//!   right-hand side as an impulse μλ_n against the slip (viscous: −k_f λ_n v_t, capped so it
+//!   never reverses the slip), λ_n being the contact's normal impulse.
+//!
+//! An active set decides, from the constraint impulses λ = A Δv − rhs of each solve: a contact
+//! that pulls (λ_n < 0) is released; a sticking contact whose tangential impulse leaves the
+//! Coulomb cone (|λ_t| > μλ_n) slips, with friction along λ_t; a slipping contact whose slip
+//! reverses sticks (once per step, which rules out cycles); a free candidate that would end
+//! the step inside a surface becomes a contact; a slipping contact's friction follows its
+//! updated λ_n. At most [`ACTIVE_SET_ROUNDS`] solves per step. Pinned particles are fixed
+//! constraints with Δv = 0. One contact per particle: where a particle touches two surfaces at
+//! once (an inner corner), the one it reaches first within the step is constrained.
+//!
+//! With no springs and no contact this is v' = v + h g, x' = x + h v': symplectic Euler's
+//! free fall. On the same contact laws as the explicit integrators' ([`crate::contact`]): a
+//! sliding particle decelerates at μ|g_n|, and a particle on a slope shallower than atan μ
+//! sticks.
+
+pub mod cg;
+pub mod system;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use softbody_scene::{FrictionModel, Model, State, Statistics};
+
+use self::cg::{Constraint, Scratch};
+use self::system::System;
+use crate::forces::PARTICLE_CHUNK;
+use crate::terrain::Surface;
+
+/// CG stops when the preconditioned residual is this fraction of the right-hand side's.
+pub const CG_TOLERANCE: f64 = 1e-8;
+/// CG stops after this many iterations whatever the residual (counted in the statistics).
+pub const CG_MAX_ITERATIONS: u32 = 2000;
+/// Solves per step at most while the contact active set changes.
+pub const ACTIVE_SET_ROUNDS: u32 = 8;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    Inactive,
+    Stick,
+    Slip,
+}
+
+/// A particle near a surface this step.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    particle: u32,
+    surface: u32,
+    phi: f64,
+    normal: DVec3,
+    mode: Mode,
+    /// Target normal velocity at the end of the step.
+    vn_target: f64,
+    /// Normal impulse the friction uses (estimated, then from the last solve).
+    lambda_n: f64,
+    /// Unit direction of the kinetic friction impulse.
+    friction_dir: DVec3,
+    /// Released as pulling this step: stays free.
+    released: bool,
+    /// Switched from slipping to sticking this step: may not switch again.
+    settled: bool,
+}
+
+/// Implicit Euler's state between steps and its scratch.
+pub struct Implicit {
+    system: System,
+    scratch: Scratch,
+    b: Vec<DVec3>,
+    rhs: Vec<DVec3>,
+    z: Vec<DVec3>,
+    dv: Vec<DVec3>,
+    impulse: Vec<DVec3>,
+    constraints: Vec<Constraint>,
+    /// Touching a surface at the end of the last step (a new touch is a fresh impact).
+    touching: Vec<bool>,
+    /// Sticking at the end of the last step.
+    sticking: Vec<bool>,
+    /// Counters over the run.
+    pub statistics: Statistics,
+}
+
+impl Implicit {
+    /// Sized for `model`.
+    pub fn new(model: &Model) -> Implicit {
+        let n = model.len();
+        let zeros = || vec![DVec3::ZERO; n];
+        Implicit {
+            system: System::new(model),
+            scratch: Scratch::new(n),
+            b: zeros(),
+            rhs: zeros(),
+            z: zeros(),
+            dv: zeros(),
+            impulse: zeros(),
+            constraints: vec![Constraint::Free; n],
+            touching: vec![false; n],
+            sticking: vec![false; n],
+            statistics: Statistics::default(),
+        }
+    }
+
+    /// One step.
+    pub fn step(&mut self, model: &Model, surfaces: &[Surface], state: &mut State) {
+        let sim = &model.simulation;
+        let (h, eps) = (sim.dt, sim.contact_distance);
+        self.system.assemble(model, &state.x, &state.v, &mut self.b);
+        let mut candidates = self.find_candidates(model, surfaces, state, h, eps);
+
+        for _ in 0..ACTIVE_SET_ROUNDS {
+            self.constrain(model, surfaces, state, &candidates);
+            let outcome = cg::solve(
+                &mut self.system,
+                model,
+                &self.constraints,
+                &self.rhs,
+                &self.z,
+                &mut self.dv,
+                &mut self.scratch,
+                CG_TOLERANCE,
+                CG_MAX_ITERATIONS,
+            );
+            let st = &mut self.statistics;
+            st.cg_iterations += outcome.iterations as u64;
+            st.cg_solves += 1;
+            st.cg_max_residual = st.cg_max_residual.max(outcome.relative_residual);
+            if candidates.is_empty()
+                || !self.update_active_set(model, surfaces, state, &mut candidates)
+            {
+                break;
+            }
+        }
+
+        self.touching.fill(false);
+        self.sticking.fill(false);
+        for c in &candidates {
+            self.touching[c.particle as usize] = c.mode != Mode::Inactive;
+            self.sticking[c.particle as usize] = c.mode == Mode::Stick;
+        }
+        let dv = &self.dv;
+        state
+            .x
+            .par_iter_mut()
+            .zip(state.v.par_iter_mut())
+            .zip(dv.par_iter())
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|((x, v), dv)| {
+                *v += *dv;
+                *x += h * *v;
+            });
+    }
+
+    /// Particles that may reach a surface within the step, each with its nearest surface.
+    fn find_candidates(
+        &self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &State,
+        h: f64,
+        eps: f64,
+    ) -> Vec<Candidate> {
+        if surfaces.is_empty() {
+            return Vec::new();
+        }
+        let g = model.simulation.gravity.length();
+        (0..model.len())
+            .into_par_iter()
+            .with_min_len(PARTICLE_CHUNK)
+            .filter_map(|i| {
+                if model.is_pinned(i) {
+                    return None;
+                }
+                let (x, v) = (state.x[i], state.v[i]);
+                // Far enough that nothing this step can bring it within ε, even with twice its
+                // speed: skip the exact test.
+                let reach = eps + h * (2.0 * v.length() + h * g);
+                let (surface, contact) = surfaces
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, s)| s.query(x, reach).map(|c| (k, c)))
+                    .min_by(|a, b| {
+                        let pa = a.1.phi + h * v.dot(a.1.normal);
+                        let pb = b.1.phi + h * v.dot(b.1.normal);
+                        pa.total_cmp(&pb)
+                    })?;
+                let mut c = Candidate {
+                    particle: i as u32,
+                    surface: surface as u32,
+                    phi: contact.phi,
+                    normal: contact.normal,
+                    mode: Mode::Inactive,
+                    vn_target: 0.0,
+                    lambda_n: 0.0,
+                    friction_dir: DVec3::ZERO,
+                    released: false,
+                    settled: false,
+                };
+                if contact.phi + h * v.dot(contact.normal) < eps {
+                    self.activate(
+                        model,
+                        &surfaces[surface],
+                        state,
+                        h,
+                        &mut c,
+                        self.sticking[i],
+                    );
+                }
+                Some(c)
+            })
+            .collect()
+    }
+
+    /// Makes a candidate a contact: its target normal velocity, an estimate of its normal
+    /// impulse, and whether it starts sticking.
+    fn activate(
+        &self,
+        model: &Model,
+        surface: &Surface,
+        state: &State,
+        h: f64,
+        c: &mut Candidate,
+        was_sticking: bool,
+    ) {
+        let i = c.particle as usize;
+        let (v, m, n) = (state.v[i], model.mass[i], c.normal);
+        let vn = v.dot(n);
+        c.vn_target = -c.phi / h;
+        if !self.touching[i] {
+            c.vn_target += surface.restitution * (-vn).max(0.0);
+        }
+        // Impulse to reach the target normal velocity against the applied force, ignoring the
+        // springs' share: the solve replaces it with the real one.
+        c.lambda_n = (m * (c.vn_target - vn) - self.b[i].dot(n)).max(0.0);
+        let vt = v - vn * n;
+        let speed = vt.length();
+        c.friction_dir = if speed > 0.0 {
+            -vt / speed
+        } else {
+            DVec3::ZERO
+        };
+        let coulomb = surface.friction_model == FrictionModel::Coulomb && surface.friction > 0.0;
+        c.mode = if coulomb && (was_sticking || m * speed <= surface.friction * c.lambda_n) {
+            Mode::Stick
+        } else {
+            Mode::Slip
+        };
+    }
+
+    /// Writes constraints, prescribed Δv and the right-hand side with friction impulses.
+    fn constrain(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &State,
+        candidates: &[Candidate],
+    ) {
+        for (i, s) in self.constraints.iter_mut().enumerate() {
+            *s = if model.is_pinned(i) {
+                Constraint::Fixed
+            } else {
+                Constraint::Free
+            };
+        }
+        self.z
+            .par_iter_mut()
+            .zip(state.v.par_iter())
+            .zip(self.constraints.par_iter())
+            .for_each(|((z, v), s)| {
+                *z = if *s == Constraint::Fixed {
+                    -*v
+                } else {
+                    DVec3::ZERO
+                }
+            });
+        self.impulse.fill(DVec3::ZERO);
+        for c in candidates {
+            let i = c.particle as usize;
+            let (v, n) = (state.v[i], c.normal);
+            match c.mode {
+                Mode::Inactive => {}
+                Mode::Stick => {
+                    self.constraints[i] = Constraint::Fixed;
+                    self.z[i] = c.vn_target * n - v;
+                }
+                Mode::Slip => {
+                    self.constraints[i] = Constraint::Normal(n);
+                    self.z[i] = (c.vn_target - v.dot(n)) * n;
+                    let s = &surfaces[c.surface as usize];
+                    self.impulse[i] = match s.friction_model {
+                        FrictionModel::Coulomb => s.friction * c.lambda_n * c.friction_dir,
+                        FrictionModel::Viscous => {
+                            let vt = v - v.dot(n) * n;
+                            (-s.friction * c.lambda_n * vt)
+                                .clamp_length_max(model.mass[i] * vt.length())
+                        }
+                    };
+                }
+            }
+        }
+        self.rhs
+            .par_iter_mut()
+            .zip(self.b.par_iter().zip(self.impulse.par_iter()))
+            .for_each(|(r, (b, j))| *r = *b + *j);
+    }
+
+    /// Revises the active set from the last solve; returns whether anything changed.
+    fn update_active_set(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &State,
+        candidates: &mut [Candidate],
+    ) -> bool {
+        let h = model.simulation.dt;
+        // Constraint impulses λ = A Δv − rhs (reuse the impulse buffer for A Δv).
+        let mut a_dv = std::mem::take(&mut self.impulse);
+        self.system.apply(model, &self.dv, &mut a_dv);
+        let mut changed = false;
+        for c in candidates.iter_mut() {
+            let i = c.particle as usize;
+            let s = &surfaces[c.surface as usize];
+            let n = c.normal;
+            let lambda = a_dv[i] - self.rhs[i];
+            let lambda_n = lambda.dot(n);
+            let v_new = state.v[i] + self.dv[i];
+            match c.mode {
+                Mode::Inactive => {
+                    if !c.released && c.phi + h * v_new.dot(n) < 0.0 {
+                        let was = c.settled;
+                        self.activate(model, s, state, h, c, false);
+                        c.settled = was;
+                        changed = true;
+                    }
+                }
+                _ if lambda_n < 0.0 => {
+                    c.mode = Mode::Inactive;
+                    c.released = true;
+                    changed = true;
+                }
+                Mode::Stick => {
+                    c.lambda_n = lambda_n;
+                    let lambda_t = lambda - lambda_n * n;
+                    let t = lambda_t.length();
+                    if !c.settled && t > s.friction * lambda_n * (1.0 + 1e-9) {
+                        c.mode = Mode::Slip;
+                        c.friction_dir = lambda_t / t;
+                        changed = true;
+                    }
+                }
+                Mode::Slip => {
+                    let slip = v_new - v_new.dot(n) * n;
+                    let coulomb = s.friction_model == FrictionModel::Coulomb && s.friction > 0.0;
+                    if coulomb && !c.settled && slip.dot(c.friction_dir) > 0.0 {
+                        // Friction overshot: the slip reversed, so the contact sticks.
+                        c.mode = Mode::Stick;
+                        c.settled = true;
+                        changed = true;
+                    } else if s.friction > 0.0
+                        && (lambda_n - c.lambda_n).abs() > 1e-3 * lambda_n.abs().max(c.lambda_n)
+                    {
+                        c.lambda_n = lambda_n;
+                        changed = true;
+                    }
+                }
+            }
+        }
+        self.impulse = a_dv;
+        changed
+    }
+}

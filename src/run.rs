@@ -1,0 +1,136 @@
+//! Driving a solver through a run: frames at their steps, energies, and the instability guard.
+//!
+//! Frame k is taken at step round(k / (frame_rate·dt)) and stamped with that step times dt;
+//! frame 0 is the initial state. A run stops at the first step whose state is not finite (the
+//! solver reports it), or at the first frame whose total energy exceeds its initial value by
+//! more than [`ENERGY_GROWTH_BOUND`] times the scene's energy scale
+//! E_s = K₀ + E_el,₀ + M|g|(D + 1 m) (D: diagonal of the initial bounding box, M: total mass):
+//! no scene of springs, dampers, drag and terrain can gain that much, so it can only be a
+//! diverging integrator. Either way every frame before it has been written.
+
+use glam::DVec3;
+use softbody_scene::{Energies, Instability, Solver, StepError};
+
+use crate::output::{Frame, FrameSink, Header};
+
+/// How many energy scales a run may gain before it is called unstable.
+pub const ENERGY_GROWTH_BOUND: f64 = 10.0;
+
+/// Steps advanced between progress reports at most.
+const PROGRESS_STEPS: u64 = 256;
+
+/// Why a run stopped early.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The simulation diverged; frames before it are written.
+    #[error("{0}")]
+    Unstable(Instability),
+    /// The device failed.
+    #[error("{0}")]
+    Device(String),
+    /// Writing frames failed.
+    #[error("cannot write frames: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+impl From<StepError> for RunError {
+    fn from(e: StepError) -> Self {
+        match e {
+            StepError::Unstable(i) => RunError::Unstable(i),
+            StepError::Device(d) => RunError::Device(d),
+        }
+    }
+}
+
+/// What a finished (or stopped) run did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Summary {
+    /// Frames written.
+    pub frames: u64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Energies of the last frame written.
+    pub last_energies: Energies,
+}
+
+/// The energy scale E_s of the solver's current (initial) state.
+pub fn energy_scale(solver: &mut dyn Solver, e0: &Energies) -> Result<f64, StepError> {
+    let g = solver.model().simulation.gravity.length();
+    let mass: f64 = solver.model().mass.iter().sum();
+    let x = &solver.state()?.x;
+    let (lo, hi) = x
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        });
+    let diagonal = if x.is_empty() {
+        0.0
+    } else {
+        (hi - lo).length()
+    };
+    Ok(e0.kinetic + e0.elastic + mass * g * (diagonal + 1.0))
+}
+
+/// Runs the solver to the end of its scene, writing each frame to `sink`; `progress` hears
+/// (steps done, steps in all) as the run goes.
+pub fn run(
+    solver: &mut dyn Solver,
+    sink: &mut dyn FrameSink,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Summary, RunError> {
+    let sim = solver.model().simulation;
+    let total = sim.steps();
+    let frames = sim.frame_count();
+    let header = Header::new(solver, frames);
+    sink.header(&header)?;
+
+    let e0 = solver.energies()?;
+    let scale = energy_scale(solver, &e0)?;
+    let mut summary = Summary {
+        frames: 0,
+        steps: 0,
+        last_energies: e0,
+    };
+    for k in 0..frames {
+        let target = sim.frame_step(k);
+        while solver.steps_taken() < target {
+            let n = (target - solver.steps_taken()).min(PROGRESS_STEPS);
+            solver.advance(n)?;
+            progress(solver.steps_taken(), total);
+        }
+        let energies = solver.energies()?;
+        let step = solver.steps_taken();
+        if energies.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
+            let state = solver.state()?;
+            let fastest = state
+                .v
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.length_squared().total_cmp(&b.1.length_squared()))
+                .map_or(0, |(i, _)| i);
+            return Err(RunError::Unstable(Instability {
+                step,
+                time: step as f64 * sim.dt,
+                particle: fastest as u32,
+                what: format!(
+                    "is the fastest as the total energy reached {:.6e} J, more than {ENERGY_GROWTH_BOUND} times the energy scale {scale:.6e} J above its initial {:.6e} J",
+                    energies.total(),
+                    e0.total()
+                ),
+            }));
+        }
+        let state = solver.state()?;
+        sink.frame(&Frame {
+            index: k,
+            step,
+            time: step as f64 * sim.dt,
+            positions: &state.x,
+            velocities: &state.v,
+            energies,
+        })?;
+        summary.frames += 1;
+        summary.steps = step;
+        summary.last_energies = energies;
+    }
+    Ok(summary)
+}
