@@ -1,1 +1,46 @@
-fn main() {}
+//! One step of the standard benchmark cube (`softbody::benchmark`) at 10³, 22³ and 46³
+//! particles: symplectic Euler at half its largest stable step, and implicit Euler at
+//! dt = 1/60 s (its point: a step the explicit methods cannot take), all cores.
+//!
+//! `cargo bench --bench step`; the figures are recorded in BENCHMARKS.md.
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use softbody::benchmark::{STIFFNESS, cube, dt_max_symplectic};
+use softbody::{Backend, Integrator};
+
+fn step(c: &mut Criterion) {
+    for (integrator, sizes) in [
+        (Integrator::SymplecticEuler, [10u32, 22, 46]),
+        (Integrator::ImplicitEuler, [10, 22, 46]),
+    ] {
+        let mut group = c.benchmark_group(format!("step/{integrator}"));
+        group.sample_size(10);
+        for n in sizes {
+            let dt = match integrator {
+                Integrator::ImplicitEuler => 1.0 / 60.0,
+                _ => 0.5 * dt_max_symplectic(n),
+            };
+            let scene = cube(n, STIFFNESS, integrator, dt);
+            let mut solver = softbody::open(&scene, Backend::Cpu, None).expect("CPU solver");
+            // Warm up past the first steps (allocation, the implicit warm start) before timing.
+            solver.advance(3).expect("stable");
+            group.throughput(Throughput::Elements((n as u64).pow(3)));
+            group.bench_function(BenchmarkId::from_parameter(format!("{n}^3")), |b| {
+                b.iter(|| solver.advance(1).expect("stable"))
+            });
+            let stats = solver.statistics();
+            if stats.cg_solves > 0 {
+                eprintln!(
+                    "  {n}^3 implicit: {:.1} CG iterations per solve, {:.2} solves per step, worst relative residual {:.1e}",
+                    stats.cg_iterations as f64 / stats.cg_solves as f64,
+                    stats.cg_solves as f64 / stats.steps as f64,
+                    stats.cg_max_residual
+                );
+            }
+        }
+        group.finish();
+    }
+}
+
+criterion_group!(benches, step);
+criterion_main!(benches);

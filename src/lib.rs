@@ -30,6 +30,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod benchmark;
 pub mod output;
 pub mod run;
 

@@ -102,18 +102,20 @@ pub fn run(
         let step = solver.steps_taken();
         if energies.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
             let state = solver.state()?;
-            let fastest = state
+            let (fastest, speed) = state
                 .v
                 .iter()
                 .enumerate()
-                .max_by(|a, b| a.1.length_squared().total_cmp(&b.1.length_squared()))
-                .map_or(0, |(i, _)| i);
+                .map(|(i, v)| (i, v.length()))
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap_or((0, 0.0));
             return Err(RunError::Unstable(Instability {
                 step,
                 time: step as f64 * sim.dt,
                 particle: fastest as u32,
                 what: format!(
-                    "is the fastest as the total energy reached {:.6e} J, more than {ENERGY_GROWTH_BOUND} times the energy scale {scale:.6e} J above its initial {:.6e} J",
+                    "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, \
+                     more than {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above its initial {:.3e} J",
                     energies.total(),
                     e0.total()
                 ),

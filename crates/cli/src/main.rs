@@ -49,13 +49,13 @@ struct RunArgs {
     #[arg(long)]
     integrator: Option<Integrator>,
     /// Time step, seconds.
-    #[arg(long, value_parser = positive)]
+    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     dt: Option<f64>,
     /// Simulated time, seconds.
-    #[arg(long, value_parser = non_negative)]
+    #[arg(long, value_parser = non_negative, allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Frames per simulated second.
-    #[arg(long, value_parser = positive)]
+    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     fps: Option<f64>,
     /// Output file; `-` writes to standard output. Default: out/<scene>.<format>.
     #[arg(long)]
@@ -64,7 +64,7 @@ struct RunArgs {
     #[arg(long)]
     format: Option<Format>,
     /// CPU threads (default: all cores).
-    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..), allow_negative_numbers = true)]
     threads: Option<u16>,
     /// Solver backend.
     #[arg(long, default_value = "cpu")]
@@ -193,7 +193,16 @@ fn run(args: RunArgs) -> Result<(), Failure> {
             .filter(|d| !d.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let file = tempfile::NamedTempFile::new_in(dir)
+        // An ordinary file once renamed into place: 0666 less the umask, not a temporary
+        // file's 0600.
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(".softbody-").suffix(".part");
+        #[cfg(unix)]
+        builder.permissions(
+            <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o666),
+        );
+        let file = builder
+            .tempfile_in(dir)
             .with_context(|| format!("cannot write in {}", dir.display()))?;
         let handle = file.reopen()?;
         (Some(file), Box::new(std::io::BufWriter::new(handle)))

@@ -24,7 +24,7 @@
 //!   An open mesh (a ground patch) is solid on its back side, and beyond its rim the sign follows
 //!   the pseudo-normal of the nearest rim edge or vertex. N as for the heightfield.
 //!
-//! At the origin of a sphere or bowl, N is +y.
+//! At the exact centre of a sphere or bowl (within ε, below), where no direction is radial, N is +y.
 //!
 //! # Heightfield triangulation
 //!

@@ -218,39 +218,45 @@ pub fn locate(text: &str, key: &KeyPath) -> Option<Range<usize>> {
     Some(span)
 }
 
-/// The key path of the deepest value or key whose span holds `offset`.
+/// The key path of the deepest value or key whose span holds `offset`. Parses what it can of
+/// a broken file, so syntax errors get a key too.
 pub fn key_at(text: &str, offset: usize) -> KeyPath {
-    let mut path = KeyPath::root();
-    let Ok(doc) = DeTable::parse(text) else {
-        return path;
-    };
-    let mut table = Some(doc.get_ref());
-    let mut array: Option<&[toml::Spanned<DeValue<'_>>]> = None;
-    loop {
-        let mut next: Option<&DeValue<'_>> = None;
-        if let Some(t) = table.take() {
-            for (k, v) in t.iter() {
-                if k.span().contains(&offset) || v.span().contains(&offset) {
-                    path.0.push(Seg::Key(k.get_ref().to_string()));
-                    if v.span().contains(&offset) {
-                        next = Some(v.get_ref());
-                    }
-                    break;
-                }
-            }
-        } else if let Some(a) = array.take() {
-            for (i, v) in a.iter().enumerate() {
-                if v.span().contains(&offset) {
-                    path.0.push(Seg::Index(i));
-                    next = Some(v.get_ref());
-                    break;
-                }
-            }
+    let (doc, _) = DeTable::parse_recoverable(text);
+    let mut path = Vec::new();
+    for (k, v) in doc.get_ref().iter() {
+        path.push(Seg::Key(k.get_ref().to_string()));
+        if k.span().contains(&offset) || path_to(v, offset, &mut path) {
+            return KeyPath(path);
         }
-        match next {
-            Some(DeValue::Table(t)) => table = Some(t),
-            Some(DeValue::Array(a)) => array = Some(a.as_ref()),
-            _ => return path,
-        }
+        path.pop();
     }
+    KeyPath(path)
+}
+
+/// Extends `path` to the deepest node under `node` that holds `offset`. A table written with
+/// a `[header]` spans only its header line, so children are searched whatever the parent's
+/// span.
+fn path_to(node: &toml::Spanned<DeValue<'_>>, offset: usize, path: &mut Vec<Seg>) -> bool {
+    match node.get_ref() {
+        DeValue::Table(t) => {
+            for (k, v) in t.iter() {
+                path.push(Seg::Key(k.get_ref().to_string()));
+                if k.span().contains(&offset) || path_to(v, offset, path) {
+                    return true;
+                }
+                path.pop();
+            }
+        }
+        DeValue::Array(a) => {
+            for (i, v) in a.iter().enumerate() {
+                path.push(Seg::Index(i));
+                if path_to(v, offset, path) {
+                    return true;
+                }
+                path.pop();
+            }
+        }
+        _ => {}
+    }
+    node.span().contains(&offset)
 }

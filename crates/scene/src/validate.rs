@@ -87,6 +87,12 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         ));
     }
 
+    if scene.bodies.is_empty() {
+        return Err(Invalid::new(
+            KeyPath::root(),
+            "the scene has no [[body]]: nothing to simulate",
+        ));
+    }
     let mut names = std::collections::HashMap::new();
     for (i, body) in scene.bodies.iter().enumerate() {
         let at = KeyPath::root().key("body").index(i);
@@ -112,13 +118,28 @@ pub(crate) fn scene(scene: &Scene) -> Check {
     }
 
     // Size limits before anything is allocated: indices are u32 (springs are stored as 2s+side in
-    // the adjacency), and the estimated footprint must fit in memory.
+    // the adjacency), and the estimated footprint must fit in memory. The blame goes to the
+    // largest body's size key.
     let particles = scene.particle_count();
     let springs = scene.spring_counts().total();
-    let at_bodies = KeyPath::root().key("body");
+    let blame = || {
+        let (i, body) = scene
+            .bodies
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, b)| {
+                model::estimated_bytes(b.particle_count(), b.spring_counts().total())
+            })
+            .expect("a scene with particles has bodies");
+        let key = match body.shape {
+            BodyShape::Cuboid(_) => "resolution",
+            BodyShape::Particles(_) => "positions",
+        };
+        KeyPath::root().key("body").index(i).key(key)
+    };
     if particles > model::MAX_PARTICLES {
         return Err(Invalid::new(
-            at_bodies,
+            blame(),
             format!(
                 "{particles} particles is more than the {} supported",
                 model::MAX_PARTICLES
@@ -127,7 +148,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
     }
     if springs > model::MAX_SPRINGS {
         return Err(Invalid::new(
-            at_bodies,
+            blame(),
             format!(
                 "{springs} springs is more than the {} supported",
                 model::MAX_SPRINGS
@@ -135,17 +156,15 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         ));
     }
     let need = model::estimated_bytes(particles, springs);
-    if let Some(have) = model::available_memory() {
-        if need > have {
-            return Err(Invalid::new(
-                at_bodies,
-                format!(
-                    "the scene needs about {:.1} GiB ({particles} particles, {springs} springs) and this machine has {:.1} GiB available",
-                    need as f64 / (1u64 << 30) as f64,
-                    have as f64 / (1u64 << 30) as f64
-                ),
-            ));
-        }
+    if let Some(have) = model::available_memory().filter(|&have| need > have) {
+        return Err(Invalid::new(
+            blame(),
+            format!(
+                "the scene needs about {:.1} GiB ({particles} particles, {springs} springs) and this machine has {:.1} GiB available",
+                need as f64 / (1u64 << 30) as f64,
+                have as f64 / (1u64 << 30) as f64
+            ),
+        ));
     }
 
     for (i, t) in scene.terrain.iter().enumerate() {

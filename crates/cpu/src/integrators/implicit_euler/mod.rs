@@ -10,8 +10,8 @@
 //! constraint filtering), because explicit contact forces or position projections pump energy
 //! into a stiff body at large steps. A particle that reaches a surface within the step
 //! (φ + h v·N < ε, the surface with the smallest such value) becomes a contact with a target
-//! normal velocity v_n' = −φ/h, which lands it on the surface without moving positions, plus
-//! k_r times its approach speed on a fresh impact (restitution). A contact either
+//! normal velocity v_n' = −φ/h, which lands it on the surface without moving positions; on a
+//! fresh impact the target is max(−φ/h, k_r·(−v_n)), the restitution law. A contact either
 //! - sticks: all of Δv is prescribed, v' = v_n' N; or
 //! - slips: only the normal component is prescribed, and kinetic friction enters the
 //!   right-hand side as an impulse μλ_n against the slip (viscous: −k_f λ_n v_t, capped so it
@@ -239,9 +239,12 @@ impl Implicit {
         let i = c.particle as usize;
         let (v, m, n) = (state.v[i], model.mass[i], c.normal);
         let vn = v.dot(n);
+        // Landing exactly on the surface takes v_n' = −φ/h. A fresh impact rebounds at k_r times
+        // its approach speed instead, unless landing needs more (a particle that has sunk in):
+        // adding the two would eat the rebound by up to φ/h, which does not shrink with h.
         c.vn_target = -c.phi / h;
         if !self.touching[i] {
-            c.vn_target += surface.restitution * (-vn).max(0.0);
+            c.vn_target = c.vn_target.max(surface.restitution * (-vn).max(0.0));
         }
         // Impulse to reach the target normal velocity against the applied force, ignoring the
         // springs' share: the solve replaces it with the real one.

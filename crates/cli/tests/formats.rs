@@ -1,0 +1,284 @@
+//! CSV and NPZ output: the same numbers as the JSON Lines output of the same run, bit for bit,
+//! and valid files after a run stopped by an instability.
+
+mod common;
+
+use std::io::Read;
+use std::path::Path;
+
+use common::*;
+
+/// One run's frames in a format-neutral form.
+#[derive(Debug, PartialEq)]
+struct Table {
+    time: Vec<f64>,
+    /// [frame][particle]
+    positions: Vec<Vec<[f64; 3]>>,
+    velocities: Vec<Vec<[f64; 3]>>,
+}
+
+impl Table {
+    fn from_jsonl(f: &Frames) -> Table {
+        Table {
+            time: f.frames.iter().map(|fr| f64_of(&fr["time"])).collect(),
+            positions: f
+                .frames
+                .iter()
+                .map(|fr| triples(&fr["positions"]))
+                .collect(),
+            velocities: f
+                .frames
+                .iter()
+                .map(|fr| triples(&fr["velocities"]))
+                .collect(),
+        }
+    }
+
+    /// Every number as its bits, so that the comparison is exact (and -0.0 ≠ 0.0).
+    fn bits(&self) -> (Vec<u64>, Vec<u64>, Vec<u64>) {
+        let flat = |v: &Vec<Vec<[f64; 3]>>| -> Vec<u64> {
+            v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
+        };
+        (
+            self.time.iter().map(|x| x.to_bits()).collect(),
+            flat(&self.positions),
+            flat(&self.velocities),
+        )
+    }
+}
+
+#[track_caller]
+fn assert_same_bits(a: &Table, b: &Table, what: &str) {
+    assert_eq!(a.time.len(), b.time.len(), "{what}: frame count");
+    let (at, ap, av) = a.bits();
+    let (bt, bp, bv) = b.bits();
+    assert!(at == bt, "{what}: times differ");
+    assert!(ap == bp, "{what}: positions differ");
+    assert!(av == bv, "{what}: velocities differ");
+}
+
+/// Reads a CSV frame file strictly: the header line, then `frame,time,particle,x,y,z,vx,vy,vz`
+/// rows grouped by frame in particle order, every row complete.
+#[track_caller]
+fn read_csv(path: &Path, particles: usize) -> Table {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.ends_with('\n'), "the last row is complete");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("frame,time,particle,x,y,z,vx,vy,vz"));
+    let mut table = Table {
+        time: Vec::new(),
+        positions: Vec::new(),
+        velocities: Vec::new(),
+    };
+    for (row, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), 9, "row {row}: {line}");
+        let (k, i) = (row / particles, row % particles);
+        assert_eq!(cells[0].parse::<usize>().unwrap(), k, "row {row}: frame");
+        assert_eq!(cells[2].parse::<usize>().unwrap(), i, "row {row}: particle");
+        let num = |c: usize| -> f64 {
+            cells[c]
+                .parse()
+                .unwrap_or_else(|e| panic!("row {row} cell {c} {:?}: {e}", cells[c]))
+        };
+        if i == 0 {
+            table.time.push(num(1));
+            table.positions.push(Vec::new());
+            table.velocities.push(Vec::new());
+        } else {
+            assert_eq!(num(1).to_bits(), table.time[k].to_bits(), "row {row}: time");
+        }
+        table.positions[k].push([num(3), num(4), num(5)]);
+        table.velocities[k].push([num(6), num(7), num(8)]);
+    }
+    assert_eq!(
+        table.positions.last().map_or(particles, Vec::len),
+        particles,
+        "the last frame holds every particle"
+    );
+    table
+}
+
+/// The arrays of an NPZ frame file, with their shapes checked against `particles`.
+struct Npz {
+    table: Table,
+    springs: Vec<u32>,
+    springs_shape: Vec<u64>,
+}
+
+fn read_npy<R: Read + std::io::Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    name: &str,
+) -> (Vec<u64>, npyz::NpyFile<std::io::Cursor<Vec<u8>>>) {
+    let mut entry = zip
+        .by_name(name)
+        .unwrap_or_else(|e| panic!("the archive has no {name}: {e}"));
+    let mut bytes = Vec::new();
+    entry.read_to_end(&mut bytes).unwrap();
+    let npy = npyz::NpyFile::new(std::io::Cursor::new(bytes))
+        .unwrap_or_else(|e| panic!("{name} is not .npy: {e}"));
+    (npy.shape().to_vec(), npy)
+}
+
+#[track_caller]
+fn read_npz(path: &Path, particles: usize) -> Npz {
+    let file = std::fs::File::open(path).unwrap();
+    let mut zip = zip::ZipArchive::new(file).expect("a zip archive");
+    let mut names: Vec<String> = zip
+        .file_names()
+        .map(|n| n.expect("entry name").into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        ["positions.npy", "springs.npy", "time.npy", "velocities.npy"]
+    );
+    let (shape, npy) = read_npy(&mut zip, "time.npy");
+    let time: Vec<f64> = npy.into_vec().expect("time is float64");
+    assert_eq!(shape, [time.len() as u64]);
+    let frames = time.len();
+    let mut arrays = Vec::new();
+    for name in ["positions.npy", "velocities.npy"] {
+        let (shape, npy) = read_npy(&mut zip, name);
+        assert_eq!(shape, [frames as u64, particles as u64, 3], "{name} shape");
+        let flat: Vec<f64> = npy.into_vec().unwrap_or_else(|e| panic!("{name}: {e}"));
+        let per_frame: Vec<Vec<[f64; 3]>> = flat
+            .chunks_exact(particles * 3)
+            .map(|f| f.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect())
+            .collect();
+        arrays.push(per_frame);
+    }
+    let (springs_shape, npy) = read_npy(&mut zip, "springs.npy");
+    let springs: Vec<u32> = npy.into_vec().expect("springs are uint32");
+    let velocities = arrays.pop().unwrap();
+    let positions = arrays.pop().unwrap();
+    Npz {
+        table: Table {
+            time,
+            positions,
+            velocities,
+        },
+        springs,
+        springs_shape,
+    }
+}
+
+/// Runs `scene` in `sb` writing to `name` (format from its extension); returns the status.
+fn run_to(sb: &Sandbox, scene: &Path, name: &str, extra: &[&str]) -> i32 {
+    let out = sb.path().join(name);
+    let mut args = vec![
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    sb.run(&args).status
+}
+
+fn scene() -> Cube {
+    // dt and frame rate chosen so the times are not round decimals.
+    Cube {
+        integrator: "rk4",
+        dt: 0.0007,
+        duration: 0.03,
+        frame_rate: 300.0,
+        resolution: [3, 2, 4],
+        ..Cube::default()
+    }
+}
+
+#[test]
+fn csv_holds_the_same_numbers_as_jsonl() {
+    let cube = scene();
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &cube.toml());
+    assert_eq!(run_to(&sb, &path, "f.jsonl", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "f.csv", &[]), EXIT_OK);
+    let jsonl = read_jsonl(&sb.path().join("f.jsonl"));
+    let n = cube.particles();
+    assert_eq!(
+        jsonl.frames.len(),
+        frame_schedule(cube.dt, cube.duration, cube.frame_rate).len()
+    );
+    let csv = read_csv(&sb.path().join("f.csv"), n);
+    assert_same_bits(&Table::from_jsonl(&jsonl), &csv, "CSV vs JSON Lines");
+}
+
+#[test]
+fn npz_holds_the_same_numbers_as_jsonl() {
+    let cube = scene();
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &cube.toml());
+    assert_eq!(run_to(&sb, &path, "f.jsonl", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "f.npz", &[]), EXIT_OK);
+    let jsonl = read_jsonl(&sb.path().join("f.jsonl"));
+    let n = cube.particles();
+    let npz = read_npz(&sb.path().join("f.npz"), n);
+    assert_same_bits(&Table::from_jsonl(&jsonl), &npz.table, "NPZ vs JSON Lines");
+
+    // springs [S, 2]: S from `check --json`, every pair two distinct existing particles, no
+    // pair twice.
+    let check = sb.run(&["check", path.to_str().unwrap(), "--json"]);
+    check.expect_status(EXIT_OK);
+    let v: serde_json::Value = serde_json::from_str(&check.stdout_text()).unwrap();
+    let s = ["structural", "shear", "bending"]
+        .iter()
+        .map(|k| v["springs"][k].as_u64().unwrap())
+        .sum::<u64>();
+    assert_eq!(npz.springs_shape, [s, 2]);
+    let mut pairs: Vec<(u32, u32)> = npz
+        .springs
+        .chunks_exact(2)
+        .map(|p| (p[0].min(p[1]), p[0].max(p[1])))
+        .collect();
+    for &(a, b) in &pairs {
+        assert!(a != b && (b as usize) < n, "spring ({a}, {b})");
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    assert_eq!(pairs.len() as u64, s, "no spring listed twice");
+}
+
+#[test]
+fn format_follows_the_out_extension_and_the_flag_wins() {
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &Cube::default().toml());
+    assert_eq!(run_to(&sb, &path, "a.csv", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "b.npz", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "c.dat", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "d.txt", &["--format", "csv"]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "e.csv", &["--format", "jsonl"]), EXIT_OK);
+    let head = |name: &str| {
+        let bytes = std::fs::read(sb.path().join(name)).unwrap();
+        bytes[..bytes.len().min(40)].to_vec()
+    };
+    assert!(head("a.csv").starts_with(b"frame,time,particle,"));
+    assert!(head("b.npz").starts_with(b"PK\x03\x04"), "a zip archive");
+    assert!(
+        head("c.dat").starts_with(b"{\"softbody_frames\":1"),
+        "JSON Lines by default"
+    );
+    assert!(head("d.txt").starts_with(b"frame,time,particle,"));
+    assert!(head("e.csv").starts_with(b"{\"softbody_frames\":1"));
+}
+
+#[test]
+fn unstable_run_leaves_valid_csv_and_npz_with_the_frames_of_jsonl() {
+    let cube = Cube::unstable();
+    let n = cube.particles();
+    let planned = frame_schedule(cube.dt, cube.duration, cube.frame_rate).len();
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &cube.toml());
+    for name in ["f.jsonl", "f.csv", "f.npz"] {
+        assert_eq!(run_to(&sb, &path, name, &[]), EXIT_UNSTABLE, "{name}");
+    }
+    assert_eq!(entries(sb.path()), ["f.csv", "f.jsonl", "f.npz", "s.toml"]);
+    let jsonl = Table::from_jsonl(&read_jsonl(&sb.path().join("f.jsonl")));
+    assert!(!jsonl.time.is_empty() && jsonl.time.len() < planned);
+    let csv = read_csv(&sb.path().join("f.csv"), n);
+    assert_same_bits(&jsonl, &csv, "partial CSV vs JSON Lines");
+    let npz = read_npz(&sb.path().join("f.npz"), n);
+    assert_same_bits(&jsonl, &npz.table, "partial NPZ vs JSON Lines");
+}
