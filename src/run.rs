@@ -29,7 +29,7 @@ pub enum RunError {
     #[error("{0}")]
     Device(String),
     /// Writing frames failed.
-    #[error("cannot write frames: {0}")]
+    #[error("cannot write frames")]
     Io(#[from] std::io::Error),
 }
 

@@ -101,12 +101,12 @@ impl fmt::Display for Diagnostic {
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     /// The scene file (or a file it names) could not be read.
-    #[error("{}: cannot read: {source}", path.display())]
+    #[error("{}: cannot read: {cause}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// Why (in the message already, so not a `source`: error chains would repeat it).
+        cause: std::io::Error,
     },
     /// The file was read but is not a valid scene.
     #[error("{0}")]

@@ -289,9 +289,9 @@ impl Scene {
     /// Reads, parses and validates a scene file. Mesh paths are relative to the file.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        let text = std::fs::read_to_string(path).map_err(|cause| SceneError::Io {
             path: path.to_owned(),
-            source,
+            cause,
         })?;
         Scene::from_toml(&text, path)
     }

@@ -130,7 +130,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             .max_by_key(|(_, b)| {
                 model::estimated_bytes(b.particle_count(), b.spring_counts().total())
             })
-            .expect("a scene with particles has bodies");
+            .expect("only called when the bodies hold too many particles");
         let key = match body.shape {
             BodyShape::Cuboid(_) => "resolution",
             BodyShape::Particles(_) => "positions",

@@ -8,8 +8,10 @@
 //! preconditioner is block Jacobi, S P⁻¹ S, which is symmetric positive definite on that
 //! subspace.
 //!
-//! Convergence: stop when rᵀP⁻¹r ≤ tol²·(Sb)ᵀP⁻¹(Sb), i.e. the preconditioned residual is
-//! `tol` relative to the filtered right-hand side, or after `max_iterations`.
+//! Convergence: stop when rᵀP⁻¹r ≤ tol²·max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀), i.e. the preconditioned
+//! residual is `tol` relative to the filtered right-hand side or to the initial residual,
+//! whichever is larger; or after `max_iterations`; or when round-off makes the residual grow
+//! a millionfold over its smallest value.
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -47,7 +49,7 @@ impl Constraint {
 pub struct CgOutcome {
     /// Iterations taken.
     pub iterations: u32,
-    /// sqrt(rᵀP⁻¹r / (Sb)ᵀP⁻¹(Sb)) at the end (0 when Sb = 0).
+    /// sqrt(rᵀP⁻¹r / max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀)) at the end (0 when both are 0).
     pub relative_residual: f64,
 }
 
@@ -110,7 +112,13 @@ pub fn solve(
             *c = s.filter(inv[i] * *r);
         });
     let mut delta = dot(r, c);
-    let target = tolerance * tolerance * delta0;
+    // Relative to the larger of the right-hand side and the warm start's residual: a body at
+    // rest has S·b ≈ 0 while its prescribed contact velocities still leave a residual, and a
+    // target relative to S·b alone would lie below round-off, where CG stagnates and then
+    // diverges.
+    let scale = delta0.max(delta);
+    let target = tolerance * tolerance * scale;
+    let mut smallest = delta;
     let mut iterations = 0;
     while delta > target && iterations < max_iterations {
         system.apply(model, c, q);
@@ -119,7 +127,7 @@ pub fn solve(
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(q, s)| *q = s.filter(*q));
         let cq = dot(c, q);
-        if cq <= 0.0 {
+        if !(cq > 0.0 && cq.is_finite()) {
             break; // only reachable through round-off once the residual is at machine precision
         }
         let alpha = delta / cq;
@@ -132,6 +140,13 @@ pub fn solve(
                 *r -= alpha * *q;
             });
         let delta_new = chunked_sum(r.len(), |i| r[i].dot(inv[i] * r[i]));
+        // In exact arithmetic the residual never grows by orders of magnitude; in floating
+        // point it does once round-off dominates: stop there rather than follow it.
+        if !delta_new.is_finite() || delta_new > 1e6 * smallest {
+            delta = smallest;
+            break;
+        }
+        smallest = smallest.min(delta_new);
         let beta = delta_new / delta;
         delta = delta_new;
         c.par_iter_mut()
@@ -143,8 +158,8 @@ pub fn solve(
     system.inv_diag = inv_diag;
     CgOutcome {
         iterations,
-        relative_residual: if delta0 > 0.0 {
-            (delta.max(0.0) / delta0).sqrt()
+        relative_residual: if scale > 0.0 {
+            (delta.max(0.0) / scale).sqrt()
         } else {
             0.0
         },

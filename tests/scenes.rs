@@ -1,0 +1,125 @@
+//! Every scene shipped in `scenes/` loads, builds and steps: each is run for its first 0.5 s of
+//! simulated time (every jelly has landed by then) (on the CPU, all cores) and must stay finite, keep every particle out of the
+//! terrain (deeper than the contact distance), not gain energy, and, for the explicit
+//! integrators, use a step within `softbody check`'s stable-step estimate.
+//!
+//! A scene added to `scenes/` is picked up automatically; the scenes the README lists must
+//! exist.
+
+use std::path::{Path, PathBuf};
+
+use softbody::cpu::terrain::Surface;
+use softbody::{Backend, Integrator, Model, Scene};
+
+/// Simulated time each scene is stepped for, seconds.
+const SIMULATED: f64 = 0.5;
+
+/// The scenes the README's table lists.
+const DOCUMENTED: [&str; 8] = [
+    "jelly-on-ground",
+    "jelly-on-slope",
+    "jelly-on-slope-sticky",
+    "jelly-in-bowl",
+    "jelly-on-stairs",
+    "jelly-on-heightfield",
+    "jelly-on-mesh",
+    "stiff-cube-implicit",
+];
+
+fn scene_files() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("cannot list {}: {e}", dir.display()))
+        .map(|entry| entry.expect("directory entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    files
+}
+
+/// Runs one scene for [`SIMULATED`] seconds; the error says what went wrong.
+fn check(path: &Path) -> Result<String, String> {
+    let scene = Scene::from_file(path).map_err(|e| format!("does not load: {e}"))?;
+    let sim = scene.simulation;
+    let (model, _) = Model::build(&scene);
+    let explicit = sim.integrator != Integrator::ImplicitEuler;
+    if let Some(limit) = model
+        .stable_dt()
+        .filter(|&limit| explicit && sim.dt > limit)
+    {
+        return Err(format!(
+            "dt = {} s is above the stable estimate {limit:.3e} s of `softbody check`",
+            sim.dt
+        ));
+    }
+    let surfaces: Vec<Surface> = scene.terrain.iter().map(Surface::new).collect();
+    let eps = sim.contact_distance;
+
+    let mut solver = softbody::open(&scene, Backend::Cpu, None).map_err(|e| e.to_string())?;
+    let e0 = solver.energies().map_err(|e| e.to_string())?;
+    let steps = ((SIMULATED / sim.dt).round() as u64).clamp(1, sim.steps().max(1));
+    solver
+        .advance(steps)
+        .map_err(|e| format!("step failed: {e}"))?;
+    let e = solver.energies().map_err(|e| e.to_string())?;
+    let state = solver.state().map_err(|e| e.to_string())?;
+
+    if let Some(i) =
+        (0..state.x.len()).find(|&i| !state.x[i].is_finite() || !state.v[i].is_finite())
+    {
+        return Err(format!("particle {i} is not finite after {steps} steps"));
+    }
+    let mut deepest = f64::INFINITY;
+    for x in &state.x {
+        for s in &surfaces {
+            if let Some(c) = s.query(*x, 0.0) {
+                deepest = deepest.min(c.phi);
+            }
+        }
+    }
+    if deepest < -eps {
+        return Err(format!(
+            "a particle is {:.3e} m inside the terrain, deeper than the contact distance {eps} m",
+            -deepest
+        ));
+    }
+    let (before, after) = (e0.total(), e.total());
+    if !after.is_finite() || after > before + 0.01 * before.abs().max(1.0) {
+        return Err(format!(
+            "total energy went from {before:.6e} J to {after:.6e} J"
+        ));
+    }
+    let depth = if deepest < 0.0 {
+        format!("deepest particle {:.2e} m inside", -deepest)
+    } else {
+        "no particle inside the terrain".to_owned()
+    };
+    Ok(format!(
+        "{steps} steps of {}, {depth}, E {before:.3} → {after:.3} J",
+        sim.integrator
+    ))
+}
+
+#[test]
+fn every_scene_loads_builds_and_steps() {
+    let files = scene_files();
+    let names: Vec<String> = files
+        .iter()
+        .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
+    for want in DOCUMENTED {
+        assert!(
+            names.iter().any(|n| n == want),
+            "scenes/{want}.toml is missing (found {names:?})"
+        );
+    }
+
+    let mut failures = Vec::new();
+    for path in &files {
+        match check(path) {
+            Ok(summary) => eprintln!("{}: {summary}", path.display()),
+            Err(why) => failures.push(format!("{}: {why}", path.display())),
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
