@@ -87,12 +87,6 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         ));
     }
 
-    if scene.bodies.is_empty() {
-        return Err(Invalid::new(
-            KeyPath::root(),
-            "the scene has no [[body]]: nothing to simulate",
-        ));
-    }
     let mut names = std::collections::HashMap::new();
     for (i, body) in scene.bodies.iter().enumerate() {
         let at = KeyPath::root().key("body").index(i);
