@@ -40,6 +40,9 @@ use std::str::FromStr;
 /// The CPU solver crate.
 pub use softbody_cpu as cpu;
 pub use softbody_cpu::CpuSolver;
+/// The GPU solver crate.
+pub use softbody_gpu as gpu;
+pub use softbody_gpu::{GpuError, GpuSolver};
 /// The scene crate: format, validation, topology, model.
 pub use softbody_scene as scene;
 pub use softbody_scene::{
@@ -53,6 +56,8 @@ pub enum Backend {
     /// The CPU reference solver (f64).
     #[default]
     Cpu,
+    /// The wgpu compute-shader solver (f32).
+    Gpu,
 }
 
 impl Backend {
@@ -60,6 +65,7 @@ impl Backend {
     pub fn name(self) -> &'static str {
         match self {
             Backend::Cpu => "cpu",
+            Backend::Gpu => "gpu",
         }
     }
 }
@@ -75,7 +81,8 @@ impl FromStr for Backend {
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
             "cpu" => Ok(Backend::Cpu),
-            _ => Err(format!("unknown backend `{s}`; expected `cpu`")),
+            "gpu" => Ok(Backend::Gpu),
+            _ => Err(format!("unknown backend `{s}`; expected `cpu` or `gpu`")),
         }
     }
 }
@@ -91,10 +98,16 @@ pub enum OpenError {
         /// Why.
         source: softbody_cpu::ThreadPoolBuildError,
     },
+    /// The GPU solver could not be opened: no usable adapter
+    /// ([`GpuError::no_usable_gpu`]), or a scene beyond what it runs (adapter limits,
+    /// implicit Euler).
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// Builds the model of `scene` and opens a solver for it on `backend`; `threads` applies to
-/// the CPU (all cores when `None`).
+/// the CPU (all cores when `None`); the GPU takes the adapter wgpu picks (`WGPU_BACKEND`,
+/// `WGPU_POWER_PREF` steer it).
 pub fn open(
     scene: &Scene,
     backend: Backend,
@@ -110,5 +123,6 @@ pub fn open(
                 })?;
             Ok(Box::new(solver))
         }
+        Backend::Gpu => Ok(Box::new(GpuSolver::new(model, state)?)),
     }
 }

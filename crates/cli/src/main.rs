@@ -2,7 +2,10 @@
 //! itself lives in the `softbody` library.
 //!
 //! Exit status: 0 done; 1 the output could not be written; 2 bad input (scene file or
-//! arguments); 3 the simulation became unstable (the frames before it are written).
+//! arguments, or a scene beyond what `--backend gpu` runs: adapter limits, implicit Euler);
+//! 3 the simulation became unstable (the frames before it are written); 4 `--backend gpu`
+//! found no usable GPU adapter, or the device failed during the run (the frames before it are
+//! written).
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -20,6 +23,7 @@ mod status {
     pub const OUTPUT: u8 = 1;
     pub const BAD_INPUT: u8 = 2;
     pub const UNSTABLE: u8 = 3;
+    pub const NO_ADAPTER: u8 = 4;
 }
 
 #[derive(Parser)]
@@ -57,7 +61,7 @@ struct RunArgs {
     /// Frames per simulated second.
     #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     fps: Option<f64>,
-    /// Output file; `-` writes to standard output. Default: out/<scene>.<format>.
+    /// Output file; `-` writes to standard output. Default: out/{scene file stem}.{format}.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Output format; default from the --out extension, else jsonl.
@@ -66,7 +70,7 @@ struct RunArgs {
     /// CPU threads (default: all cores).
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..), allow_negative_numbers = true)]
     threads: Option<u16>,
-    /// Solver backend.
+    /// Solver backend: cpu (f64) or gpu (wgpu compute shaders, f32).
     #[arg(long, default_value = "cpu")]
     backend: Backend,
     /// No progress bar and no summary.
@@ -127,11 +131,20 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // A reader that stops early (`--out - | head`) ends the run quietly, as for any Unix
+        // filter.
+        Err(f) if is_broken_pipe(&f.error) => ExitCode::SUCCESS,
         Err(f) => {
             eprintln!("error: {:#}", f.error);
             ExitCode::from(f.status)
         }
     }
+}
+
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain()
+        .filter_map(|c| c.downcast_ref::<std::io::Error>())
+        .any(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
 }
 
 fn load(path: &Path) -> Result<Scene, Failure> {
@@ -181,7 +194,8 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         }
     };
 
-    let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))?;
+    let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))
+        .map_err(open_failure)?;
 
     // Frames go to a temporary file beside the destination, renamed into place when the run
     // ends (completed or stopped by an instability): a failed run leaves nothing half-written.
@@ -256,14 +270,44 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         }
         Err(RunError::Unstable(i)) => Err(Failure {
             status: status::UNSTABLE,
-            error: anyhow::anyhow!("{i}\nthe frames before it are in {where_}"),
+            error: anyhow::anyhow!(
+                "{i}; {}\nthe frames before it are in {where_}",
+                softbody::Instability::advice(scene.simulation.integrator)
+            ),
+        }),
+        Err(RunError::Device(d)) => Err(Failure {
+            status: status::NO_ADAPTER,
+            error: anyhow::anyhow!("device failure: {d}\nthe frames before it are in {where_}"),
         }),
         Err(e) => Err(e.into()),
     }
 }
 
+/// A solver that cannot be opened: no usable GPU (4), a scene the GPU does not run (2), or CPU
+/// threads that cannot start (1, as before).
+fn open_failure(e: softbody::OpenError) -> Failure {
+    let status = match &e {
+        softbody::OpenError::Gpu(g) if g.no_usable_gpu() => status::NO_ADAPTER,
+        softbody::OpenError::Gpu(_) => status::BAD_INPUT,
+        _ => status::OUTPUT,
+    };
+    Failure {
+        status,
+        error: e.into(),
+    }
+}
+
 fn check(args: CheckArgs) -> Result<(), Failure> {
     let scene = load(&args.scene)?;
+    // Printed in one write at the end, so that a closed pipe (`| head -1`) is one error to
+    // handle instead of a panic in `println!`.
+    let mut out = String::new();
+    macro_rules! line {
+        ($($arg:tt)*) => {{
+            out.push_str(&format!($($arg)*));
+            out.push('\n');
+        }};
+    }
     let (model, _) = Model::build(&scene);
     let counts = model.spring_counts;
     let sim = &scene.simulation;
@@ -291,23 +335,23 @@ fn check(args: CheckArgs) -> Result<(), Failure> {
             "steps": sim.steps(),
             "frames": sim.frame_count(),
         });
-        println!("{value}");
-        return Ok(());
+        line!("{value}");
+        return emit(&out);
     }
-    println!("{}: valid", args.scene.display());
-    println!("  particles   {}", model.len());
+    line!("{}: valid", args.scene.display());
+    line!("  particles   {}", model.len());
     for b in &model.bodies {
-        println!("    {:<10} {} particles from {}", b.name, b.count, b.first);
+        line!("    {:<10} {} particles from {}", b.name, b.count, b.first);
     }
-    println!(
+    line!(
         "  springs     {} ({} structural, {} shear, {} bending)",
         counts.total(),
         counts.structural,
         counts.shear,
         counts.bending
     );
-    println!("  total mass  {} kg", scene.total_mass());
-    println!(
+    line!("  total mass  {} kg", scene.total_mass());
+    line!(
         "  terrain     {}",
         if terrain.is_empty() {
             "none".to_owned()
@@ -315,7 +359,7 @@ fn check(args: CheckArgs) -> Result<(), Failure> {
             terrain.join(", ")
         }
     );
-    println!(
+    line!(
         "  integrator  {}, dt = {} s, {} steps, {} frames",
         sim.integrator,
         sim.dt,
@@ -324,19 +368,27 @@ fn check(args: CheckArgs) -> Result<(), Failure> {
     );
     match stable_dt {
         Some(h) => {
-            println!(
+            line!(
                 "  stable dt   about {h:.3e} s for the explicit integrators (implicit-euler: any)"
             );
             if sim.integrator != Integrator::ImplicitEuler && sim.dt > h {
-                println!(
+                line!(
                     "  warning     dt = {} s is above it: expect this run to become unstable",
                     sim.dt
                 );
             }
         }
-        None => println!("  stable dt   unlimited (no springs)"),
+        None => line!("  stable dt   unlimited (no springs)"),
     }
-    Ok(())
+    emit(&out)
+}
+
+/// Writes `text` to standard output; a reader that went away early is not an error.
+fn emit(text: &str) -> Result<(), Failure> {
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),
+        _ => Ok(()),
+    }
 }
 
 fn terrain_kind(shape: &softbody::scene::TerrainShape) -> &'static str {

@@ -2,7 +2,7 @@
 //!
 //! Every table refuses unknown keys. Bodies and terrain shapes are flat structs with optional
 //! fields rather than tagged enums: serde's internally tagged enums buffer their content and lose
-//! the source spans, and precise line numbers are part of the contract. [`crate::validate`] checks
+//! the source spans, and precise line numbers are part of the contract. `Scene::validate` checks
 //! that each `kind` gets exactly the keys it needs.
 
 #![allow(

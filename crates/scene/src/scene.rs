@@ -189,8 +189,8 @@ impl std::ops::Add for SpringCounts {
     }
 }
 
-/// A regular grid of heights; cell (row r, column c) spans x in origin.x + c·cell_size[0] and
-/// z in origin.z + r·cell_size[1], height origin.y + heights[r][c].
+/// A regular grid of heights: vertex (row r, column c) sits at
+/// `origin + (c·cell_size[0], heights[r][c], r·cell_size[1])`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Heightfield {
     /// Rows (along z) of heights (along x), at least 2×2, all rows the same length.

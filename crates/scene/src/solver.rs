@@ -39,10 +39,21 @@ impl fmt::Display for Instability {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "the simulation became unstable at step {} (t = {} s): particle {} {}; \
-             try a smaller dt or the implicit-euler integrator",
+            "the simulation became unstable at step {} (t = {} s): particle {} {}",
             self.step, self.time, self.particle, self.what
         )
+    }
+}
+
+impl Instability {
+    /// What to try next, for a run of `integrator`.
+    pub fn advice(integrator: crate::Integrator) -> &'static str {
+        match integrator {
+            crate::Integrator::ImplicitEuler => "try a smaller dt",
+            _ => {
+                "try a smaller dt (`softbody check` estimates the largest stable one) or the implicit-euler integrator"
+            }
+        }
     }
 }
 

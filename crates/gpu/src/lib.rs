@@ -1,0 +1,86 @@
+//! The GPU solver of `softbody`: the model of `softbody-scene` stepped by wgpu compute shaders,
+//! in f32.
+//!
+//! The shaders live in the workspace's `shaders/`, one file per stage, each named like its CPU
+//! twin in `softbody-cpu` and stating the equation it implements; they are compiled into the
+//! binary and composed per stage by [`shaders`]. [`GpuSolver`] implements the same
+//! [`Solver`](softbody_scene::Solver) trait as the CPU solver, so the CLI and the run driver do not
+//! know which one runs. See [`solver`] for the per-step dispatch sequence, the instability record
+//! and the read-backs.
+//!
+//! Everything is a gather or an element-wise update, with no float atomics, and reductions add
+//! per-workgroup partial sums in order on the host: a run repeats bit for bit on one adapter.
+//! Results differ from the CPU's f64 by f32 rounding (see the adapter tests for the measured
+//! agreement).
+//!
+//! Without an adapter [`GpuSolver::new`] fails with [`GpuError::NoAdapter`], which says which
+//! backends were tried and how to get a software adapter.
+#![warn(missing_docs)]
+
+pub mod device;
+pub mod layout;
+pub mod shaders;
+pub mod solver;
+pub mod terrain;
+
+pub use solver::{GpuSolver, Grid, STEPS_PER_SUBMISSION};
+
+/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`).
+pub const WORKGROUP_SIZE: u64 = 256;
+
+/// Why the GPU solver could not be opened.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter (or none that runs compute shaders).
+    #[error(
+        "no GPU adapter found (backends tried: {tried}): {detail}; for a software adapter install \
+         the Debian package mesa-vulkan-drivers (lavapipe, Vulkan), or run on the CPU with \
+         --backend cpu"
+    )]
+    NoAdapter {
+        /// The backends tried, e.g. "Vulkan, GL".
+        tried: String,
+        /// What wgpu said.
+        detail: String,
+    },
+    /// The scene exceeds one of the adapter's limits.
+    #[error(
+        "the scene exceeds the GPU's {limit}: {what} needs {needed}, {adapter} allows \
+         {available}; splitting buffers across bindings is not implemented yet, so use a smaller \
+         scene or --backend cpu"
+    )]
+    Limit {
+        /// The adapter.
+        adapter: String,
+        /// The wgpu limit, e.g. "max_storage_buffer_binding_size".
+        limit: &'static str,
+        /// What needs it.
+        what: String,
+        /// How much it needs, with the unit.
+        needed: String,
+        /// What the adapter allows.
+        available: String,
+    },
+    /// The scene asks for something the GPU solver does not do.
+    #[error("{0}")]
+    Unsupported(String),
+    /// The device could not be opened, or the buffers and pipelines not created.
+    #[error("GPU failure on {adapter}: {message}")]
+    Device {
+        /// The adapter.
+        adapter: String,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+impl GpuError {
+    /// Whether no usable GPU was found: no adapter, or a device that cannot run the solver.
+    /// `false` when the GPU works but refuses this scene (limits, unsupported integrator).
+    pub fn no_usable_gpu(&self) -> bool {
+        matches!(self, GpuError::NoAdapter { .. } | GpuError::Device { .. })
+    }
+}
+
+#[cfg(test)]
+mod wgsl_tests;

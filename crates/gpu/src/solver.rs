@@ -1,0 +1,1264 @@
+//! The GPU solver: buffers, pipelines, the per-step command sequence, and the read-backs.
+//!
+//! # A step
+//!
+//! Every step is a fixed sequence of dispatches in one compute pass (wgpu orders consecutive
+//! dispatches: each is its own usage scope, so each sees what the previous wrote):
+//!
+//! | integrator | dispatches |
+//! |---|---|
+//! | explicit / symplectic Euler | forces(x, v) → update |
+//! | midpoint | forces(x, v) → `midpoint_stage` → forces(stage) → `midpoint_update` |
+//! | RK4 | forces(x, v) → `rk4_first` → forces(stage) → `rk4_second` → forces(stage) → `rk4_third` → forces(stage) → `rk4_last` |
+//!
+//! where forces(·) is `spring_forces` then `accelerations`, followed by `collision_response` (when
+//! there is terrain) and `check_finite`. [`STEPS_PER_SUBMISSION`] steps go into one command
+//! buffer; after each submission the host reads back the 12-byte status only.
+//!
+//! # Instability
+//!
+//! `check_finite` records, on the device, the first step of the submission with a non-finite
+//! value and the lowest particle holding one (see `shaders/check_finite.wgsl`). The step number
+//! is known when the step is encoded: a constant uniform table holds 1, 2, …,
+//! [`STEPS_PER_SUBMISSION`], one per aligned slot, and each step's check binds its slot with a
+//! dynamic offset, which costs neither a dispatch nor a host write per step. The host resets the
+//! status before each submission and reads it after it: an instability is reported with the
+//! exact step, time and particle the CPU would report. The steps after it within the same
+//! submission still run (the GPU cannot stop mid-submission), so after a
+//! [`StepError::Unstable`] the state is that of the end of the submission, not of the failing
+//! step; [`Solver::steps_taken`] is the failing step.
+//!
+//! # Read-backs
+//!
+//! Only on demand: [`Solver::state`] copies x and v into one mappable buffer (cached until the
+//! next `advance`), [`Solver::energies`] runs the reductions of `energy.wgsl` and reads the
+//! per-workgroup partial sums, which the host adds in order, in f64.
+
+use std::sync::mpsc;
+
+use glam::{DVec3, Vec3};
+use softbody_scene::{
+    Energies, Instability, Integrator, Model, Solver, State, Statistics, StepError,
+};
+use wgpu::util::DeviceExt;
+
+use crate::device::Gpu;
+use crate::layout::{NONE, Params, SpringGpu, Status, StepIndex};
+use crate::shaders::{Access, Stage, TERRAIN_BINDINGS};
+use crate::terrain;
+use crate::{GpuError, WORKGROUP_SIZE};
+
+/// Steps encoded into one command buffer: enough to amortise a submission and a status
+/// read-back, few enough that an instability stops the run soon after it happens.
+pub const STEPS_PER_SUBMISSION: u64 = 256;
+
+/// Bytes of a `vec4<f32>`.
+const VEC4: u64 = 16;
+
+/// A dispatch grid: `x · y` workgroups of [`WORKGROUP_SIZE`] threads covering `threads` threads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Grid {
+    /// Workgroups along x (at most the per-dimension limit).
+    pub x: u32,
+    /// Rows of workgroups (1 unless more than the per-dimension limit are needed).
+    pub y: u32,
+}
+
+impl Grid {
+    /// The grid for `threads` threads, or `None` if it would need more than `max_dim` rows of
+    /// `max_dim` workgroups.
+    pub fn new(threads: u64, max_dim: u32) -> Option<Grid> {
+        Grid::with_width(threads, max_dim, max_dim)
+    }
+
+    /// The grid for `threads` threads in rows of at most `width` workgroups, or `None` if it
+    /// would need more than `max_rows` rows.
+    pub fn with_width(threads: u64, width: u32, max_rows: u32) -> Option<Grid> {
+        let groups = threads.div_ceil(WORKGROUP_SIZE);
+        let width = u64::from(width.max(1));
+        if groups <= width {
+            return Some(Grid {
+                x: groups as u32,
+                y: if groups == 0 { 0 } else { 1 },
+            });
+        }
+        let rows = groups.div_ceil(width);
+        (rows <= u64::from(max_rows)).then_some(Grid {
+            x: width as u32,
+            y: rows as u32,
+        })
+    }
+
+    /// Workgroups in all (a 2-D grid may have a few more than needed; they return at once).
+    pub fn groups(self) -> u64 {
+        u64::from(self.x) * u64::from(self.y)
+    }
+}
+
+/// Which state a force evaluation reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Input {
+    /// (x, v).
+    Main,
+    /// The stage state (stage_x, stage_v) of midpoint and RK4.
+    Stage,
+}
+
+struct Buffers {
+    params: wgpu::Buffer,
+    x: wgpu::Buffer,
+    v: wgpu::Buffer,
+    a: wgpu::Buffer,
+    per_spring: wgpu::Buffer,
+    springs: wgpu::Buffer,
+    adjacency: wgpu::Buffer,
+    mass: wgpu::Buffer,
+    stage_x: Option<wgpu::Buffer>,
+    stage_v: Option<wgpu::Buffer>,
+    sum_x: Option<wgpu::Buffer>,
+    sum_v: Option<wgpu::Buffer>,
+    status: wgpu::Buffer,
+    /// [`StepIndex`] 1..=[`STEPS_PER_SUBMISSION`], one per `step_stride` bytes.
+    step_indices: wgpu::Buffer,
+    particle_partials: wgpu::Buffer,
+    spring_partials: wgpu::Buffer,
+    surfaces: wgpu::Buffer,
+    terrain_data: wgpu::Buffer,
+    readback: wgpu::Buffer,
+}
+
+struct Pipelines {
+    spring_forces: wgpu::ComputePipeline,
+    accelerations: wgpu::ComputePipeline,
+    /// The integrator's entry points, in [`Stage::entry_points`] order.
+    update: Vec<wgpu::ComputePipeline>,
+    collision_response: wgpu::ComputePipeline,
+    check_finite: wgpu::ComputePipeline,
+    energy_particles: wgpu::ComputePipeline,
+    energy_springs: wgpu::ComputePipeline,
+}
+
+struct BindGroups {
+    spring_forces: [Option<wgpu::BindGroup>; 2],
+    forces: [Option<wgpu::BindGroup>; 2],
+    terrain: wgpu::BindGroup,
+    update: wgpu::BindGroup,
+    collision_response: wgpu::BindGroup,
+    check_finite: wgpu::BindGroup,
+    energy: wgpu::BindGroup,
+}
+
+/// The GPU backend: the model in device buffers, stepped by compute shaders in f32.
+pub struct GpuSolver {
+    model: Model,
+    gpu: Gpu,
+    buffers: Buffers,
+    pipelines: Pipelines,
+    groups: BindGroups,
+    particle_grid: Grid,
+    spring_grid: Grid,
+    n_surfaces: u32,
+    /// Bytes between consecutive [`StepIndex`] slots (the uniform offset alignment).
+    step_stride: u64,
+    /// Host copy of the state, valid while `state_fresh`.
+    state: State,
+    state_fresh: bool,
+    steps: u64,
+    /// The first device failure; every later call reports it again.
+    failed: Option<String>,
+}
+
+/// A storage buffer the scene needs: what it holds, elements, bytes per element.
+struct Need {
+    what: &'static str,
+    count: u64,
+    stride: u64,
+}
+
+impl Need {
+    fn bytes(&self) -> u64 {
+        self.count.saturating_mul(self.stride)
+    }
+}
+
+fn limit_error(
+    adapter: &str,
+    limit: &'static str,
+    what: String,
+    needed: String,
+    available: String,
+) -> GpuError {
+    GpuError::Limit {
+        adapter: adapter.to_owned(),
+        limit,
+        what,
+        needed,
+        available,
+    }
+}
+
+/// Refuses a scene that exceeds the adapter's limits, naming the limit and the figures.
+fn check_limits(
+    limits: &wgpu::Limits,
+    adapter: &str,
+    needs: &[Need],
+    readback_bytes: u64,
+    threads: &[(&'static str, u64)],
+) -> Result<(), GpuError> {
+    // What every kernel needs whatever the scene: checked first, as they say the adapter cannot
+    // run the solver at all.
+    let fixed: [(&'static str, u64, u64, &str); 6] = [
+        (
+            "max_compute_invocations_per_workgroup",
+            u64::from(limits.max_compute_invocations_per_workgroup),
+            WORKGROUP_SIZE,
+            "threads per workgroup",
+        ),
+        (
+            "max_compute_workgroup_size_x",
+            u64::from(limits.max_compute_workgroup_size_x),
+            WORKGROUP_SIZE,
+            "threads along x",
+        ),
+        (
+            "max_compute_workgroup_storage_size",
+            u64::from(limits.max_compute_workgroup_storage_size),
+            WORKGROUP_SIZE * 8,
+            "bytes of workgroup memory (the energy reduction)",
+        ),
+        (
+            "max_storage_buffers_per_shader_stage",
+            u64::from(limits.max_storage_buffers_per_shader_stage),
+            8,
+            "storage buffers (the force kernel)",
+        ),
+        (
+            "max_bind_groups",
+            u64::from(limits.max_bind_groups),
+            2,
+            "bind groups",
+        ),
+        (
+            "max_bindings_per_bind_group",
+            u64::from(limits.max_bindings_per_bind_group),
+            8,
+            "bindings in one group",
+        ),
+    ];
+    for (limit, available, needed, unit) in fixed {
+        if available < needed {
+            return Err(limit_error(
+                adapter,
+                limit,
+                "the solver's kernels".to_owned(),
+                format!("{needed} {unit}"),
+                format!("{available}"),
+            ));
+        }
+    }
+    for need in needs {
+        let bytes = need.bytes();
+        for (limit, available) in [
+            (
+                "max_storage_buffer_binding_size",
+                limits.max_storage_buffer_binding_size,
+            ),
+            ("max_buffer_size", limits.max_buffer_size),
+        ] {
+            if bytes > available {
+                return Err(limit_error(
+                    adapter,
+                    limit,
+                    format!(
+                        "the {} buffer ({} × {} bytes)",
+                        need.what, need.count, need.stride
+                    ),
+                    format!("{bytes} bytes"),
+                    format!("{available} bytes"),
+                ));
+            }
+        }
+    }
+    if readback_bytes > limits.max_buffer_size {
+        return Err(limit_error(
+            adapter,
+            "max_buffer_size",
+            "the read-back buffer (positions and velocities)".to_owned(),
+            format!("{readback_bytes} bytes"),
+            format!("{} bytes", limits.max_buffer_size),
+        ));
+    }
+    let max_dim = limits.max_compute_workgroups_per_dimension;
+    for &(what, count) in threads {
+        if Grid::new(count, max_dim).is_none() {
+            return Err(limit_error(
+                adapter,
+                "max_compute_workgroups_per_dimension",
+                format!("one thread per {what} ({count})"),
+                format!(
+                    "{} workgroups of {WORKGROUP_SIZE}",
+                    count.div_ceil(WORKGROUP_SIZE)
+                ),
+                format!("{max_dim} × {max_dim} workgroups"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn vec4s(v: &[DVec3]) -> Vec<[f32; 4]> {
+    v.iter()
+        .map(|p| {
+            let p = p.as_vec3();
+            [p.x, p.y, p.z, 0.0]
+        })
+        .collect()
+}
+
+/// Bytes of at least one element: wgpu refuses to bind an empty buffer.
+fn at_least(bytes: &[u8], element: usize) -> Vec<u8> {
+    if bytes.is_empty() {
+        vec![0; element]
+    } else {
+        bytes.to_vec()
+    }
+}
+
+impl GpuSolver {
+    /// Opens a device and uploads `model` and `state`.
+    ///
+    /// Fails with [`GpuError::NoAdapter`] when no adapter is found, [`GpuError::Limit`] when the
+    /// scene exceeds the adapter's limits, [`GpuError::Unsupported`] for implicit Euler (not on
+    /// the GPU yet), and [`GpuError::Device`] when the device or the pipelines cannot be created.
+    pub fn new(model: Model, state: State) -> Result<GpuSolver, GpuError> {
+        Self::with_grid_width(model, state, None)
+    }
+
+    /// [`GpuSolver::new`], with dispatch grids at most `width` workgroups wide (instead of the
+    /// adapter's per-dimension limit), so that tests can run the 2-D grids of very large scenes
+    /// on small ones.
+    #[doc(hidden)]
+    pub fn with_grid_width(
+        model: Model,
+        mut state: State,
+        width: Option<u32>,
+    ) -> Result<GpuSolver, GpuError> {
+        let integrator = model.simulation.integrator;
+        if integrator == Integrator::ImplicitEuler {
+            return Err(GpuError::Unsupported(
+                "the GPU backend does not run implicit-euler yet: use --backend cpu, or an \
+                 explicit integrator (explicit-euler, symplectic-euler, midpoint, rk4)"
+                    .to_owned(),
+            ));
+        }
+        let gpu = Gpu::open()?;
+        let adapter = gpu.name();
+        let n = model.len() as u64;
+        let m = model.springs.len() as u64;
+        let packed = terrain::pack(&model.terrain);
+        let multi_stage = matches!(integrator, Integrator::Midpoint | Integrator::Rk4);
+        let rk4 = integrator == Integrator::Rk4;
+        let max_dim = gpu.limits.max_compute_workgroups_per_dimension;
+        let width = width.map_or(max_dim, |w| w.clamp(1, max_dim));
+
+        let need = |what, count, stride| Need {
+            what,
+            count,
+            stride,
+        };
+        let mut needs = vec![
+            need("positions", n, VEC4),
+            need("velocities", n, VEC4),
+            need("accelerations", n, VEC4),
+            need("masses", n, 8),
+            need("springs", m, std::mem::size_of::<SpringGpu>() as u64),
+            need("per-spring forces", m, VEC4),
+            need("adjacency", n + 1 + 2 * m, 4),
+            need(
+                "terrain surfaces",
+                packed.surfaces.len() as u64,
+                std::mem::size_of::<terrain::SurfaceGpu>() as u64,
+            ),
+            need("terrain data", packed.data.len() as u64, 4),
+        ];
+        if multi_stage {
+            needs.push(need("stage positions", n, VEC4));
+            needs.push(need("stage velocities", n, VEC4));
+        }
+        if rk4 {
+            needs.push(need("RK4 position sums", n, VEC4));
+            needs.push(need("RK4 velocity sums", n, VEC4));
+        }
+        check_limits(
+            &gpu.limits,
+            &adapter,
+            &needs,
+            (2 * n * VEC4).max(m * VEC4),
+            &[("particle", n), ("spring", m)],
+        )?;
+        let (particle_grid, spring_grid) = match (
+            Grid::with_width(n, width, max_dim),
+            Grid::with_width(m, width, max_dim),
+        ) {
+            (Some(p), Some(s)) => (p, s),
+            // Only with a narrow test width: check_limits checked the adapter's.
+            _ => {
+                return Err(GpuError::Unsupported(format!(
+                    "the scene needs more than {max_dim} rows of {width} workgroups"
+                )));
+            }
+        };
+        let particle_partials = particle_grid.groups().max(1) * 8;
+        let spring_partials = spring_grid.groups().max(1) * 4;
+        // Holds x and v (state), the energy partials, or (for the stage tests) per-spring forces.
+        let readback_bytes = (2 * n * VEC4)
+            .max(m * VEC4)
+            .max(particle_partials + spring_partials)
+            .max(std::mem::size_of::<Status>() as u64);
+
+        let device = &gpu.device;
+        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
+        let n_surfaces = packed.surfaces.len() as u32;
+        let step_stride = u64::from(gpu.limits.min_uniform_buffer_offset_alignment)
+            .max(std::mem::size_of::<StepIndex>() as u64);
+        let built = Self::build(
+            step_stride,
+            &gpu,
+            &model,
+            &state,
+            &packed,
+            n_surfaces,
+            particle_partials,
+            spring_partials,
+            readback_bytes,
+        );
+        // Scopes pop in reverse order.
+        let errors = [
+            pollster::block_on(internal.pop()),
+            pollster::block_on(memory.pop()),
+            pollster::block_on(validation.pop()),
+        ];
+        if let Some(e) = errors.into_iter().flatten().next() {
+            return Err(GpuError::Device {
+                adapter,
+                message: format!("cannot set up the solver: {e}"),
+            });
+        }
+        let (buffers, pipelines, groups) = built;
+        // The host copy is what the device holds: the state rounded to f32.
+        for p in state.x.iter_mut().chain(state.v.iter_mut()) {
+            *p = p.as_vec3().as_dvec3();
+        }
+        Ok(GpuSolver {
+            model,
+            gpu,
+            buffers,
+            pipelines,
+            groups,
+            particle_grid,
+            spring_grid,
+            n_surfaces,
+            step_stride,
+            state,
+            state_fresh: true,
+            steps: 0,
+            failed: None,
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn build(
+        step_stride: u64,
+        gpu: &Gpu,
+        model: &Model,
+        state: &State,
+        packed: &terrain::TerrainBuffers,
+        n_surfaces: u32,
+        particle_partials: u64,
+        spring_partials: u64,
+        readback_bytes: u64,
+    ) -> (Buffers, Pipelines, BindGroups) {
+        let device = &gpu.device;
+        let integrator = model.simulation.integrator;
+        let multi_stage = matches!(integrator, Integrator::Midpoint | Integrator::Rk4);
+        let rk4 = integrator == Integrator::Rk4;
+        let storage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        let init = |label: &str, bytes: &[u8], element: usize| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: &at_least(bytes, element),
+                usage: storage,
+            })
+        };
+        let empty = |label: &str, bytes: u64| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes.max(VEC4),
+                usage: storage,
+                mapped_at_creation: false,
+            })
+        };
+        let n = model.len() as u64;
+        let x = vec4s(&state.x);
+        let v = vec4s(&state.v);
+        let mut adjacency = model.adjacency.offsets.clone();
+        adjacency.extend_from_slice(&model.adjacency.entries);
+        let mass: Vec<[f32; 2]> = model
+            .mass
+            .iter()
+            .zip(&model.inv_mass)
+            .map(|(&m, &w)| [m as f32, w as f32])
+            .collect();
+        let springs = SpringGpu::pack(&model.springs);
+        let params = Params::new(model, n_surfaces);
+        let mut step_indices = vec![0u8; (STEPS_PER_SUBMISSION * step_stride) as usize];
+        for k in 0..STEPS_PER_SUBMISSION {
+            let at = (k * step_stride) as usize;
+            let index = StepIndex {
+                step: k as u32 + 1,
+                _pad: [0; 3],
+            };
+            step_indices[at..at + std::mem::size_of::<StepIndex>()]
+                .copy_from_slice(bytemuck::bytes_of(&index));
+        }
+        let buffers = Buffers {
+            params: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            }),
+            x: init("x", bytemuck::cast_slice(&x), 16),
+            v: init("v", bytemuck::cast_slice(&v), 16),
+            a: empty("a", n * VEC4),
+            per_spring: empty("per_spring", model.springs.len() as u64 * VEC4),
+            springs: init(
+                "springs",
+                bytemuck::cast_slice(&springs),
+                std::mem::size_of::<SpringGpu>(),
+            ),
+            adjacency: init("adjacency", bytemuck::cast_slice(&adjacency), 4),
+            mass: init("mass", bytemuck::cast_slice(&mass), 8),
+            stage_x: multi_stage.then(|| empty("stage_x", n * VEC4)),
+            stage_v: multi_stage.then(|| empty("stage_v", n * VEC4)),
+            sum_x: rk4.then(|| empty("sum_x", n * VEC4)),
+            sum_v: rk4.then(|| empty("sum_v", n * VEC4)),
+            status: init("status", bytemuck::bytes_of(&Status::RESET), 16),
+            step_indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("step_indices"),
+                contents: &step_indices,
+                usage: wgpu::BufferUsages::UNIFORM,
+            }),
+            particle_partials: empty("particle_partials", particle_partials),
+            spring_partials: empty("spring_partials", spring_partials),
+            surfaces: init(
+                "surfaces",
+                bytemuck::cast_slice(packed.surfaces_for_binding()),
+                std::mem::size_of::<terrain::SurfaceGpu>(),
+            ),
+            terrain_data: init("terrain_data", bytemuck::cast_slice(&packed.data), 4),
+            readback: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size: readback_bytes.next_multiple_of(8),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+        };
+
+        let layout_of = |label: &str, bindings: &[(u32, Access)]| {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+                .iter()
+                .map(|&(binding, access)| wgpu::BindGroupLayoutEntry {
+                    binding,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: match access {
+                            Access::Uniform | Access::DynamicUniform => {
+                                wgpu::BufferBindingType::Uniform
+                            }
+                            Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                            Access::ReadWrite => {
+                                wgpu::BufferBindingType::Storage { read_only: false }
+                            }
+                        },
+                        has_dynamic_offset: access == Access::DynamicUniform,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                })
+                .collect();
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &entries,
+            })
+        };
+        let terrain_layout = layout_of("terrain", TERRAIN_BINDINGS);
+        // One module per stage, one pipeline per entry point; returns the group-0 layout.
+        let stage = |stage: Stage| -> (wgpu::BindGroupLayout, Vec<wgpu::ComputePipeline>) {
+            let layout = layout_of(stage.file(), stage.bindings());
+            let mut layouts = vec![Some(&layout)];
+            if stage.uses_terrain() {
+                layouts.push(Some(&terrain_layout));
+            }
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(stage.file()),
+                bind_group_layouts: &layouts,
+                immediate_size: 0,
+            });
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(stage.file()),
+                source: wgpu::ShaderSource::Wgsl(stage.source().into()),
+            });
+            let pipelines = stage
+                .entry_points()
+                .iter()
+                .map(|entry| {
+                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(entry),
+                        layout: Some(&pipeline_layout),
+                        module: &module,
+                        entry_point: Some(entry),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+                })
+                .collect();
+            (layout, pipelines)
+        };
+        let (spring_layout, mut spring_pipes) = stage(Stage::SpringForces);
+        let (forces_layout, mut forces_pipes) = stage(Stage::Forces);
+        let update_stage = match integrator {
+            Integrator::ExplicitEuler => Stage::ExplicitEuler,
+            Integrator::SymplecticEuler => Stage::SymplecticEuler,
+            Integrator::Midpoint => Stage::Midpoint,
+            // Implicit Euler is refused in `new`.
+            Integrator::Rk4 | Integrator::ImplicitEuler => Stage::Rk4,
+        };
+        let (update_layout, update) = stage(update_stage);
+        let (collision_layout, mut collision_pipes) = stage(Stage::CollisionResponse);
+        let (check_layout, mut check_pipes) = stage(Stage::CheckFinite);
+        let (energy_layout, mut energy_pipes) = stage(Stage::Energy);
+        let check_finite = check_pipes.pop().expect("one entry point");
+        let energy_springs = energy_pipes.pop().expect("two entry points");
+        let energy_particles = energy_pipes.pop().expect("two entry points");
+        let pipelines = Pipelines {
+            spring_forces: spring_pipes.pop().expect("one entry point"),
+            accelerations: forces_pipes.pop().expect("one entry point"),
+            update,
+            collision_response: collision_pipes.pop().expect("one entry point"),
+            check_finite,
+            energy_particles,
+            energy_springs,
+        };
+
+        let b = &buffers;
+        let group = |label: &str, layout: &wgpu::BindGroupLayout, list: &[&wgpu::Buffer]| {
+            let entries: Vec<wgpu::BindGroupEntry> = list
+                .iter()
+                .enumerate()
+                .map(|(i, buffer)| wgpu::BindGroupEntry {
+                    binding: i as u32,
+                    resource: buffer.as_entire_binding(),
+                })
+                .collect();
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(label),
+                layout,
+                entries: &entries,
+            })
+        };
+        let stage_xv = b.stage_x.as_ref().zip(b.stage_v.as_ref());
+        let update_group = match (
+            update_stage,
+            stage_xv,
+            b.sum_x.as_ref().zip(b.sum_v.as_ref()),
+        ) {
+            (Stage::Rk4, Some((sx, sv)), Some((ux, uv))) => group(
+                "rk4",
+                &update_layout,
+                &[&b.params, &b.x, &b.v, &b.a, sx, sv, ux, uv],
+            ),
+            (Stage::Midpoint, Some((sx, sv)), _) => group(
+                "midpoint",
+                &update_layout,
+                &[&b.params, &b.x, &b.v, &b.a, sx, sv],
+            ),
+            _ => group("euler", &update_layout, &[&b.params, &b.x, &b.v, &b.a]),
+        };
+        let groups = BindGroups {
+            spring_forces: [
+                Some(group(
+                    "spring_forces(x, v)",
+                    &spring_layout,
+                    &[&b.params, &b.x, &b.v, &b.springs, &b.per_spring],
+                )),
+                stage_xv.map(|(sx, sv)| {
+                    group(
+                        "spring_forces(stage)",
+                        &spring_layout,
+                        &[&b.params, sx, sv, &b.springs, &b.per_spring],
+                    )
+                }),
+            ],
+            forces: [
+                Some(group(
+                    "accelerations(x, v)",
+                    &forces_layout,
+                    &[
+                        &b.params,
+                        &b.x,
+                        &b.v,
+                        &b.per_spring,
+                        &b.adjacency,
+                        &b.mass,
+                        &b.a,
+                    ],
+                )),
+                stage_xv.map(|(sx, sv)| {
+                    group(
+                        "accelerations(stage)",
+                        &forces_layout,
+                        &[
+                            &b.params,
+                            sx,
+                            sv,
+                            &b.per_spring,
+                            &b.adjacency,
+                            &b.mass,
+                            &b.a,
+                        ],
+                    )
+                }),
+            ],
+            terrain: group("terrain", &terrain_layout, &[&b.surfaces, &b.terrain_data]),
+            update: update_group,
+            collision_response: group(
+                "collision_response",
+                &collision_layout,
+                &[&b.params, &b.x, &b.v, &b.mass],
+            ),
+            check_finite:
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("check_finite"),
+                    layout: &check_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: b.params.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: b.x.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: b.v.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: b.status.as_entire_binding(),
+                        },
+                        // One slot; the dispatch picks which by its dynamic offset.
+                        wgpu::BindGroupEntry {
+                            binding: 4,
+                            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                                buffer: &b.step_indices,
+                                offset: 0,
+                                size: std::num::NonZeroU64::new(
+                                    std::mem::size_of::<StepIndex>() as u64
+                                ),
+                            }),
+                        },
+                    ],
+                }),
+            energy: group(
+                "energy",
+                &energy_layout,
+                &[
+                    &b.params,
+                    &b.x,
+                    &b.v,
+                    &b.mass,
+                    &b.springs,
+                    &b.particle_partials,
+                    &b.spring_partials,
+                ],
+            ),
+        };
+        (buffers, pipelines, groups)
+    }
+
+    /// The adapter, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) via Vulkan".
+    pub fn adapter(&self) -> String {
+        self.gpu.name()
+    }
+
+    /// The limits the device runs under.
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.gpu.limits
+    }
+
+    /// Replaces the state (uploads it); the step count stays.
+    pub fn set_state(&mut self, state: &State) -> Result<(), StepError> {
+        self.healthy()?;
+        let n = self.model.len();
+        if state.x.len() != n || state.v.len() != n {
+            return Err(StepError::Device(format!(
+                "set_state: the state has {} positions and {} velocities, the model {n} particles",
+                state.x.len(),
+                state.v.len()
+            )));
+        }
+        if n > 0 {
+            let queue = &self.gpu.queue;
+            queue.write_buffer(&self.buffers.x, 0, bytemuck::cast_slice(&vec4s(&state.x)));
+            queue.write_buffer(&self.buffers.v, 0, bytemuck::cast_slice(&vec4s(&state.v)));
+        }
+        self.state_fresh = false;
+        Ok(())
+    }
+
+    fn healthy(&mut self) -> Result<(), StepError> {
+        if self.failed.is_none() {
+            self.failed = self.gpu.errors.get();
+        }
+        match &self.failed {
+            Some(e) => Err(StepError::Device(format!("{e} (on {})", self.gpu.name()))),
+            None => Ok(()),
+        }
+    }
+
+    fn fail(&mut self, message: String) -> StepError {
+        if self.failed.is_none() {
+            self.failed = Some(message);
+        }
+        StepError::Device(format!(
+            "{} (on {})",
+            self.failed.as_deref().unwrap_or_default(),
+            self.gpu.name()
+        ))
+    }
+
+    fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
+        self.gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+    }
+
+    fn dispatch(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        pipeline: &wgpu::ComputePipeline,
+        group: &wgpu::BindGroup,
+        terrain: bool,
+        grid: Grid,
+    ) {
+        if grid.groups() == 0 {
+            return;
+        }
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, group, &[]);
+        if terrain {
+            pass.set_bind_group(1, &self.groups.terrain, &[]);
+        }
+        pass.dispatch_workgroups(grid.x, grid.y, 1);
+    }
+
+    /// Spring forces, then accelerations, of the chosen state.
+    fn encode_accelerations(&self, pass: &mut wgpu::ComputePass<'_>, input: Input) {
+        let i = input as usize;
+        let (Some(springs), Some(forces)) = (&self.groups.spring_forces[i], &self.groups.forces[i])
+        else {
+            unreachable!("stage bind groups exist for the multi-stage integrators")
+        };
+        let p = &self.pipelines;
+        self.dispatch(pass, &p.spring_forces, springs, false, self.spring_grid);
+        self.dispatch(pass, &p.accelerations, forces, true, self.particle_grid);
+    }
+
+    /// Step `k` (0-based) of a submission.
+    fn encode_step(&self, pass: &mut wgpu::ComputePass<'_>, k: u64) {
+        let p = &self.pipelines;
+        let grid = self.particle_grid;
+        let update = &self.groups.update;
+        match self.model.simulation.integrator {
+            Integrator::ExplicitEuler | Integrator::SymplecticEuler => {
+                self.encode_accelerations(pass, Input::Main);
+                self.dispatch(pass, &p.update[0], update, false, grid);
+            }
+            Integrator::Midpoint => {
+                self.encode_accelerations(pass, Input::Main);
+                self.dispatch(pass, &p.update[0], update, false, grid);
+                self.encode_accelerations(pass, Input::Stage);
+                self.dispatch(pass, &p.update[1], update, false, grid);
+            }
+            Integrator::Rk4 | Integrator::ImplicitEuler => {
+                self.encode_accelerations(pass, Input::Main);
+                self.dispatch(pass, &p.update[0], update, false, grid);
+                for k in 1..4 {
+                    self.encode_accelerations(pass, Input::Stage);
+                    self.dispatch(pass, &p.update[k], update, false, grid);
+                }
+            }
+        }
+        if self.n_surfaces > 0 {
+            self.dispatch(
+                pass,
+                &p.collision_response,
+                &self.groups.collision_response,
+                true,
+                grid,
+            );
+        }
+        if grid.groups() > 0 {
+            pass.set_pipeline(&p.check_finite);
+            let offset = (k * self.step_stride) as u32;
+            pass.set_bind_group(0, &self.groups.check_finite, &[offset]);
+            pass.dispatch_workgroups(grid.x, grid.y, 1);
+        }
+    }
+
+    /// Submits `encoder` after appending copies of `sources` (buffer, bytes) into the read-back
+    /// buffer, waits, and returns the bytes.
+    fn submit_and_read(
+        &mut self,
+        mut encoder: wgpu::CommandEncoder,
+        sources: &[(&wgpu::Buffer, u64)],
+    ) -> Result<Vec<u8>, StepError> {
+        let mut offset = 0;
+        for &(buffer, bytes) in sources {
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(buffer, 0, &self.buffers.readback, offset, bytes);
+                offset += bytes;
+            }
+        }
+        let index = self.gpu.queue.submit([encoder.finish()]);
+        if offset == 0 {
+            return Ok(Vec::new());
+        }
+        let readback = self.buffers.readback.clone();
+        let slice = readback.slice(0..offset);
+        let (sender, receiver) = mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |result| {
+            let _ = sender.send(result);
+        });
+        if let Err(e) = self.gpu.device.poll(wgpu::PollType::Wait {
+            submission_index: Some(index),
+            timeout: None,
+        }) {
+            self.healthy()?;
+            return Err(self.fail(format!("the GPU did not finish its work: {e}")));
+        }
+        let mut mapped = receiver.try_recv();
+        if mapped.is_err() {
+            // The map callback runs in a later poll on some backends.
+            let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
+            mapped = receiver.try_recv();
+        }
+        self.healthy()?;
+        match mapped {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(self.fail(format!("cannot read results back: {e}"))),
+            Err(_) => return Err(self.fail("the read-back never completed".to_owned())),
+        }
+        let bytes = match slice.get_mapped_range() {
+            Ok(view) => view.to_vec(),
+            Err(e) => return Err(self.fail(format!("cannot read results back: {e}"))),
+        };
+        readback.unmap();
+        Ok(bytes)
+    }
+
+    /// The status after a submission of steps.
+    fn read_status(&mut self, encoder: wgpu::CommandEncoder) -> Result<Status, StepError> {
+        let status = self.buffers.status.clone();
+        let size = std::mem::size_of::<Status>();
+        let bytes = self.submit_and_read(encoder, &[(&status, size as u64)])?;
+        Ok(bytemuck::pod_read_unaligned(&bytes[..size]))
+    }
+
+    /// Runs one dispatch sequence outside a step and reads `sources` back: for the stage tests.
+    fn run_and_read(
+        &mut self,
+        encode: impl FnOnce(&Self, &mut wgpu::ComputePass<'_>),
+        sources: &[(&wgpu::Buffer, u64)],
+    ) -> Result<Vec<u8>, StepError> {
+        self.healthy()?;
+        let mut encoder = self.encoder("stage");
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("stage"),
+                timestamp_writes: None,
+            });
+            encode(self, &mut pass);
+        }
+        self.submit_and_read(encoder, sources)
+    }
+
+    /// Spring forces of the current state, f_a per spring: runs `spring_forces` alone.
+    #[doc(hidden)]
+    pub fn debug_spring_forces(&mut self) -> Result<Vec<Vec3>, StepError> {
+        let per_spring = self.buffers.per_spring.clone();
+        let m = self.model.springs.len() as u64;
+        let bytes = self.run_and_read(
+            |s, pass| {
+                let group = s.groups.spring_forces[0].as_ref().expect("always built");
+                s.dispatch(
+                    pass,
+                    &s.pipelines.spring_forces,
+                    group,
+                    false,
+                    s.spring_grid,
+                );
+            },
+            &[(&per_spring, m * VEC4)],
+        )?;
+        Ok(to_vec3(&bytes))
+    }
+
+    /// Accelerations of the current state: runs `spring_forces` and `accelerations` alone.
+    #[doc(hidden)]
+    pub fn debug_accelerations(&mut self) -> Result<Vec<Vec3>, StepError> {
+        let a = self.buffers.a.clone();
+        let n = self.model.len() as u64;
+        let bytes = self.run_and_read(
+            |s, pass| s.encode_accelerations(pass, Input::Main),
+            &[(&a, n * VEC4)],
+        )?;
+        Ok(to_vec3(&bytes))
+    }
+
+    /// Destroys the device, as a driver reset would lose it: for the failure tests.
+    #[doc(hidden)]
+    pub fn debug_destroy_device(&self) {
+        self.gpu.device.destroy();
+    }
+
+    /// Runs `collision_response` alone on the current state.
+    #[doc(hidden)]
+    pub fn debug_collision_response(&mut self) -> Result<(), StepError> {
+        self.state_fresh = false;
+        self.run_and_read(
+            |s, pass| {
+                s.dispatch(
+                    pass,
+                    &s.pipelines.collision_response,
+                    &s.groups.collision_response,
+                    true,
+                    s.particle_grid,
+                )
+            },
+            &[],
+        )?;
+        self.healthy()
+    }
+}
+
+fn to_vec3(bytes: &[u8]) -> Vec<Vec3> {
+    let v: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(bytes);
+    v.iter().map(|p| Vec3::new(p[0], p[1], p[2])).collect()
+}
+
+fn to_dvec3(bytes: &[u8]) -> Vec<DVec3> {
+    to_vec3(bytes).into_iter().map(|p| p.as_dvec3()).collect()
+}
+
+impl Solver for GpuSolver {
+    fn backend(&self) -> &'static str {
+        "gpu"
+    }
+
+    fn device(&self) -> String {
+        self.gpu.name()
+    }
+
+    fn model(&self) -> &Model {
+        &self.model
+    }
+
+    fn advance(&mut self, steps: u64) -> Result<(), StepError> {
+        self.healthy()?;
+        if steps == 0 {
+            return Ok(());
+        }
+        self.state_fresh = false;
+        let mut done = 0;
+        while done < steps {
+            let batch = (steps - done).min(STEPS_PER_SUBMISSION);
+            // Ordered before the submission's commands.
+            self.gpu.queue.write_buffer(
+                &self.buffers.status,
+                0,
+                bytemuck::bytes_of(&Status::RESET),
+            );
+            let mut encoder = self.encoder("steps");
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("steps"),
+                    timestamp_writes: None,
+                });
+                for k in 0..batch {
+                    self.encode_step(&mut pass, k);
+                }
+            }
+            let status = self.read_status(encoder)?;
+            if status.bad_step != NONE {
+                let step = self.steps + u64::from(status.bad_step);
+                self.steps = step;
+                let particle = status.bad_particle;
+                return Err(StepError::Unstable(Instability {
+                    step,
+                    time: step as f64 * self.model.simulation.dt,
+                    particle,
+                    what: if status.bad_position == particle {
+                        "has a non-finite position"
+                    } else {
+                        "has a non-finite velocity"
+                    }
+                    .to_owned(),
+                }));
+            }
+            done += batch;
+            self.steps += batch;
+        }
+        Ok(())
+    }
+
+    fn steps_taken(&self) -> u64 {
+        self.steps
+    }
+
+    fn state(&mut self) -> Result<&State, StepError> {
+        self.healthy()?;
+        if !self.state_fresh {
+            let n = self.model.len() as u64;
+            let (x, v) = (self.buffers.x.clone(), self.buffers.v.clone());
+            let encoder = self.encoder("read state");
+            let bytes = self.submit_and_read(encoder, &[(&x, n * VEC4), (&v, n * VEC4)])?;
+            let half = (n * VEC4) as usize;
+            self.state.x = to_dvec3(&bytes[..half]);
+            self.state.v = to_dvec3(&bytes[half..]);
+            self.state_fresh = true;
+        }
+        Ok(&self.state)
+    }
+
+    fn energies(&mut self) -> Result<Energies, StepError> {
+        let (pp, sp) = (
+            self.buffers.particle_partials.clone(),
+            self.buffers.spring_partials.clone(),
+        );
+        let particle_bytes = self.particle_grid.groups() * 8;
+        let spring_bytes = self.spring_grid.groups() * 4;
+        let bytes = self.run_and_read(
+            |s, pass| {
+                let p = &s.pipelines;
+                let g = &s.groups.energy;
+                s.dispatch(pass, &p.energy_particles, g, false, s.particle_grid);
+                s.dispatch(pass, &p.energy_springs, g, false, s.spring_grid);
+            },
+            &[(&pp, particle_bytes), (&sp, spring_bytes)],
+        )?;
+        let (particles, springs) = bytes.split_at(particle_bytes as usize);
+        let particles: Vec<[f32; 2]> = bytemuck::pod_collect_to_vec(particles);
+        let springs: Vec<f32> = bytemuck::pod_collect_to_vec(springs);
+        let (mut kinetic, mut gravitational, mut elastic) = (0.0f64, 0.0f64, 0.0f64);
+        for p in &particles {
+            kinetic += f64::from(p[0]);
+            gravitational += f64::from(p[1]);
+        }
+        for &s in &springs {
+            elastic += f64::from(s);
+        }
+        Ok(Energies {
+            kinetic: 0.5 * kinetic,
+            gravitational: -gravitational,
+            elastic: 0.5 * elastic,
+        })
+    }
+
+    fn statistics(&self) -> Statistics {
+        Statistics {
+            steps: self.steps,
+            ..Statistics::default()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grids_go_two_dimensional_past_the_per_dimension_limit() {
+        let g = |threads| Grid::new(threads, 65_535);
+        assert_eq!(g(0), Some(Grid { x: 0, y: 0 }));
+        assert_eq!(g(1), Some(Grid { x: 1, y: 1 }));
+        assert_eq!(g(256), Some(Grid { x: 1, y: 1 }));
+        assert_eq!(g(257), Some(Grid { x: 2, y: 1 }));
+        assert_eq!(g(65_535 * 256), Some(Grid { x: 65_535, y: 1 }));
+        assert_eq!(g(65_535 * 256 + 1), Some(Grid { x: 65_535, y: 2 }));
+        // u32::MAX particles: 16,777,216 workgroups in 257 rows.
+        let most = g(u64::from(u32::MAX)).unwrap();
+        assert_eq!((most.x, most.y), (65_535, 257));
+        assert!(most.groups() * WORKGROUP_SIZE >= u64::from(u32::MAX));
+        assert_eq!(Grid::new(65_535u64 * 65_535 * 256 + 1, 65_535), None);
+    }
+
+    fn needs(particles: u64) -> Vec<Need> {
+        vec![Need {
+            what: "positions",
+            count: particles,
+            stride: VEC4,
+        }]
+    }
+
+    #[test]
+    fn limits_are_named_with_their_figures() {
+        let limits = wgpu::Limits {
+            max_storage_buffer_binding_size: 1 << 27,
+            ..wgpu::Limits::default()
+        };
+        let ok = check_limits(&limits, "test adapter", &needs(1 << 23), 0, &[]);
+        assert_eq!(ok, Ok(()));
+        let e = check_limits(&limits, "test adapter", &needs((1 << 23) + 1), 0, &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_storage_buffer_binding_size"), "{e}");
+        assert!(
+            e.contains("the positions buffer (8388609 × 16 bytes) needs 134217744 bytes"),
+            "{e}"
+        );
+        assert!(e.contains("test adapter allows 134217728 bytes"), "{e}");
+        assert!(e.contains("--backend cpu"), "{e}");
+
+        let e = check_limits(
+            &limits,
+            "a",
+            &[],
+            0,
+            &[("spring", 65_535u64 * 65_535 * 256 + 1)],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("max_compute_workgroups_per_dimension"), "{e}");
+
+        let small = wgpu::Limits {
+            max_storage_buffers_per_shader_stage: 4,
+            ..wgpu::Limits::default()
+        };
+        let e = check_limits(&small, "a", &[], 0, &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");
+        assert!(e.contains("needs 8 storage buffers"), "{e}");
+
+        let e = check_limits(&limits, "a", &[], limits.max_buffer_size + 1, &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_buffer_size"), "{e}");
+    }
+}

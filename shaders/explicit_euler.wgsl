@@ -1,0 +1,26 @@
+// explicit_euler.wgsl ↔ crates/cpu/src/integrators/explicit_euler.rs: the update of explicit
+// (forward) Euler, after `accelerations` has written a = a(x, v):
+//
+//   x' = x + h v,   v' = v + h a.
+//
+// One thread per particle; element-wise, so the result does not depend on the dispatch.
+
+@group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn explicit_euler(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = thread_index(workgroup, workgroups, local);
+    if i >= params.n_particles {
+        return;
+    }
+    let h = params.dt;
+    let vi = v[i];
+    x[i] = x[i] + h * vi;
+    v[i] = vi + h * a[i];
+}

@@ -1,0 +1,45 @@
+// midpoint.wgsl ↔ crates/cpu/src/integrators/midpoint.rs: the midpoint method (RK2) on
+// y = (x, v), y' = (v, a(x, v)):
+//
+//   y_m = y + (h/2) y'(y),   then   y ← y + h y'(y_m).
+//
+// A step is: accelerations at (x, v) → `midpoint_stage` (x_m = x + h/2 v, v_m = v + h/2 a) →
+// accelerations at (x_m, v_m) → `midpoint_update` (x ← x + h v_m, v ← v + h a). One thread per
+// particle; element-wise.
+
+@group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read_write> stage_x: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> stage_v: array<vec4<f32>>;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn midpoint_stage(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = thread_index(workgroup, workgroups, local);
+    if i >= params.n_particles {
+        return;
+    }
+    let half_h = 0.5 * params.dt;
+    let vi = v[i];
+    stage_x[i] = x[i] + half_h * vi;
+    stage_v[i] = vi + half_h * a[i];
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn midpoint_update(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = thread_index(workgroup, workgroups, local);
+    if i >= params.n_particles {
+        return;
+    }
+    let h = params.dt;
+    x[i] = x[i] + h * stage_v[i];
+    v[i] = v[i] + h * a[i];
+}

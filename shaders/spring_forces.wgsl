@@ -1,0 +1,40 @@
+// spring_forces.wgsl ↔ crates/cpu/src/spring_forces.rs: one force per spring.
+//
+// For spring s = (a, b, r, k_s, k_d), with d = x_a − x_b and l = d/|d|:
+//
+//   f_a = −[k_s(|d| − r) + k_d((v_a − v_b)·l)] l,   f_b = −f_a,
+//
+// and f_a = 0 for a spring crushed to zero length (it has no direction; inventing one would be
+// worse). One thread per spring writes f_a into `per_spring[s]`; `forces.wgsl` gathers them per
+// particle in ascending spring order. No float atomics, no scattered sums: each particle's sum has
+// one fixed order, so a run repeats bit for bit on one adapter.
+//
+// The inputs are whichever state the bind group holds: (x, v) or a stage state of midpoint/RK4.
+
+@group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> springs: array<Spring>;
+@group(0) @binding(4) var<storage, read_write> per_spring: array<vec4<f32>>;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn spring_forces(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let s = thread_index(workgroup, workgroups, local);
+    if s >= params.n_springs {
+        return;
+    }
+    let spring = springs[s];
+    let d = x[spring.a].xyz - x[spring.b].xyz;
+    let len = length(d);
+    if len == 0.0 {
+        per_spring[s] = vec4<f32>(0.0);
+        return;
+    }
+    let l = d / len;
+    let dv = v[spring.a].xyz - v[spring.b].xyz;
+    let f = -(spring.stiffness * (len - spring.rest) + spring.damping * dot(dv, l)) * l;
+    per_spring[s] = vec4<f32>(f, 0.0);
+}

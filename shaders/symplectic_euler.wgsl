@@ -1,0 +1,26 @@
+// symplectic_euler.wgsl ↔ crates/cpu/src/integrators/symplectic_euler.rs: the update of
+// symplectic (semi-implicit) Euler, after `accelerations` has written a = a(x, v):
+//
+//   v' = v + h a,   x' = x + h v'.
+//
+// One thread per particle; element-wise.
+
+@group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn symplectic_euler(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = thread_index(workgroup, workgroups, local);
+    if i >= params.n_particles {
+        return;
+    }
+    let h = params.dt;
+    let vi = v[i] + h * a[i];
+    v[i] = vi;
+    x[i] = x[i] + h * vi;
+}
