@@ -831,28 +831,7 @@ mod tests {
 
     /// The unit cube [0, 1]³ as an OBJ loader delivers it: four vertices per face.
     fn cube_mesh() -> TriangleMesh {
-        // Each face's corners counter-clockwise seen from outside: +x, −x, +y, −y, +z, −z.
-        let faces: [[[f64; 3]; 4]; 6] = [
-            [[1., 0., 0.], [1., 1., 0.], [1., 1., 1.], [1., 0., 1.]],
-            [[0., 0., 0.], [0., 0., 1.], [0., 1., 1.], [0., 1., 0.]],
-            [[0., 1., 0.], [0., 1., 1.], [1., 1., 1.], [1., 1., 0.]],
-            [[0., 0., 0.], [1., 0., 0.], [1., 0., 1.], [0., 0., 1.]],
-            [[0., 0., 1.], [1., 0., 1.], [1., 1., 1.], [0., 1., 1.]],
-            [[0., 0., 0.], [0., 1., 0.], [1., 1., 0.], [1., 0., 0.]],
-        ];
-        let mut vertices = Vec::new();
-        let mut triangles = Vec::new();
-        for f in faces {
-            let k = vertices.len() as u32;
-            vertices.extend(f.map(DVec3::from));
-            triangles.push([k, k + 1, k + 2]);
-            triangles.push([k, k + 2, k + 3]);
-        }
-        TriangleMesh {
-            path: "cube.obj".into(),
-            vertices,
-            triangles,
-        }
+        TriangleMesh::cube(DVec3::ZERO, 1.0)
     }
 
     fn check_cube(s: &Surface) {

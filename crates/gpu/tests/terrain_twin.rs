@@ -158,27 +158,7 @@ fn mesh_surface_points(m: &TriangleMesh, rng: &mut Rng, count: usize) -> Vec<DVe
 }
 
 fn cube_mesh(lo: DVec3, size: f64) -> TriangleMesh {
-    let faces: [[[f64; 3]; 4]; 6] = [
-        [[1., 0., 0.], [1., 1., 0.], [1., 1., 1.], [1., 0., 1.]],
-        [[0., 0., 0.], [0., 0., 1.], [0., 1., 1.], [0., 1., 0.]],
-        [[0., 1., 0.], [0., 1., 1.], [1., 1., 1.], [1., 1., 0.]],
-        [[0., 0., 0.], [1., 0., 0.], [1., 0., 1.], [0., 0., 1.]],
-        [[0., 0., 1.], [1., 0., 1.], [1., 1., 1.], [0., 1., 1.]],
-        [[0., 0., 0.], [0., 1., 0.], [1., 1., 0.], [1., 0., 0.]],
-    ];
-    let mut vertices = Vec::new();
-    let mut triangles = Vec::new();
-    for f in faces {
-        let k = vertices.len() as u32;
-        vertices.extend(f.map(|p| lo + size * DVec3::from(p)));
-        triangles.push([k, k + 1, k + 2]);
-        triangles.push([k, k + 2, k + 3]);
-    }
-    TriangleMesh {
-        path: "cube.obj".into(),
-        vertices,
-        triangles,
-    }
+    TriangleMesh::cube(lo, size)
 }
 
 fn cases() -> Vec<Case> {

@@ -212,6 +212,36 @@ pub struct TriangleMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+impl TriangleMesh {
+    /// The closed box `[lo, lo + size]³`, four vertices per face as an OBJ loader delivers
+    /// them, wound counter-clockwise seen from outside (the box is solid). For tests and for
+    /// building terrain in code.
+    pub fn cube(lo: DVec3, size: f64) -> TriangleMesh {
+        // Each face's corners counter-clockwise seen from outside: +x, −x, +y, −y, +z, −z.
+        let faces: [[[f64; 3]; 4]; 6] = [
+            [[1., 0., 0.], [1., 1., 0.], [1., 1., 1.], [1., 0., 1.]],
+            [[0., 0., 0.], [0., 0., 1.], [0., 1., 1.], [0., 1., 0.]],
+            [[0., 1., 0.], [0., 1., 1.], [1., 1., 1.], [1., 1., 0.]],
+            [[0., 0., 0.], [1., 0., 0.], [1., 0., 1.], [0., 0., 1.]],
+            [[0., 0., 1.], [1., 0., 1.], [1., 1., 1.], [0., 1., 1.]],
+            [[0., 0., 0.], [0., 1., 0.], [1., 1., 0.], [1., 0., 0.]],
+        ];
+        let mut vertices = Vec::with_capacity(24);
+        let mut triangles = Vec::with_capacity(12);
+        for f in faces {
+            let k = vertices.len() as u32;
+            vertices.extend(f.map(|p| lo + size * DVec3::from(p)));
+            triangles.push([k, k + 1, k + 2]);
+            triangles.push([k, k + 2, k + 3]);
+        }
+        TriangleMesh {
+            path: "cube.obj".into(),
+            vertices,
+            triangles,
+        }
+    }
+}
+
 /// The geometry of one terrain shape.
 #[derive(Debug, Clone, PartialEq)]
 pub enum TerrainShape {
