@@ -9,7 +9,9 @@ use softbody::{Backend, Integrator, Scene};
 use glam::DVec3;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let positions: Vec<DVec3> = (0..4).map(|i| DVec3::new(0.5 * i as f64, 2.0, 0.0)).collect();
+    let positions: Vec<DVec3> = (0..4)
+        .map(|i| DVec3::new(0.5 * i as f64, 2.0, 0.0))
+        .collect();
     let springs = (0..3)
         .map(|i| ExplicitSpring {
             a: i,
@@ -42,13 +44,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         terrain: Vec::new(),
     };
     // The same checks a scene file gets; the error names the key a file would use.
-    scene.validate().map_err(|e| format!("{}: {}", e.key, e.message))?;
+    scene
+        .validate()
+        .map_err(|e| format!("{}: {}", e.key, e.message))?;
 
     let mut solver = softbody::open(&scene, Backend::Cpu, Some(1))?;
     solver.advance(scene.simulation.steps())?;
     let state = solver.state()?;
-    assert_eq!(state.x[0], DVec3::new(0.0, 2.0, 0.0), "the pinned particle never moves");
+    assert_eq!(
+        state.x[0],
+        DVec3::new(0.0, 2.0, 0.0),
+        "the pinned particle never moves"
+    );
     let tip = state.x[3];
-    println!("after {} s the tip is at ({:.3}, {:.3}, {:.3})", scene.simulation.duration, tip.x, tip.y, tip.z);
+    println!(
+        "after {} s the tip is at ({:.3}, {:.3}, {:.3})",
+        scene.simulation.duration, tip.x, tip.y, tip.z
+    );
     Ok(())
 }

@@ -6,7 +6,9 @@
 use softbody::{Backend, OpenError, Scene, Solver};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let path = std::env::args().nth(1).unwrap_or_else(|| "scenes/jelly-on-ground.toml".into());
+    let path = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "scenes/jelly-on-ground.toml".into());
     let mut scene = Scene::from_file(&path)?;
     scene.simulation.duration = 0.5;
     let mut solver: Box<dyn Solver> = match softbody::open(&scene, Backend::Gpu, None) {

@@ -38,12 +38,8 @@ struct StepIndex {
 @group(0) @binding(4) var<uniform> step_index: StepIndex;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn check_finite(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn check_finite(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }

@@ -11,12 +11,8 @@
 @group(0) @binding(3) var<storage, read> mass: array<vec2<f32>>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn collision_response(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn collision_response(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles || mass[i].y == 0.0 {
         return;
     }

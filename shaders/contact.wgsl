@@ -16,15 +16,6 @@
 // `terrain_query_within(k, x, ε)` (terrain.wgsl) returns (outward unit normal N, φ) of surface k,
 // exact wherever φ < ε (beyond, it may stop searching early: only φ ≥ ε matters then).
 
-// glam's `clamp_length_max`, operation for operation: v scaled to length `max` if longer.
-fn clamp_length_max(v: vec3<f32>, max_length: f32) -> vec3<f32> {
-    let length_sq = dot(v, v);
-    if length_sq > max_length * max_length {
-        return max_length * (v / sqrt(length_sq));
-    }
-    return v;
-}
-
 // Friction force for a contact pressed with `press`, slip `vt` and tangential applied force `ft`.
 fn friction(
     model: u32,

@@ -2,8 +2,8 @@
 //
 //   kinetic ½Σ m|v|²,   gravitational −Σ m g·x,   elastic ½Σ k_s(|x_a − x_b| − r)².
 //
-// Each workgroup sums its 256 terms in shared memory by a fixed tree (pairs at distance 128, 64,
-// …, 1) and writes one partial sum: `energy_particles` (m|v|², m g·x) per particle group into
+// Each workgroup sums its 256 terms in shared memory by a fixed tree (`workgroup_sum`,
+// reduce.wgsl) and writes one partial sum: `energy_particles` (m|v|², m g·x) per particle group into
 // `particle_partials`, `energy_springs` (k_s(|d| − r)²) per spring group into `spring_partials`.
 // The host adds the partials in order, in f64, and applies the ½ and − factors: the same result
 // for the same state on one adapter, and no float atomics.
@@ -15,16 +15,9 @@
 @group(0) @binding(5) var<storage, read_write> particle_partials: array<vec2<f32>>;
 @group(0) @binding(6) var<storage, read_write> spring_partials: array<f32>;
 
-var<workgroup> scratch2: array<vec2<f32>, WORKGROUP_SIZE>;
-var<workgroup> scratch1: array<f32, WORKGROUP_SIZE>;
-
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn energy_particles(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn energy_particles(id: Invocation) {
+    let i = thread_of(id);
     // No early return: every thread takes part in the barriers.
     var term = vec2<f32>(0.0);
     if i < params.n_particles {
@@ -32,41 +25,23 @@ fn energy_particles(
         let vi = v[i].xyz;
         term = vec2<f32>(m * dot(vi, vi), m * dot(params.gravity, x[i].xyz));
     }
-    scratch2[local] = term;
-    workgroupBarrier();
-    for (var stride = WORKGROUP_SIZE / 2u; stride > 0u; stride >>= 1u) {
-        if local < stride {
-            scratch2[local] = scratch2[local] + scratch2[local + stride];
-        }
-        workgroupBarrier();
-    }
-    if local == 0u {
-        particle_partials[workgroup.y * workgroups.x + workgroup.x] = scratch2[0];
+    let sum = workgroup_sum(id.local, term);
+    if id.local == 0u {
+        particle_partials[workgroup_of(id)] = sum;
     }
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn energy_springs(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let s = thread_index(workgroup, workgroups, local);
+fn energy_springs(id: Invocation) {
+    let s = thread_of(id);
     var term = 0.0;
     if s < params.n_springs {
         let spring = springs[s];
         let stretch = distance(x[spring.a].xyz, x[spring.b].xyz) - spring.rest;
         term = spring.stiffness * stretch * stretch;
     }
-    scratch1[local] = term;
-    workgroupBarrier();
-    for (var stride = WORKGROUP_SIZE / 2u; stride > 0u; stride >>= 1u) {
-        if local < stride {
-            scratch1[local] = scratch1[local] + scratch1[local + stride];
-        }
-        workgroupBarrier();
-    }
-    if local == 0u {
-        spring_partials[workgroup.y * workgroups.x + workgroup.x] = scratch1[0];
+    let sum = workgroup_sum(id.local, vec2<f32>(term, 0.0));
+    if id.local == 0u {
+        spring_partials[workgroup_of(id)] = sum.x;
     }
 }

@@ -14,12 +14,8 @@
 @group(0) @binding(5) var<storage, read_write> stage_v: array<vec4<f32>>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn midpoint_stage(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn midpoint_stage(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }
@@ -30,12 +26,8 @@ fn midpoint_stage(
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn midpoint_update(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn midpoint_update(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }

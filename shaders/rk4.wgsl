@@ -25,12 +25,8 @@
 @group(0) @binding(7) var<storage, read_write> sum_v: array<vec4<f32>>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn rk4_first(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn rk4_first(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }
@@ -54,12 +50,8 @@ fn rk4_middle(i: u32, next: f32) {
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn rk4_second(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn rk4_second(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }
@@ -67,12 +59,8 @@ fn rk4_second(
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn rk4_third(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn rk4_third(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }
@@ -80,12 +68,8 @@ fn rk4_third(
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn rk4_last(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn rk4_last(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }

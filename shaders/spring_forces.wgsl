@@ -5,7 +5,7 @@
 //   f_a = −[k_s(|d| − r) + k_d((v_a − v_b)·l)] l,   f_b = −f_a,
 //
 // and f_a = 0 for a spring crushed to zero length (it has no direction; inventing one would be
-// worse). One thread per spring writes f_a into `per_spring[s]`; `forces.wgsl` gathers them per
+// worse): `spring_force` in common.wgsl, shared with system.wgsl. One thread per spring writes f_a into `per_spring[s]`; `forces.wgsl` gathers them per
 // particle in ascending spring order. No float atomics, no scattered sums: each particle's sum has
 // one fixed order, so a run repeats bit for bit on one adapter.
 //
@@ -17,24 +17,12 @@
 @group(0) @binding(4) var<storage, read_write> per_spring: array<vec4<f32>>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn spring_forces(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let s = thread_index(workgroup, workgroups, local);
+fn spring_forces(id: Invocation) {
+    let s = thread_of(id);
     if s >= params.n_springs {
         return;
     }
     let spring = springs[s];
-    let d = x[spring.a].xyz - x[spring.b].xyz;
-    let len = length(d);
-    if len == 0.0 {
-        per_spring[s] = vec4<f32>(0.0);
-        return;
-    }
-    let l = d / len;
-    let dv = v[spring.a].xyz - v[spring.b].xyz;
-    let f = -(spring.stiffness * (len - spring.rest) + spring.damping * dot(dv, l)) * l;
+    let f = spring_force(spring, x[spring.a].xyz, x[spring.b].xyz, v[spring.a].xyz, v[spring.b].xyz);
     per_spring[s] = vec4<f32>(f, 0.0);
 }

@@ -10,12 +10,8 @@
 @group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn symplectic_euler(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = thread_index(workgroup, workgroups, local);
+fn symplectic_euler(id: Invocation) {
+    let i = thread_of(id);
     if i >= params.n_particles {
         return;
     }

@@ -99,8 +99,8 @@ pub enum OpenError {
         source: softbody_cpu::ThreadPoolBuildError,
     },
     /// The GPU solver could not be opened: no usable adapter
-    /// ([`GpuError::no_usable_gpu`]), or a scene beyond what it runs (adapter limits,
-    /// implicit Euler).
+    /// ([`GpuError::no_usable_gpu`]), or a scene beyond what it runs (adapter limits; implicit
+    /// Euler on an adapter without indirect dispatch).
     #[error(transparent)]
     Gpu(#[from] GpuError),
 }

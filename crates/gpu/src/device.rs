@@ -41,6 +41,8 @@ pub struct Gpu {
     pub info: wgpu::AdapterInfo,
     /// The limits the device was opened with (the adapter's own).
     pub limits: wgpu::Limits,
+    /// What the adapter can do below WebGPU's baseline (e.g. indirect dispatch on old GL).
+    pub downlevel: wgpu::DownlevelFlags,
     /// Errors reported outside error scopes.
     pub errors: ErrorSink,
 }
@@ -111,11 +113,8 @@ impl Gpu {
             })?;
         let info = adapter.get_info();
         let name = describe(&info);
-        if !adapter
-            .get_downlevel_capabilities()
-            .flags
-            .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
-        {
+        let downlevel = adapter.get_downlevel_capabilities().flags;
+        if !downlevel.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
             return Err(GpuError::NoAdapter {
                 tried: tried_names,
                 detail: format!("the adapter found, {name}, cannot run compute shaders"),
@@ -149,6 +148,7 @@ impl Gpu {
             queue,
             info,
             limits,
+            downlevel,
             errors,
         })
     }

@@ -112,3 +112,106 @@ pub struct StepIndex {
     /// Padding to WGSL's 16-byte uniform size.
     pub _pad: [u32; 3],
 }
+
+/// One spring's block of implicit Euler's system, B_s = β uuᵀ + γ I: twin of `SpringBlock` in
+/// `shaders/system.wgsl` (written by the GPU; the host only reads it in tests).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct SpringBlockGpu {
+    /// Unit direction u.
+    pub u: [f32; 3],
+    /// β = h k_d + h² k_s (1 − α).
+    pub beta: f32,
+    /// γ = h² k_s α.
+    pub gamma: f32,
+    /// Padding to WGSL's 32-byte size (the struct aligns to its vec3's 16).
+    pub _pad: [u32; 3],
+}
+
+/// The scalars of one CG solve: twin of `CgScalars` in `shaders/cg.wgsl`. The host writes the
+/// settings (tolerance, cap, partial count, grids) once, and reads the record after each batch
+/// of iterations.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct CgScalars {
+    /// rᵀP⁻¹r of the current residual.
+    pub delta: f32,
+    /// max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀).
+    pub scale: f32,
+    /// tol²·scale.
+    pub target_delta: f32,
+    /// The smallest δ so far.
+    pub smallest: f32,
+    /// The last step length.
+    pub alpha: f32,
+    /// The last direction factor.
+    pub beta: f32,
+    /// Iterations taken.
+    pub iterations: u32,
+    /// 1 once the solve has stopped.
+    pub done: u32,
+    /// The relative tolerance (preconditioned norm).
+    pub tolerance: f32,
+    /// The iteration cap.
+    pub max_iterations: u32,
+    /// Per-workgroup partial sums of a particle reduction.
+    pub n_partials: u32,
+    /// Padding (the grids align to 8).
+    pub _pad: u32,
+    /// Workgroups of the particle grid along x and y.
+    pub particle_grid: [u32; 2],
+    /// Workgroups of the spring grid along x and y.
+    pub spring_grid: [u32; 2],
+}
+
+impl CgScalars {
+    /// sqrt(δ/scale), 0 when the scale is 0: the CPU's `CgOutcome::relative_residual`.
+    pub fn relative_residual(&self) -> f64 {
+        let (delta, scale) = (f64::from(self.delta), f64::from(self.scale));
+        if scale > 0.0 {
+            (delta.max(0.0) / scale).sqrt()
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Words of the indirect dispatch arguments CG rewrites (`DISPATCH_WORDS` in `shaders/cg.wgsl`):
+/// four slots of (x, y, z).
+pub const CG_DISPATCH_WORDS: usize = 12;
+
+/// Byte offsets of the slots in the indirect dispatch buffer (`DISPATCH_*` in
+/// `shaders/cg.wgsl`, in words there).
+pub mod dispatch_slot {
+    /// Particle kernels while the solve runs.
+    pub const PARTICLES: u64 = 0;
+    /// Spring kernels while the solve runs.
+    pub const SPRINGS: u64 = 12;
+    /// Particle kernels once the solve is done.
+    pub const FINISHED_PARTICLES: u64 = 24;
+    /// Spring kernels once the solve is done.
+    pub const FINISHED_SPRINGS: u64 = 36;
+}
+
+/// One particle's contact record of implicit Euler: twin of `Candidate` in
+/// `shaders/implicit_euler.wgsl` (written by the GPU; the host zeroes it).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct CandidateGpu {
+    /// Outward unit normal N.
+    pub normal: [f32; 3],
+    /// Signed distance φ.
+    pub phi: f32,
+    /// Unit direction of the kinetic friction impulse.
+    pub friction_dir: [f32; 3],
+    /// Target normal velocity.
+    pub vn_target: f32,
+    /// Normal impulse the friction uses.
+    pub lambda_n: f32,
+    /// The surface's μ or k_f.
+    pub friction: f32,
+    /// The surface's k_r.
+    pub restitution: f32,
+    /// Mode (low two bits: 0 none, 1 inactive, 2 stick, 3 slip) and flags.
+    pub state: u32,
+}

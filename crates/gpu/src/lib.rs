@@ -9,7 +9,9 @@
 //! and the read-backs.
 //!
 //! Everything is a gather or an element-wise update, with no float atomics, and reductions add
-//! per-workgroup partial sums in order on the host: a run repeats bit for bit on one adapter.
+//! per-workgroup partial sums in order (on the host for the energies, on the device for implicit
+//! Euler's CG): a run repeats bit for bit on one adapter. Implicit Euler ([`implicit`]) solves to
+//! [`CG_TOLERANCE_F32`] instead of the CPU's 1e-8.
 //! Results differ from the CPU's f64 by f32 rounding (see the adapter tests for the measured
 //! agreement).
 //!
@@ -18,11 +20,13 @@
 #![warn(missing_docs)]
 
 pub mod device;
+pub mod implicit;
 pub mod layout;
 pub mod shaders;
 pub mod solver;
 pub mod terrain;
 
+pub use implicit::CG_TOLERANCE_F32;
 pub use solver::{GpuSolver, Grid, STEPS_PER_SUBMISSION};
 
 /// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`).

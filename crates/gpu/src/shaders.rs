@@ -2,9 +2,18 @@
 //!
 //! WGSL has no includes, so each stage's module is the concatenation of the shared pieces it
 //! needs and its own file: `common.wgsl` (parameters, springs, the thread index) always, then
-//! `terrain.wgsl` for the stages that query the terrain, then `contact.wgsl` for `forces.wgsl`.
-//! [`Stage::bindings`] is the host's side of each module's interface; a test checks it against
-//! the module's declarations with naga, so the two cannot drift apart unnoticed.
+//! `reduce.wgsl` (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR
+//! gather) for the stages that gather per-spring vectors, `terrain.wgsl` for the stages that
+//! query the terrain, then `contact.wgsl` for `forces.wgsl`.
+//! [`Stage::bindings`] is the host's side of each module's interface and [`Stage::kernel`] that
+//! of each entry point; a test checks them against the module's declarations and each entry
+//! point's use with naga, so the two cannot drift apart unnoticed.
+//!
+//! The stages of the explicit integrators bind every binding of their module to each entry
+//! point. The implicit stages (`system.wgsl`, `cg.wgsl`, `implicit_euler.wgsl`) declare more
+//! buffers than one kernel may bind (WebGPU guarantees 8 storage buffers per shader stage), so
+//! each of their entry points gets a pipeline layout of only the bindings it uses, at most 8
+//! storage buffers with the terrain's.
 
 /// `shaders/common.wgsl`.
 pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
@@ -12,6 +21,10 @@ pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
 pub const TERRAIN: &str = include_str!("../../../shaders/terrain.wgsl");
 /// `shaders/contact.wgsl`.
 pub const CONTACT: &str = include_str!("../../../shaders/contact.wgsl");
+/// `shaders/reduce.wgsl`.
+pub const REDUCE: &str = include_str!("../../../shaders/reduce.wgsl");
+/// `shaders/gather.wgsl`.
+pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
 
 /// How a kernel uses a buffer binding.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -51,11 +64,29 @@ pub enum Stage {
     CheckFinite,
     /// `energy.wgsl`.
     Energy,
+    /// `system.wgsl` (implicit Euler's linear system).
+    System,
+    /// `cg.wgsl` (implicit Euler's filtered PCG).
+    Cg,
+    /// `implicit_euler.wgsl` (contacts, active set, update; with terrain).
+    ImplicitEuler,
+}
+
+/// One entry point's interface: its `@group(0)` bindings (a subset of its module's, with the
+/// module's access) and whether it queries the terrain (`@group(1)`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Kernel {
+    /// The entry point.
+    pub entry: &'static str,
+    /// The `@group(0)` binding numbers it uses, ascending (binding 0, `params`, included).
+    pub bindings: &'static [u32],
+    /// Whether its layout has the terrain group.
+    pub terrain: bool,
 }
 
 impl Stage {
     /// Every stage.
-    pub const ALL: [Stage; 9] = [
+    pub const ALL: [Stage; 12] = [
         Stage::SpringForces,
         Stage::Forces,
         Stage::ExplicitEuler,
@@ -65,6 +96,9 @@ impl Stage {
         Stage::CollisionResponse,
         Stage::CheckFinite,
         Stage::Energy,
+        Stage::System,
+        Stage::Cg,
+        Stage::ImplicitEuler,
     ];
 
     /// The stage's file name under `shaders/`.
@@ -79,6 +113,9 @@ impl Stage {
             Stage::CollisionResponse => "collision_response.wgsl",
             Stage::CheckFinite => "check_finite.wgsl",
             Stage::Energy => "energy.wgsl",
+            Stage::System => "system.wgsl",
+            Stage::Cg => "cg.wgsl",
+            Stage::ImplicitEuler => "implicit_euler.wgsl",
         }
     }
 
@@ -94,6 +131,9 @@ impl Stage {
             Stage::CollisionResponse => include_str!("../../../shaders/collision_response.wgsl"),
             Stage::CheckFinite => include_str!("../../../shaders/check_finite.wgsl"),
             Stage::Energy => include_str!("../../../shaders/energy.wgsl"),
+            Stage::System => include_str!("../../../shaders/system.wgsl"),
+            Stage::Cg => include_str!("../../../shaders/cg.wgsl"),
+            Stage::ImplicitEuler => include_str!("../../../shaders/implicit_euler.wgsl"),
         }
     }
 
@@ -109,12 +149,124 @@ impl Stage {
             Stage::CollisionResponse => &["collision_response"],
             Stage::CheckFinite => &["check_finite"],
             Stage::Energy => &["energy_particles", "energy_springs"],
+            Stage::System => &[
+                "assemble_springs",
+                "assemble_particles",
+                "apply_springs",
+                "apply_particles",
+            ],
+            Stage::Cg => &[
+                "cg_start",
+                "cg_residual",
+                "cg_begin",
+                "cg_curvature",
+                "cg_alpha",
+                "cg_advance",
+                "cg_beta",
+                "cg_direction",
+            ],
+            Stage::ImplicitEuler => &[
+                "implicit_candidates",
+                "implicit_constrain",
+                "implicit_active_set",
+                "implicit_finish",
+            ],
         }
+    }
+
+    /// Whether each entry point has a layout of its own bindings ([`Stage::kernel`]) rather than
+    /// the module's.
+    pub fn per_entry_layouts(self) -> bool {
+        matches!(self, Stage::System | Stage::Cg | Stage::ImplicitEuler)
+    }
+
+    /// The interface of entry point `entry`: for the implicit stages its own bindings, for the
+    /// others all of the module's.
+    pub fn kernel(self, entry: &str) -> Kernel {
+        let own = |entry: &'static str, bindings: &'static [u32], terrain: bool| Kernel {
+            entry,
+            bindings,
+            terrain,
+        };
+        let all = |entry: &'static str| -> Kernel {
+            const ALL: [u32; 8] = [0, 1, 2, 3, 4, 5, 6, 7];
+            let n = self.bindings().len();
+            own(entry, &ALL[..n], self.uses_terrain())
+        };
+        let &name = self
+            .entry_points()
+            .iter()
+            .find(|&&e| e == entry)
+            .unwrap_or_else(|| panic!("{} has no entry point {entry}", self.file()));
+        match (self, name) {
+            // params; x, v, springs, blocks, per_spring_out
+            (Stage::System, "assemble_springs") => own(name, &[0, 1, 2, 6, 7, 8], false),
+            // params; v, per_spring, adjacency, mass, blocks, b, diag
+            (Stage::System, "assemble_particles") => own(name, &[0, 2, 3, 4, 5, 7, 11, 12], false),
+            // params; springs, blocks, per_spring_out, p
+            (Stage::System, "apply_springs") => own(name, &[0, 6, 7, 8, 9], false),
+            // params; per_spring, adjacency, p, out, diag
+            (Stage::System, "apply_particles") => own(name, &[0, 3, 4, 9, 10, 12], false),
+            // params; constraints, z, dv
+            (Stage::Cg, "cg_start") => own(name, &[0, 1, 2, 3], false),
+            // params; constraints, rhs, q, r, c, diag, partials
+            (Stage::Cg, "cg_residual") => own(name, &[0, 1, 4, 5, 6, 7, 8, 9], false),
+            // params; partials, scalars, dispatch
+            (Stage::Cg, "cg_begin" | "cg_alpha" | "cg_beta") => own(name, &[0, 9, 10, 11], false),
+            // params; constraints, q, c, partials
+            (Stage::Cg, "cg_curvature") => own(name, &[0, 1, 5, 7, 9], false),
+            // params; dv, q, r, c, diag, partials, scalars
+            (Stage::Cg, "cg_advance") => own(name, &[0, 3, 5, 6, 7, 8, 9, 10], false),
+            // params; constraints, r, c, diag, scalars
+            (Stage::Cg, "cg_direction") => own(name, &[0, 1, 6, 7, 8, 10], false),
+            // params; x, v, mass, b, candidates; terrain
+            (Stage::ImplicitEuler, "implicit_candidates") => own(name, &[0, 1, 2, 3, 5, 8], true),
+            // params; v, mass, rhs, b, candidates, constraints, z
+            (Stage::ImplicitEuler, "implicit_constrain") => {
+                own(name, &[0, 2, 3, 4, 5, 8, 9, 10], false)
+            }
+            // params; v, mass, rhs, dv, q, candidates, changed
+            (Stage::ImplicitEuler, "implicit_active_set") => {
+                own(name, &[0, 2, 3, 4, 6, 7, 8, 11], false)
+            }
+            // params; x, v, dv
+            (Stage::ImplicitEuler, "implicit_finish") => own(name, &[0, 1, 2, 6], false),
+            _ => all(name),
+        }
+    }
+
+    /// The `(binding, access)` entries of a kernel's `@group(0)` layout.
+    pub fn kernel_bindings(self, kernel: &Kernel) -> Vec<(u32, Access)> {
+        kernel
+            .bindings
+            .iter()
+            .map(|&b| {
+                let &(_, access) = self
+                    .bindings()
+                    .iter()
+                    .find(|&&(binding, _)| binding == b)
+                    .unwrap_or_else(|| panic!("{} has no binding {b}", self.file()));
+                (b, access)
+            })
+            .collect()
     }
 
     /// Whether its module includes the terrain (bound at `@group(1)`).
     pub fn uses_terrain(self) -> bool {
-        matches!(self, Stage::Forces | Stage::CollisionResponse)
+        matches!(
+            self,
+            Stage::Forces | Stage::CollisionResponse | Stage::ImplicitEuler
+        )
+    }
+
+    /// Whether its module includes `reduce.wgsl`.
+    fn uses_reduce(self) -> bool {
+        matches!(self, Stage::Energy | Stage::Cg)
+    }
+
+    /// Whether its module includes `gather.wgsl` (bindings 3 and 4).
+    fn uses_gather(self) -> bool {
+        matches!(self, Stage::Forces | Stage::System)
     }
 
     /// Its `@group(0)` bindings, in order; binding 0 is always `params`. The host builds the
@@ -184,12 +336,65 @@ impl Stage {
                 (5, ReadWrite),
                 (6, ReadWrite),
             ],
+            // params, x, v, per_spring, adjacency, mass, springs, blocks, per_spring_out, p,
+            // out, b, diag
+            Stage::System => &[
+                (0, Uniform),
+                (1, Read),
+                (2, Read),
+                (3, Read),
+                (4, Read),
+                (5, Read),
+                (6, Read),
+                (7, ReadWrite),
+                (8, ReadWrite),
+                (9, Read),
+                (10, ReadWrite),
+                (11, ReadWrite),
+                (12, ReadWrite),
+            ],
+            // params, constraints, z, dv, rhs, q, r, c, diag, partials, scalars, dispatch
+            Stage::Cg => &[
+                (0, Uniform),
+                (1, Read),
+                (2, Read),
+                (3, ReadWrite),
+                (4, Read),
+                (5, ReadWrite),
+                (6, ReadWrite),
+                (7, ReadWrite),
+                (8, Read),
+                (9, ReadWrite),
+                (10, ReadWrite),
+                (11, ReadWrite),
+            ],
+            // params, x, v, mass, rhs, b, dv, q, candidates, constraints, z, changed
+            Stage::ImplicitEuler => &[
+                (0, Uniform),
+                (1, ReadWrite),
+                (2, ReadWrite),
+                (3, Read),
+                (4, ReadWrite),
+                (5, Read),
+                (6, Read),
+                (7, Read),
+                (8, ReadWrite),
+                (9, ReadWrite),
+                (10, ReadWrite),
+                (11, ReadWrite),
+            ],
         }
     }
 
     /// The pieces of its module, in order: (file name, source).
     pub fn pieces(self) -> Vec<(&'static str, &'static str)> {
         let mut pieces = vec![("common.wgsl", COMMON)];
+        if self.uses_reduce() {
+            pieces.push(("reduce.wgsl", REDUCE));
+        }
+        if self.uses_gather() {
+            pieces.push(("gather.wgsl", GATHER));
+        }
         if self.uses_terrain() {
             pieces.push(("terrain.wgsl", TERRAIN));
         }

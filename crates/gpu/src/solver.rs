@@ -10,10 +10,13 @@
 //! | explicit / symplectic Euler | forces(x, v) → update |
 //! | midpoint | forces(x, v) → `midpoint_stage` → forces(stage) → `midpoint_update` |
 //! | RK4 | forces(x, v) → `rk4_first` → forces(stage) → `rk4_second` → forces(stage) → `rk4_third` → forces(stage) → `rk4_last` |
+//! | implicit Euler | assemble → candidates → (constrain → CG → active set)×rounds → finish: see [`crate::implicit`] |
 //!
 //! where forces(·) is `spring_forces` then `accelerations`, followed by `collision_response` (when
 //! there is terrain) and `check_finite`. [`STEPS_PER_SUBMISSION`] steps go into one command
-//! buffer; after each submission the host reads back the 12-byte status only.
+//! buffer; after each submission the host reads back the 12-byte status only. Implicit Euler
+//! cannot know its CG iterations and active-set rounds in advance: it synchronises at least once
+//! per step on a 68-byte read-back, and reads the status after [`STEPS_PER_SUBMISSION`] steps.
 //!
 //! # Instability
 //!
@@ -43,7 +46,8 @@ use softbody_scene::{
 use wgpu::util::DeviceExt;
 
 use crate::device::Gpu;
-use crate::layout::{NONE, Params, SpringGpu, Status, StepIndex};
+use crate::implicit::{self, Implicit, Progress};
+use crate::layout::{CandidateGpu, NONE, Params, SpringBlockGpu, SpringGpu, Status, StepIndex};
 use crate::shaders::{Access, Stage, TERRAIN_BINDINGS};
 use crate::terrain;
 use crate::{GpuError, WORKGROUP_SIZE};
@@ -130,7 +134,8 @@ struct Buffers {
 struct Pipelines {
     spring_forces: wgpu::ComputePipeline,
     accelerations: wgpu::ComputePipeline,
-    /// The integrator's entry points, in [`Stage::entry_points`] order.
+    /// The integrator's entry points, in [`Stage::entry_points`] order (none for implicit Euler,
+    /// whose kernels [`Implicit`] holds).
     update: Vec<wgpu::ComputePipeline>,
     collision_response: wgpu::ComputePipeline,
     check_finite: wgpu::ComputePipeline,
@@ -142,7 +147,7 @@ struct BindGroups {
     spring_forces: [Option<wgpu::BindGroup>; 2],
     forces: [Option<wgpu::BindGroup>; 2],
     terrain: wgpu::BindGroup,
-    update: wgpu::BindGroup,
+    update: Option<wgpu::BindGroup>,
     collision_response: wgpu::BindGroup,
     check_finite: wgpu::BindGroup,
     energy: wgpu::BindGroup,
@@ -155,6 +160,8 @@ pub struct GpuSolver {
     buffers: Buffers,
     pipelines: Pipelines,
     groups: BindGroups,
+    /// Implicit Euler's buffers and kernels.
+    implicit: Option<Implicit>,
     particle_grid: Grid,
     spring_grid: Grid,
     n_surfaces: u32,
@@ -328,8 +335,9 @@ impl GpuSolver {
     /// Opens a device and uploads `model` and `state`.
     ///
     /// Fails with [`GpuError::NoAdapter`] when no adapter is found, [`GpuError::Limit`] when the
-    /// scene exceeds the adapter's limits, [`GpuError::Unsupported`] for implicit Euler (not on
-    /// the GPU yet), and [`GpuError::Device`] when the device or the pipelines cannot be created.
+    /// scene exceeds the adapter's limits, [`GpuError::Unsupported`] for implicit Euler on an
+    /// adapter without indirect dispatch (`DownlevelFlags::INDIRECT_EXECUTION`), and
+    /// [`GpuError::Device`] when the device or the pipelines cannot be created.
     pub fn new(model: Model, state: State) -> Result<GpuSolver, GpuError> {
         Self::with_grid_width(model, state, None)
     }
@@ -344,15 +352,20 @@ impl GpuSolver {
         width: Option<u32>,
     ) -> Result<GpuSolver, GpuError> {
         let integrator = model.simulation.integrator;
-        if integrator == Integrator::ImplicitEuler {
-            return Err(GpuError::Unsupported(
-                "the GPU backend does not run implicit-euler yet: use --backend cpu, or an \
-                 explicit integrator (explicit-euler, symplectic-euler, midpoint, rk4)"
-                    .to_owned(),
-            ));
-        }
+        let implicit = integrator == Integrator::ImplicitEuler;
         let gpu = Gpu::open()?;
         let adapter = gpu.name();
+        if implicit
+            && !gpu
+                .downlevel
+                .contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION)
+        {
+            return Err(GpuError::Unsupported(format!(
+                "{adapter} cannot dispatch compute work indirectly, which the GPU's implicit-euler \
+                 needs (its CG iterations stop on the device): use --backend cpu, or an explicit \
+                 integrator"
+            )));
+        }
         let n = model.len() as u64;
         let m = model.springs.len() as u64;
         let packed = terrain::pack(&model.terrain);
@@ -389,6 +402,19 @@ impl GpuSolver {
             needs.push(need("RK4 position sums", n, VEC4));
             needs.push(need("RK4 velocity sums", n, VEC4));
         }
+        if implicit {
+            needs.push(need("preconditioner blocks", 2 * n, VEC4));
+            needs.push(need(
+                "spring blocks",
+                m,
+                std::mem::size_of::<SpringBlockGpu>() as u64,
+            ));
+            needs.push(need(
+                "contact candidates",
+                n,
+                std::mem::size_of::<CandidateGpu>() as u64,
+            ));
+        }
         check_limits(
             &gpu.limits,
             &adapter,
@@ -410,11 +436,18 @@ impl GpuSolver {
         };
         let particle_partials = particle_grid.groups().max(1) * 8;
         let spring_partials = spring_grid.groups().max(1) * 4;
-        // Holds x and v (state), the energy partials, or (for the stage tests) per-spring forces.
-        let readback_bytes = (2 * n * VEC4)
+        // Holds x and v (state), the energy partials, or (for the stage tests) per-spring forces;
+        // for implicit Euler the CG progress, or (for its stage tests) four vectors per particle
+        // or the spring blocks.
+        let mut readback_bytes = (2 * n * VEC4)
             .max(m * VEC4)
             .max(particle_partials + spring_partials)
             .max(std::mem::size_of::<Status>() as u64);
+        if implicit {
+            readback_bytes = readback_bytes
+                .max(4 * n * VEC4 + Progress::BYTES)
+                .max(m * std::mem::size_of::<SpringBlockGpu>() as u64);
+        }
 
         let device = &gpu.device;
         let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -433,6 +466,7 @@ impl GpuSolver {
             particle_partials,
             spring_partials,
             readback_bytes,
+            (particle_grid, spring_grid),
         );
         // Scopes pop in reverse order.
         let errors = [
@@ -446,7 +480,7 @@ impl GpuSolver {
                 message: format!("cannot set up the solver: {e}"),
             });
         }
-        let (buffers, pipelines, groups) = built;
+        let (buffers, pipelines, groups, implicit) = built;
         // The host copy is what the device holds: the state rounded to f32.
         for p in state.x.iter_mut().chain(state.v.iter_mut()) {
             *p = p.as_vec3().as_dvec3();
@@ -457,6 +491,7 @@ impl GpuSolver {
             buffers,
             pipelines,
             groups,
+            implicit,
             particle_grid,
             spring_grid,
             n_surfaces,
@@ -479,7 +514,8 @@ impl GpuSolver {
         particle_partials: u64,
         spring_partials: u64,
         readback_bytes: u64,
-    ) -> (Buffers, Pipelines, BindGroups) {
+        (particle_grid, spring_grid): (Grid, Grid),
+    ) -> (Buffers, Pipelines, BindGroups, Option<Implicit>) {
         let device = &gpu.device;
         let integrator = model.simulation.integrator;
         let multi_stage = matches!(integrator, Integrator::Midpoint | Integrator::Rk4);
@@ -569,30 +605,9 @@ impl GpuSolver {
         };
 
         let layout_of = |label: &str, bindings: &[(u32, Access)]| {
-            let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
-                .iter()
-                .map(|&(binding, access)| wgpu::BindGroupLayoutEntry {
-                    binding,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: match access {
-                            Access::Uniform | Access::DynamicUniform => {
-                                wgpu::BufferBindingType::Uniform
-                            }
-                            Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
-                            Access::ReadWrite => {
-                                wgpu::BufferBindingType::Storage { read_only: false }
-                            }
-                        },
-                        has_dynamic_offset: access == Access::DynamicUniform,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                })
-                .collect();
             device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some(label),
-                entries: &entries,
+                entries: &implicit::layout_entries(bindings),
             })
         };
         let terrain_layout = layout_of("terrain", TERRAIN_BINDINGS);
@@ -631,13 +646,16 @@ impl GpuSolver {
         let (spring_layout, mut spring_pipes) = stage(Stage::SpringForces);
         let (forces_layout, mut forces_pipes) = stage(Stage::Forces);
         let update_stage = match integrator {
-            Integrator::ExplicitEuler => Stage::ExplicitEuler,
-            Integrator::SymplecticEuler => Stage::SymplecticEuler,
-            Integrator::Midpoint => Stage::Midpoint,
-            // Implicit Euler is refused in `new`.
-            Integrator::Rk4 | Integrator::ImplicitEuler => Stage::Rk4,
+            Integrator::ExplicitEuler => Some(Stage::ExplicitEuler),
+            Integrator::SymplecticEuler => Some(Stage::SymplecticEuler),
+            Integrator::Midpoint => Some(Stage::Midpoint),
+            Integrator::Rk4 => Some(Stage::Rk4),
+            Integrator::ImplicitEuler => None,
         };
-        let (update_layout, update) = stage(update_stage);
+        let (update_layout, update) = match update_stage.map(stage) {
+            Some((layout, pipelines)) => (Some(layout), pipelines),
+            None => (None, Vec::new()),
+        };
         let (collision_layout, mut collision_pipes) = stage(Stage::CollisionResponse);
         let (check_layout, mut check_pipes) = stage(Stage::CheckFinite);
         let (energy_layout, mut energy_pipes) = stage(Stage::Energy);
@@ -671,23 +689,25 @@ impl GpuSolver {
             })
         };
         let stage_xv = b.stage_x.as_ref().zip(b.stage_v.as_ref());
-        let update_group = match (
-            update_stage,
-            stage_xv,
-            b.sum_x.as_ref().zip(b.sum_v.as_ref()),
-        ) {
-            (Stage::Rk4, Some((sx, sv)), Some((ux, uv))) => group(
-                "rk4",
-                &update_layout,
-                &[&b.params, &b.x, &b.v, &b.a, sx, sv, ux, uv],
-            ),
-            (Stage::Midpoint, Some((sx, sv)), _) => group(
-                "midpoint",
-                &update_layout,
-                &[&b.params, &b.x, &b.v, &b.a, sx, sv],
-            ),
-            _ => group("euler", &update_layout, &[&b.params, &b.x, &b.v, &b.a]),
-        };
+        let update_group = update_layout.as_ref().map(|update_layout| {
+            match (
+                update_stage,
+                stage_xv,
+                b.sum_x.as_ref().zip(b.sum_v.as_ref()),
+            ) {
+                (Some(Stage::Rk4), Some((sx, sv)), Some((ux, uv))) => group(
+                    "rk4",
+                    update_layout,
+                    &[&b.params, &b.x, &b.v, &b.a, sx, sv, ux, uv],
+                ),
+                (Some(Stage::Midpoint), Some((sx, sv)), _) => group(
+                    "midpoint",
+                    update_layout,
+                    &[&b.params, &b.x, &b.v, &b.a, sx, sv],
+                ),
+                _ => group("euler", update_layout, &[&b.params, &b.x, &b.v, &b.a]),
+            }
+        });
         let groups = BindGroups {
             spring_forces: [
                 Some(group(
@@ -788,7 +808,28 @@ impl GpuSolver {
                 ],
             ),
         };
-        (buffers, pipelines, groups)
+        let implicit = (integrator == Integrator::ImplicitEuler).then(|| {
+            let shared = implicit::Shared {
+                params: &b.params,
+                x: &b.x,
+                v: &b.v,
+                mass: &b.mass,
+                springs: &b.springs,
+                adjacency: &b.adjacency,
+                per_spring: &b.per_spring,
+                terrain_layout: &terrain_layout,
+                terrain: &groups.terrain,
+            };
+            Implicit::new(
+                device,
+                model,
+                &shared,
+                n_surfaces > 0,
+                particle_grid,
+                spring_grid,
+            )
+        });
+        (buffers, pipelines, groups, implicit)
     }
 
     /// The adapter, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) via Vulkan".
@@ -883,7 +924,9 @@ impl GpuSolver {
     fn encode_step(&self, pass: &mut wgpu::ComputePass<'_>, k: u64) {
         let p = &self.pipelines;
         let grid = self.particle_grid;
-        let update = &self.groups.update;
+        let Some(update) = &self.groups.update else {
+            unreachable!("implicit Euler steps through Implicit")
+        };
         match self.model.simulation.integrator {
             Integrator::ExplicitEuler | Integrator::SymplecticEuler => {
                 self.encode_accelerations(pass, Input::Main);
@@ -895,7 +938,7 @@ impl GpuSolver {
                 self.encode_accelerations(pass, Input::Stage);
                 self.dispatch(pass, &p.update[1], update, false, grid);
             }
-            Integrator::Rk4 | Integrator::ImplicitEuler => {
+            Integrator::Rk4 => {
                 self.encode_accelerations(pass, Input::Main);
                 self.dispatch(pass, &p.update[0], update, false, grid);
                 for k in 1..4 {
@@ -903,6 +946,7 @@ impl GpuSolver {
                     self.dispatch(pass, &p.update[k], update, false, grid);
                 }
             }
+            Integrator::ImplicitEuler => unreachable!("implicit Euler steps through Implicit"),
         }
         if self.n_surfaces > 0 {
             self.dispatch(
@@ -913,12 +957,106 @@ impl GpuSolver {
                 grid,
             );
         }
+        self.encode_check(pass, k);
+    }
+
+    /// The instability check of step `k` (0-based) of a submission.
+    fn encode_check(&self, pass: &mut wgpu::ComputePass<'_>, k: u64) {
+        let grid = self.particle_grid;
         if grid.groups() > 0 {
-            pass.set_pipeline(&p.check_finite);
+            pass.set_pipeline(&self.pipelines.check_finite);
             let offset = (k * self.step_stride) as u32;
             pass.set_bind_group(0, &self.groups.check_finite, &[offset]);
             pass.dispatch_workgroups(grid.x, grid.y, 1);
         }
+    }
+
+    /// Encodes `encode` into one compute pass of a new command encoder.
+    fn encode_pass(
+        &self,
+        label: &str,
+        encode: impl FnOnce(&mut wgpu::ComputePass<'_>),
+    ) -> wgpu::CommandEncoder {
+        let mut encoder = self.encoder(label);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(label),
+                timestamp_writes: None,
+            });
+            encode(&mut pass);
+        }
+        encoder
+    }
+
+    fn implicit(&self) -> &Implicit {
+        self.implicit
+            .as_ref()
+            .expect("the implicit buffers exist for implicit Euler")
+    }
+
+    /// Submits `encoder` (after resetting the active set's `changed` word) and reads the CG
+    /// progress back.
+    fn implicit_progress(&mut self, encoder: wgpu::CommandEncoder) -> Result<Progress, StepError> {
+        let (scalars, changed) = {
+            let im = self.implicit();
+            (im.scalars.clone(), im.changed.clone())
+        };
+        let size = std::mem::size_of::<crate::layout::CgScalars>() as u64;
+        let bytes = self.submit_and_read(encoder, &[(&scalars, size), (&changed, 4)])?;
+        Ok(Progress::parse(&bytes))
+    }
+
+    /// Runs CG batches until the solve begun in `encoder` is done; returns the last progress.
+    fn implicit_solve(&mut self, encoder: wgpu::CommandEncoder) -> Result<Progress, StepError> {
+        let changed = self.implicit().changed.clone();
+        self.gpu
+            .queue
+            .write_buffer(&changed, 0, bytemuck::bytes_of(&0u32));
+        let mut progress = self.implicit_progress(encoder)?;
+        while progress.scalars.done == 0 {
+            let encoder = self.encode_pass("cg batch", |pass| {
+                let im = self.implicit();
+                im.encode_batch(pass, im.batch(false));
+            });
+            progress = self.implicit_progress(encoder)?;
+        }
+        let scalars = progress.scalars;
+        if let Some(im) = self.implicit.as_mut() {
+            im.record(&scalars);
+        }
+        Ok(progress)
+    }
+
+    /// Step `k` (0-based) of an `advance` chunk of implicit Euler (see [`crate::implicit`]).
+    fn implicit_step(&mut self, k: u64) -> Result<(), StepError> {
+        if self.model.is_empty() {
+            return Ok(());
+        }
+        let im = self.implicit();
+        let contacts = im.has_terrain;
+        let encoder = self.encode_pass("implicit step", |pass| {
+            let im = self.implicit();
+            im.encode_assemble(pass);
+            im.encode_round(pass, true);
+            im.encode_batch(pass, im.batch(true));
+        });
+        let mut progress = self.implicit_solve(encoder)?;
+        let mut rounds = 1;
+        while contacts && progress.changed && rounds < implicit::ROUNDS {
+            let encoder = self.encode_pass("active-set round", |pass| {
+                let im = self.implicit();
+                im.encode_round(pass, true);
+                im.encode_batch(pass, im.batch(true));
+            });
+            progress = self.implicit_solve(encoder)?;
+            rounds += 1;
+        }
+        let encoder = self.encode_pass("implicit finish", |pass| {
+            self.implicit().encode_finish(pass);
+            self.encode_check(pass, k);
+        });
+        self.gpu.queue.submit([encoder.finish()]);
+        Ok(())
     }
 
     /// Submits `encoder` after appending copies of `sources` (buffer, bytes) into the read-back
@@ -1031,6 +1169,71 @@ impl GpuSolver {
         Ok(to_vec3(&bytes))
     }
 
+    /// Implicit Euler's system at the current state, and its product with `p`: runs the assembly
+    /// and one product alone. Returns b, the inverse diagonal blocks (`diag`: P⁻¹xx, P⁻¹yy,
+    /// P⁻¹zz, m(1 + h·drag), P⁻¹xy, P⁻¹xz, P⁻¹yz, 0 per particle) and A p.
+    #[doc(hidden)]
+    pub fn debug_implicit_system(&mut self, p: &[DVec3]) -> Result<ImplicitSystem, StepError> {
+        let n = self.model.len() as u64;
+        let Some(im) = &self.implicit else {
+            return Err(StepError::Device("not an implicit-euler solver".to_owned()));
+        };
+        let (b, diag, q) = (im.b.clone(), im.diag.clone(), im.q.clone());
+        self.gpu
+            .queue
+            .write_buffer(&im.dv, 0, bytemuck::cast_slice(&vec4s(p)));
+        let bytes = self.run_and_read(
+            |s, pass| {
+                let im = s.implicit();
+                im.encode_assemble(pass);
+                im.encode_apply_dv(pass);
+            },
+            &[(&b, n * VEC4), (&diag, 2 * n * VEC4), (&q, n * VEC4)],
+        )?;
+        let (b, rest) = bytes.split_at((n * VEC4) as usize);
+        let (diag, q) = rest.split_at((2 * n * VEC4) as usize);
+        Ok((to_vec3(b), bytemuck::pod_collect_to_vec(diag), to_vec3(q)))
+    }
+
+    /// One CG solve of implicit Euler's system at the current state with the given
+    /// constraints, right-hand side, prescribed Δv and warm start (the twin of
+    /// `softbody_cpu::integrators::implicit_euler::cg::solve`): returns Δv and the scalars it
+    /// ended with.
+    #[doc(hidden)]
+    pub fn debug_implicit_solve(
+        &mut self,
+        constraints: &[softbody_cpu::integrators::implicit_euler::cg::Constraint],
+        rhs: &[DVec3],
+        z: &[DVec3],
+        dv: &[DVec3],
+    ) -> Result<(Vec<DVec3>, crate::layout::CgScalars), StepError> {
+        self.healthy()?;
+        let n = self.model.len() as u64;
+        let Some(im) = &self.implicit else {
+            return Err(StepError::Device("not an implicit-euler solver".to_owned()));
+        };
+        let queue = &self.gpu.queue;
+        let packed: Vec<[f32; 4]> = constraints
+            .iter()
+            .map(|&c| implicit::constraint_vec4(c))
+            .collect();
+        queue.write_buffer(&im.constraints, 0, bytemuck::cast_slice(&packed));
+        queue.write_buffer(&im.rhs, 0, bytemuck::cast_slice(&vec4s(rhs)));
+        queue.write_buffer(&im.z, 0, bytemuck::cast_slice(&vec4s(z)));
+        queue.write_buffer(&im.dv, 0, bytemuck::cast_slice(&vec4s(dv)));
+        let dv = im.dv.clone();
+        let encoder = self.encode_pass("cg solve", |pass| {
+            let im = self.implicit();
+            im.encode_assemble(pass);
+            im.encode_round(pass, false);
+            im.encode_batch(pass, im.batch(true));
+        });
+        let progress = self.implicit_solve(encoder)?;
+        let encoder = self.encoder("read dv");
+        let bytes = self.submit_and_read(encoder, &[(&dv, n * VEC4)])?;
+        Ok((to_dvec3(&bytes), progress.scalars))
+    }
+
     /// Destroys the device, as a driver reset would lose it: for the failure tests.
     #[doc(hidden)]
     pub fn debug_destroy_device(&self) {
@@ -1056,6 +1259,9 @@ impl GpuSolver {
         self.healthy()
     }
 }
+
+/// What [`GpuSolver::debug_implicit_system`] reads back: b, the `diag` pairs, A p.
+pub type ImplicitSystem = (Vec<Vec3>, Vec<[f32; 8]>, Vec<Vec3>);
 
 fn to_vec3(bytes: &[u8]) -> Vec<Vec3> {
     let v: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(bytes);
@@ -1094,16 +1300,19 @@ impl Solver for GpuSolver {
                 0,
                 bytemuck::bytes_of(&Status::RESET),
             );
-            let mut encoder = self.encoder("steps");
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("steps"),
-                    timestamp_writes: None,
-                });
+            let encoder = if self.implicit.is_some() {
+                // Each step synchronises on its CG read-backs; the status is read at the end.
                 for k in 0..batch {
-                    self.encode_step(&mut pass, k);
+                    self.implicit_step(k)?;
                 }
-            }
+                self.encoder("status")
+            } else {
+                self.encode_pass("steps", |pass| {
+                    for k in 0..batch {
+                        self.encode_step(pass, k);
+                    }
+                })
+            };
             let status = self.read_status(encoder)?;
             if status.bad_step != NONE {
                 let step = self.steps + u64::from(status.bad_step);
@@ -1181,9 +1390,14 @@ impl Solver for GpuSolver {
     }
 
     fn statistics(&self) -> Statistics {
+        let implicit = self
+            .implicit
+            .as_ref()
+            .map(|im| im.statistics)
+            .unwrap_or_default();
         Statistics {
             steps: self.steps,
-            ..Statistics::default()
+            ..implicit
         }
     }
 }

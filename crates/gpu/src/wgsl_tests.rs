@@ -6,7 +6,10 @@ use std::mem::{offset_of, size_of};
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 
-use crate::layout::{Params, SpringGpu, Status, StepIndex};
+use crate::layout::{
+    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, Params, SpringBlockGpu, SpringGpu, Status,
+    StepIndex, dispatch_slot,
+};
 use crate::shaders::{Access, Stage, TERRAIN_BINDINGS};
 use crate::terrain::SurfaceGpu;
 
@@ -93,6 +96,64 @@ fn entry_points_exist_with_the_dispatched_workgroup_size() {
             assert_eq!(ep.workgroup_size, expected, "{name} in {}", stage.file());
         }
         assert_eq!(module.entry_points.len(), stage.entry_points().len());
+    }
+}
+
+/// Each entry point uses exactly the bindings of its [`Stage::kernel`] table (for the stages
+/// with per-entry layouts; for the others, a subset of the module's), its terrain group only if
+/// the table says so, and at most 8 storage buffers (WebGPU's guaranteed minimum per stage).
+#[test]
+fn entry_points_use_their_kernel_bindings() {
+    for stage in Stage::ALL {
+        let module = parse(stage);
+        let info = Validator::new(ValidationFlags::all(), Capabilities::default())
+            .validate(&module)
+            .expect("validates");
+        for (index, ep) in module.entry_points.iter().enumerate() {
+            let uses = info.get_entry_point(index);
+            let mut used: Vec<(u32, u32)> = module
+                .global_variables
+                .iter()
+                .filter(|&(handle, var)| var.binding.is_some() && !uses[handle].is_empty())
+                .map(|(_, var)| {
+                    let b = var.binding.as_ref().unwrap();
+                    (b.group, b.binding)
+                })
+                .collect();
+            used.sort();
+            let kernel = stage.kernel(&ep.name);
+            let mut declared: Vec<(u32, u32)> = kernel.bindings.iter().map(|&b| (0, b)).collect();
+            if kernel.terrain {
+                declared.extend(TERRAIN_BINDINGS.iter().map(|&(b, _)| (1, b)));
+            }
+            let name = format!("{} in {}", ep.name, stage.file());
+            if stage.per_entry_layouts() {
+                // Binding 0 (params) is in every layout, used or not.
+                let used_or_params: Vec<(u32, u32)> = if used.contains(&(0, 0)) {
+                    used.clone()
+                } else {
+                    std::iter::once((0, 0))
+                        .chain(used.iter().copied())
+                        .collect()
+                };
+                assert_eq!(used_or_params, declared, "bindings of {name}");
+            } else {
+                for b in &used {
+                    assert!(declared.contains(b), "{name} uses {b:?} outside its layout");
+                }
+            }
+            let storage = stage
+                .kernel_bindings(&kernel)
+                .iter()
+                .filter(|(_, a)| matches!(a, Access::Read | Access::ReadWrite))
+                .count()
+                + if kernel.terrain {
+                    TERRAIN_BINDINGS.len()
+                } else {
+                    0
+                };
+            assert!(storage <= 8, "{name} binds {storage} storage buffers");
+        }
     }
 }
 
@@ -220,5 +281,115 @@ fn locate_maps_composed_lines_back_to_files() {
             }
         }
         assert_eq!(headers, pieces.len());
+    }
+}
+
+#[test]
+fn spring_block_layout_matches() {
+    let pad = offset_of!(SpringBlockGpu, _pad);
+    assert_eq!(pad, 20);
+    check_layout(
+        Stage::System,
+        "SpringBlock",
+        size_of::<SpringBlockGpu>(),
+        &[
+            ("u", offset_of!(SpringBlockGpu, u)),
+            ("beta", offset_of!(SpringBlockGpu, beta)),
+            ("gamma", offset_of!(SpringBlockGpu, gamma)),
+        ],
+    );
+}
+
+#[test]
+fn cg_scalars_layout_matches() {
+    check_layout(
+        Stage::Cg,
+        "CgScalars",
+        size_of::<CgScalars>(),
+        &[
+            ("delta", offset_of!(CgScalars, delta)),
+            ("scale", offset_of!(CgScalars, scale)),
+            ("target_delta", offset_of!(CgScalars, target_delta)),
+            ("smallest", offset_of!(CgScalars, smallest)),
+            ("alpha", offset_of!(CgScalars, alpha)),
+            ("beta", offset_of!(CgScalars, beta)),
+            ("iterations", offset_of!(CgScalars, iterations)),
+            ("done", offset_of!(CgScalars, done)),
+            ("tolerance", offset_of!(CgScalars, tolerance)),
+            ("max_iterations", offset_of!(CgScalars, max_iterations)),
+            ("n_partials", offset_of!(CgScalars, n_partials)),
+            ("_pad", offset_of!(CgScalars, _pad)),
+            ("particle_grid", offset_of!(CgScalars, particle_grid)),
+            ("spring_grid", offset_of!(CgScalars, spring_grid)),
+        ],
+    );
+}
+
+#[test]
+fn candidate_layout_matches() {
+    check_layout(
+        Stage::ImplicitEuler,
+        "Candidate",
+        size_of::<CandidateGpu>(),
+        &[
+            ("normal", offset_of!(CandidateGpu, normal)),
+            ("phi", offset_of!(CandidateGpu, phi)),
+            ("friction_dir", offset_of!(CandidateGpu, friction_dir)),
+            ("vn_target", offset_of!(CandidateGpu, vn_target)),
+            ("lambda_n", offset_of!(CandidateGpu, lambda_n)),
+            ("friction", offset_of!(CandidateGpu, friction)),
+            ("restitution", offset_of!(CandidateGpu, restitution)),
+            ("state", offset_of!(CandidateGpu, state)),
+        ],
+    );
+}
+
+/// The value of a `const` of a module (u32 or f32 literal).
+fn wgsl_const(stage: Stage, name: &str) -> f64 {
+    let module = parse(stage);
+    let (_, c) = module
+        .constants
+        .iter()
+        .find(|(_, c)| c.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("no const {name} in {}", stage.file()));
+    match module.global_expressions[c.init] {
+        naga::Expression::Literal(naga::Literal::U32(v)) => f64::from(v),
+        naga::Expression::Literal(naga::Literal::F32(v)) => f64::from(v),
+        naga::Expression::Literal(naga::Literal::AbstractInt(v)) => v as f64,
+        naga::Expression::Literal(naga::Literal::AbstractFloat(v)) => v,
+        ref other => panic!("{name} is not a literal: {other:?}"),
+    }
+}
+
+/// The indirect dispatch slots the host dispatches from are those the scalar kernels write, and
+/// the constraint codes the host uploads are the shaders'.
+#[test]
+fn cg_dispatch_slots_and_constraint_codes_match() {
+    let words = |name| (wgsl_const(Stage::Cg, name) * 4.0) as u64;
+    assert_eq!(words("DISPATCH_PARTICLES"), dispatch_slot::PARTICLES);
+    assert_eq!(words("DISPATCH_SPRINGS"), dispatch_slot::SPRINGS);
+    assert_eq!(
+        words("DISPATCH_FINISHED_PARTICLES"),
+        dispatch_slot::FINISHED_PARTICLES
+    );
+    assert_eq!(
+        words("DISPATCH_FINISHED_SPRINGS"),
+        dispatch_slot::FINISHED_SPRINGS
+    );
+    assert_eq!(
+        wgsl_const(Stage::Cg, "DISPATCH_WORDS") as usize,
+        CG_DISPATCH_WORDS
+    );
+    use softbody_cpu::integrators::implicit_euler::cg::Constraint;
+    for (name, c) in [
+        ("CONSTRAINT_FREE", Constraint::Free),
+        ("CONSTRAINT_NORMAL", Constraint::Normal(glam::DVec3::Y)),
+        ("CONSTRAINT_FIXED", Constraint::Fixed),
+    ] {
+        assert_eq!(
+            wgsl_const(Stage::Cg, name),
+            f64::from(crate::implicit::constraint_vec4(c)[3]),
+            "{name}"
+        );
     }
 }

@@ -1,5 +1,7 @@
 //! GPU tests that need an adapter: each stage against its CPU twin on the same input, each
-//! explicit integrator's run against the CPU's, and the instability record.
+//! explicit integrator's run against the CPU's, the instability record, and implicit Euler (its
+//! system and CG solve against the CPU's `System` and `cg::solve`, its runs against the CPU's,
+//! the stiff cube at a frame-sized step, determinism).
 //!
 //! A custom harness (libtest-mimic): without an adapter every test reports itself ignored
 //! ("skipped: no GPU adapter"), unless `SOFTBODY_REQUIRE_GPU=1`, which makes a missing adapter a
@@ -99,6 +101,19 @@ fn main() -> ExitCode {
         ),
         ("a_scene_without_bodies_runs", no_bodies),
         ("readback_is_repeatable", repeatable),
+        ("implicit_system_twin", implicit_system_twin),
+        ("implicit_cg_twin", implicit_cg_twin),
+        ("run_implicit_euler_plane", || run_implicit(PLANE)),
+        ("run_implicit_euler_slope", || run_implicit(SLOPE)),
+        (
+            "implicit_euler_keeps_the_stiff_cube_stable",
+            implicit_stiff_cube,
+        ),
+        ("implicit_euler_is_repeatable", implicit_repeatable),
+        (
+            "implicit_euler_two_dimensional_grids_give_the_same_bits",
+            implicit_two_dimensional_grids,
+        ),
     ];
 
     let adapter = softbody_gpu::device::Gpu::open().map(|gpu| gpu.name());
@@ -742,6 +757,554 @@ fn no_bodies() -> Result<(), Failed> {
     let s = g.state().map_err(step_error)?.clone();
     if !s.x.is_empty() || e.total() != 0.0 || g.steps_taken() != 10 {
         return Err(format!("{s:?} {e:?}").into());
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Implicit Euler
+
+/// A 3×3×3 cube (the CPU's `perturbed_cube` of tests/implicit.rs): uneven masses and
+/// stiffnesses, positions perturbed by up to 3 cm (some springs compressed, some stretched),
+/// random velocities, drag 0.3, h = 10 ms; every input rounded to f32 so that both solvers see
+/// the same numbers.
+fn implicit_cube() -> (Model, State) {
+    let scene = Scene::from_toml(
+        r#"
+[simulation]
+integrator = "implicit-euler"
+dt = 0.01
+duration = 0.1
+drag = 0.3
+[[body]]
+kind = "cuboid"
+size = [0.4, 0.4, 0.4]
+resolution = [3, 3, 3]
+center = [0.0, 1.0, 0.0]
+mass = 2.0
+structural = { stiffness = 400.0, damping = 0.8 }
+shear = { stiffness = 400.0, damping = 0.8 }
+bending = { stiffness = 400.0, damping = 0.8 }
+"#,
+        "t.toml".as_ref(),
+    )
+    .expect("valid");
+    let (mut model, state) = Model::build(&scene);
+    let mut rng = Lcg(42);
+    let f32r = |x: f64| x as f32 as f64;
+    for i in 0..model.len() {
+        model.mass[i] = f32r(0.05 + 0.05 * (rng.next() + 1.0));
+        model.inv_mass[i] = 1.0 / model.mass[i];
+    }
+    for s in 0..model.springs.len() {
+        model.springs.stiffness[s] = f32r(model.springs.stiffness[s] * (1.0 + 0.5 * rng.next()));
+        model.springs.damping[s] = f32r(model.springs.damping[s] * (1.0 + 0.5 * rng.next()));
+        model.springs.rest[s] = f32r(model.springs.rest[s]);
+    }
+    let state = perturbed(&state, 42, 0.03, 1.0);
+    (model, state)
+}
+
+/// The GPU's assembly (b, block-Jacobi inverse) and product A p against the CPU's `System` on
+/// the same input. Errors are relative to the scale of each quantity: b against
+/// h(m|g| + drag·m|v| + Σ|g_s|), A p against m(1 + h·drag)|p_i| + Σ(β + γ)(|p_a| + |p_b|), and
+/// each inverse block against its largest entry.
+fn implicit_system_twin() -> Result<(), Failed> {
+    use softbody_cpu::integrators::implicit_euler::system::System;
+    let (model, state) = implicit_cube();
+    let n = model.len();
+    let mut rng = Lcg(7);
+    let p: Vec<DVec3> = (0..n).map(|_| f32_exact(rng.vec(1.0))).collect();
+    let mut g = gpu(&model, &state)?;
+    let (gb, gdiag, gap) = g.debug_implicit_system(&p).map_err(step_error)?;
+    let mut sys = System::new(&model);
+    let mut b = vec![DVec3::ZERO; n];
+    sys.assemble(&model, &state.x, &state.v, &mut b);
+    let per_spring_g = sys.per_spring.clone();
+    let mut ap = vec![DVec3::ZERO; n];
+    sys.apply(&model, &p, &mut ap);
+    let sim = &model.simulation;
+    let h = sim.dt;
+    let compressed = (0..model.springs.len())
+        .filter(|&s| sys.gamma[s] == 0.0)
+        .count();
+    println!(
+        "{n} particles, {} springs ({compressed} compressed: γ = 0)",
+        model.springs.len()
+    );
+    let b_scale = (0..n).map(|i| {
+        let m = model.mass[i];
+        let springs: f64 = model
+            .adjacency
+            .of(i)
+            .iter()
+            .map(|&e| per_spring_g[(e >> 1) as usize].length())
+            .sum();
+        h * (m * sim.gravity.length() + sim.drag * m * state.v[i].length() + springs)
+    });
+    let (rb, ab) = max_errors(gb.iter().map(|v| v.as_dvec3()), b.iter().copied(), b_scale);
+    let sp = &model.springs;
+    let ap_scale = (0..n).map(|i| {
+        let springs: f64 = model
+            .adjacency
+            .of(i)
+            .iter()
+            .map(|&e| {
+                let s = (e >> 1) as usize;
+                (sys.beta[s] + sys.gamma[s])
+                    * (p[sp.a[s] as usize].length() + p[sp.b[s] as usize].length())
+            })
+            .sum();
+        sys.mass_diag[i] * p[i].length() + springs
+    });
+    let (rap, aap) = max_errors(
+        gap.iter().map(|v| v.as_dvec3()),
+        ap.iter().copied(),
+        ap_scale,
+    );
+    let (mut rinv, mut ainv, mut rmd) = (0.0f64, 0.0f64, 0.0f64);
+    for (i, d) in gdiag.iter().enumerate() {
+        let d = d.map(f64::from);
+        let gm =
+            glam::DMat3::from_cols_array(&[d[0], d[4], d[5], d[4], d[1], d[6], d[5], d[6], d[2]]);
+        let cm = sys.inv_diag[i];
+        let largest = cm
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, x| a.max(x.abs()));
+        let err = (gm - cm)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, x| a.max(x.abs()));
+        ainv = ainv.max(err);
+        rinv = rinv.max(err / largest);
+        rmd = rmd.max((d[3] - sys.mass_diag[i]).abs() / sys.mass_diag[i]);
+    }
+    check("implicit system: b", rb, ab, STAGE_BOUND)?;
+    check("implicit system: A p", rap, aap, STAGE_BOUND)?;
+    check("implicit system: m(1 + h·drag)", rmd, rmd, STAGE_BOUND)?;
+    check(
+        "implicit system: block-Jacobi inverse",
+        rinv,
+        ainv,
+        STAGE_BOUND,
+    )
+}
+
+/// The CPU's filtered PCG residual of `dv`, in f64: sqrt(rᵀP⁻¹r / scale) with r = S(b − A dv).
+fn true_residual(
+    sys: &mut softbody_cpu::integrators::implicit_euler::system::System,
+    model: &Model,
+    constraints: &[softbody_cpu::integrators::implicit_euler::cg::Constraint],
+    b: &[DVec3],
+    dv: &[DVec3],
+    scale: f64,
+) -> f64 {
+    let mut a_dv = vec![DVec3::ZERO; dv.len()];
+    sys.apply(model, dv, &mut a_dv);
+    let delta: f64 = (0..dv.len())
+        .map(|i| {
+            let r = constraints[i].filter(b[i] - a_dv[i]);
+            r.dot(sys.inv_diag[i] * r)
+        })
+        .sum();
+    (delta / scale).sqrt()
+}
+
+/// One filtered PCG solve on the GPU against the CPU's `cg::solve` on the same system (the
+/// cube of `implicit_system_twin`, h = 10 ms): about a third of the particles free, a third
+/// with a normal constraint (random unit normal, prescribed normal Δv) and a third fixed
+/// (prescribed Δv), a warm start in the free directions. Checks: the prescribed components are
+/// exact; the GPU's recursive residual is below CG_TOLERANCE_F32 (it stops there); the true
+/// residual of its Δv, in f64, is below 2·CG_TOLERANCE_F32 (the f32 recursion drifts from it);
+/// its Δv matches the CPU's 1e-8 solution to 5e-5 of max|Δv|. Measured on llvmpipe (Vulkan,
+/// GL): 10 iterations (the CPU: 10 at 1e-5, 15 at 1e-8), residual 5.3e-6 (true 5.3e-6), Δv
+/// within 7.8e-6 of max|Δv|, prescribed parts exact. Prints the iterations of both (the CPU also at the GPU's
+/// tolerance).
+fn implicit_cg_twin() -> Result<(), Failed> {
+    use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Scratch};
+    use softbody_cpu::integrators::implicit_euler::system::System;
+    use softbody_cpu::integrators::implicit_euler::{CG_MAX_ITERATIONS, CG_TOLERANCE};
+    use softbody_gpu::CG_TOLERANCE_F32;
+    let (model, state) = implicit_cube();
+    let n = model.len();
+    let mut sys = System::new(&model);
+    let mut b = vec![DVec3::ZERO; n];
+    sys.assemble(&model, &state.x, &state.v, &mut b);
+    let b: Vec<DVec3> = b.into_iter().map(f32_exact).collect();
+    let mut rng = Lcg(11);
+    let (mut constraints, mut z, mut warm) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..n {
+        let (c, zi) = match i % 3 {
+            0 => (Constraint::Free, DVec3::ZERO),
+            1 => {
+                // A random axis: unit in f32 and f64 alike, so both filter with the same
+                // projector (an f32-rounded oblique normal is not unit in f64).
+                let axis = (rng.next().abs() * 3.0) as usize % 3;
+                let mut nrm = DVec3::ZERO;
+                nrm[axis] = if rng.next() < 0.0 { -1.0 } else { 1.0 };
+                (Constraint::Normal(nrm), f32_exact(nrm * 0.3 * rng.next()))
+            }
+            _ => (Constraint::Fixed, f32_exact(rng.vec(0.2))),
+        };
+        constraints.push(c);
+        z.push(zi);
+        warm.push(f32_exact(c.filter(rng.vec(0.05))));
+    }
+    let mut g = gpu(&model, &state)?;
+    let (gdv, scalars) = g
+        .debug_implicit_solve(&constraints, &b, &z, &warm)
+        .map_err(step_error)?;
+    let solve = |tol: f64| {
+        let mut sys = System::new(&model);
+        let mut bb = vec![DVec3::ZERO; n];
+        sys.assemble(&model, &state.x, &state.v, &mut bb);
+        let mut dv = warm.clone();
+        let mut scratch = Scratch::new(n);
+        let out = cg::solve(
+            &mut sys,
+            &model,
+            &constraints,
+            &b,
+            &z,
+            &mut dv,
+            &mut scratch,
+            tol,
+            CG_MAX_ITERATIONS,
+        );
+        (dv, out)
+    };
+    let (cdv, cpu_out) = solve(CG_TOLERANCE);
+    let (_, cpu_loose) = solve(f64::from(CG_TOLERANCE_F32));
+    // The scale the CPU measures its residual against: max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀).
+    let mut start: Vec<DVec3> = (0..n)
+        .map(|i| constraints[i].filter(warm[i]) + z[i])
+        .collect();
+    let delta0: f64 = (0..n)
+        .map(|i| {
+            let sb = constraints[i].filter(b[i]);
+            sb.dot(constraints[i].filter(sys.inv_diag[i] * sb))
+        })
+        .sum();
+    let r0 = true_residual(&mut sys, &model, &constraints, &b, &start, 1.0);
+    let scale = delta0.max(r0 * r0);
+    start.clear();
+    let gpu_true = true_residual(&mut sys, &model, &constraints, &b, &gdv, scale);
+    let cpu_true = true_residual(&mut sys, &model, &constraints, &b, &cdv, scale);
+    let mut prescribed = 0.0f64;
+    for i in 0..n {
+        let fixed_part = gdv[i] - constraints[i].filter(gdv[i]);
+        prescribed = prescribed.max((fixed_part - z[i]).length());
+    }
+    let largest = cdv.iter().fold(0.0f64, |a, v| a.max(v.length()));
+    let (_, adv) = max_errors(
+        gdv.iter().copied(),
+        cdv.iter().copied(),
+        std::iter::repeat(largest),
+    );
+    println!(
+        "CG: GPU {} iterations to a relative residual of {:.2e} (its own, f32; tolerance {:e}), \
+         true residual in f64 {gpu_true:.2e}; CPU {} iterations to {:.2e} (tolerance {:e}), \
+         {} iterations at the GPU's tolerance; |Δv_gpu − Δv_cpu| ≤ {adv:.2e} m/s \
+         ({:.2e} of max |Δv| = {largest:.3} m/s); CPU true residual {cpu_true:.2e}; \
+         prescribed components off by {prescribed:.2e}",
+        scalars.iterations,
+        scalars.relative_residual(),
+        CG_TOLERANCE_F32,
+        cpu_out.iterations,
+        cpu_out.relative_residual,
+        CG_TOLERANCE,
+        cpu_loose.iterations,
+        adv / largest,
+    );
+    let mut failures = Vec::new();
+    if scalars.relative_residual() > f64::from(CG_TOLERANCE_F32) {
+        failures.push(format!(
+            "GPU residual {:e} above the tolerance",
+            scalars.relative_residual()
+        ));
+    }
+    if gpu_true > 2.0 * f64::from(CG_TOLERANCE_F32) {
+        failures.push(format!("true residual of the GPU's Δv {gpu_true:e}"));
+    }
+    if adv > 5e-5 * largest {
+        failures.push(format!("Δv differs by {adv:e}"));
+    }
+    // Prescribed parts: z exactly, up to the rounding of S p + z in f32.
+    if prescribed > 1e-6 {
+        failures.push(format!("prescribed components off by {prescribed:e}"));
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        Err(failures.join("; ").into())
+    }
+}
+
+/// 0.5 s of the 4×4×4 cube landing on a plane or a slope under implicit Euler at h = 2 ms, GPU
+/// frames against CPU frames. The CPU solves to 1e-8, the GPU to CG_TOLERANCE_F32 = 1e-5
+/// (relative), so the runs differ by the solve's tolerance each step as well as by f32
+/// rounding; contacts are decided by thresholds (activation, release, stick/slip), see the
+/// bounds. Prints the CG counts of both (the GPU takes fewer iterations at its looser
+/// tolerance, in the same number of solves: the same active-set rounds).
+fn run_implicit(terrain: &str) -> Result<(), Failed> {
+    let terrain_name = if terrain == PLANE { "plane" } else { "slope" };
+    let scene = cube_scene(Integrator::ImplicitEuler, 2e-3, 0.5, terrain);
+    let (model, state) = Model::build(&scene);
+    let sim = model.simulation;
+    let total_mass: f64 = model.mass.iter().sum();
+    let mut g = gpu(&model, &state)?;
+    let mut cpu = CpuSolver::new(model.clone(), state, Some(1)).map_err(|e| e.to_string())?;
+    let e0 = cpu.energies().map_err(step_error)?;
+    let scale = softbody_scale(&mut cpu, &e0)?;
+    let (mut dx, mut dv, mut dc, mut peak, mut de) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let (mut gpu_time, mut cpu_time) = (0.0, 0.0);
+    for k in 0..sim.frame_count() {
+        let target = sim.frame_step(k);
+        let n = target - g.steps_taken();
+        let t = std::time::Instant::now();
+        g.advance(n).map_err(step_error)?;
+        let eg = g.energies().map_err(step_error)?;
+        gpu_time += t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        cpu.advance(n).map_err(step_error)?;
+        cpu_time += t.elapsed().as_secs_f64();
+        let ec = cpu.energies().map_err(step_error)?;
+        de = de.max((eg.total() - ec.total()).abs());
+        let gs = g.state().map_err(step_error)?;
+        let cs = cpu.state().map_err(step_error)?;
+        let (mut cg, mut cc) = (DVec3::ZERO, DVec3::ZERO);
+        for i in 0..model.len() {
+            dx = dx.max(gs.x[i].distance(cs.x[i]));
+            dv = dv.max(gs.v[i].distance(cs.v[i]));
+            peak = peak.max(cs.v[i].length());
+            cg += model.mass[i] * gs.x[i];
+            cc += model.mass[i] * cs.x[i];
+        }
+        dc = dc.max(cg.distance(cc) / total_mass);
+    }
+    let (gst, cst) = (g.statistics(), cpu.statistics());
+    let name = format!("implicit-euler on the {terrain_name}");
+    println!(
+        "{name}: {} steps (GPU {gpu_time:.2} s, CPU {cpu_time:.2} s): max |Δx| {dx:.2e} m, \
+         max |Δv| {dv:.2e} m/s ({:.2e} of the peak speed {peak:.2} m/s), centre of mass \
+         {dc:.2e} m, total energy {de:.2e} J ({:.2e} of the scale {scale:.2} J); CG: GPU {} \
+         iterations in {} solves (max residual {:.1e}), CPU {} in {} (max residual {:.1e})",
+        sim.steps(),
+        dv / peak,
+        de / scale,
+        gst.cg_iterations,
+        gst.cg_solves,
+        gst.cg_max_residual,
+        cst.cg_iterations,
+        cst.cg_solves,
+        cst.cg_max_residual,
+    );
+    let bounds = IMPLICIT_RUN;
+    if dx > bounds.position
+        || dv > bounds.velocity * peak
+        || dc > bounds.center
+        || de > bounds.energy * scale
+    {
+        return Err(format!(
+            "{name}: the GPU run is further from the CPU's than the bounds ({} m per particle, \
+             {} of the peak speed, {} m centre of mass, {} of the energy scale)",
+            bounds.position, bounds.velocity, bounds.center, bounds.energy
+        )
+        .into());
+    }
+    Ok(())
+}
+
+/// Bounds of the implicit runs against the CPU (see `run_implicit`): about ten times what was
+/// measured on llvmpipe via Vulkan and GL (at most 2.0e-6 m per particle, 6.2e-6 of the peak
+/// speed, 1.3e-6 m for the centre of mass, 2.5e-7 of the energy scale, on the slope; the plane
+/// agrees better). The particles rest on the surface inside the contact band, so activation
+/// and release keep their margins, and the stick/slip decisions agree.
+const IMPLICIT_RUN: RunBounds = RunBounds {
+    position: 2e-5,
+    velocity: 1e-4,
+    center: 2e-5,
+    energy: 5e-6,
+};
+
+/// The CPU's stiff-cube test (tests/implicit.rs) on the GPU: a 6×6×6 cube, 0.5 m, 1 kg,
+/// k_s = 1e4 N/m, k_d = 5 N·s/m, dropped from 0.1 m onto a plane (μ = 0.5, k_r = 0) at
+/// h = 1/60 s for 5 s. Every state finite; the total energy never rises from one step to the
+/// next by more than f32 noise (ENERGY_NOISE of the drop's energy scale M g·0.35 m); never
+/// sinks below −ε; at rest at the end (kinetic energy below REST_KINETIC), springs within 10 %
+/// and the box within 5 % of their rest sizes, on the plane.
+fn implicit_stiff_cube() -> Result<(), Failed> {
+    // Measured on llvmpipe (Vulkan, GL): largest rise 6e-8 J (2e-8 of the scale), final kinetic
+    // energy 2e-13 J. The CPU's bounds are 1e-9 J and 1e-8 J; f32 resolves energies of a few
+    // joules to about 3e-7 J, so the rise is bounded by 1e-6 of the scale, 3.4e-6 J.
+    const ENERGY_NOISE: f64 = 1e-6;
+    const REST_KINETIC: f64 = 1e-8;
+    let scene = Scene::from_toml(
+        r#"
+[simulation]
+integrator = "implicit-euler"
+dt = 0.016666666666666666
+duration = 5.0
+frame_rate = 60.0
+gravity = [0.0, -9.81, 0.0]
+drag = 0.0
+contact_distance = 0.001
+[[body]]
+kind = "cuboid"
+size = [0.5, 0.5, 0.5]
+resolution = [6, 6, 6]
+center = [0.0, 0.35, 0.0]
+mass = 1.0
+structural = { stiffness = 1e4, damping = 5.0 }
+shear = { stiffness = 1e4, damping = 5.0 }
+bending = { stiffness = 1e4, damping = 5.0 }
+[[terrain]]
+kind = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+friction = 0.5
+restitution = 0.0
+"#,
+        "t.toml".as_ref(),
+    )
+    .map_err(|e| e.to_string())?;
+    let (model, state) = Model::build(&scene);
+    let eps = model.simulation.contact_distance;
+    let steps = model.simulation.steps();
+    let mut g = gpu(&model, &state)?;
+    let started = std::time::Instant::now();
+    let e0 = g.energies().map_err(step_error)?.total();
+    let noise = ENERGY_NOISE * 1.0 * 9.81 * 0.35;
+    let mut e_prev = e0;
+    let (mut worst_rise, mut worst_step, mut lowest) = (f64::NEG_INFINITY, 0, f64::INFINITY);
+    for k in 1..=steps {
+        g.advance(1).map_err(step_error)?;
+        let e = g.energies().map_err(step_error)?.total();
+        if !e.is_finite() {
+            return Err(format!("energy {e} at step {k}").into());
+        }
+        if e - e_prev > worst_rise {
+            (worst_rise, worst_step) = (e - e_prev, k);
+        }
+        e_prev = e;
+        let st = g.state().map_err(step_error)?;
+        lowest = lowest.min(st.x.iter().map(|x| x.y).fold(f64::INFINITY, f64::min));
+    }
+    let energies = g.energies().map_err(step_error)?;
+    let stats = g.statistics();
+    let st = g.state().map_err(step_error)?.clone();
+    let sp = &model.springs;
+    let worst_strain = (0..sp.len())
+        .map(|s| {
+            let len = st.x[sp.a[s] as usize].distance(st.x[sp.b[s] as usize]);
+            (len / sp.rest[s] - 1.0).abs()
+        })
+        .fold(0.0, f64::max);
+    let (lo, hi) =
+        st.x.iter()
+            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(*p), hi.max(*p))
+            });
+    let size = hi - lo;
+    println!(
+        "stiff cube on the GPU ({:.2} s): E {e0:.4} → {:.4} J, largest rise {worst_rise:.2e} J \
+         at step {worst_step} (bound {noise:.1e}), final kinetic {:.2e} J, worst strain \
+         {worst_strain:.4}, box {size:.4}, lowest y {lowest:.2e}, {} CG iterations in {} solves \
+         (max residual {:.1e})",
+        started.elapsed().as_secs_f64(),
+        energies.total(),
+        energies.kinetic,
+        stats.cg_iterations,
+        stats.cg_solves,
+        stats.cg_max_residual
+    );
+    let mut failures = Vec::new();
+    if worst_rise > noise {
+        failures.push(format!(
+            "total energy rose by {worst_rise:e} J at step {worst_step}"
+        ));
+    }
+    if lowest < -eps {
+        failures.push(format!("sank to y = {lowest} m"));
+    }
+    if energies.kinetic > REST_KINETIC {
+        failures.push(format!(
+            "not at rest after 5 s: kinetic energy {} J",
+            energies.kinetic
+        ));
+    }
+    if worst_strain > 0.1 {
+        failures.push(format!("a spring is strained by {worst_strain}"));
+    }
+    if (size - DVec3::splat(0.5)).abs().max_element() > 0.025 {
+        failures.push(format!("bounding box {size} m, was 0.5 m"));
+    }
+    if lo.y.abs() > eps {
+        failures.push(format!("bottom at y = {} m, not on the plane", lo.y));
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        Err(failures.join("; ").into())
+    }
+}
+
+/// The same implicit run twice gives the same bits and the same CG counts (deterministic
+/// reductions, no float atomics).
+fn implicit_repeatable() -> Result<(), Failed> {
+    let scene = cube_scene(Integrator::ImplicitEuler, 2e-3, 0.1, SLOPE);
+    let (model, state) = Model::build(&scene);
+    let mut runs = Vec::new();
+    for _ in 0..2 {
+        let mut g = gpu(&model, &state)?;
+        g.advance(50).map_err(step_error)?;
+        let e = g.energies().map_err(step_error)?;
+        let stats = g.statistics();
+        runs.push((
+            g.state().map_err(step_error)?.clone(),
+            e,
+            stats.cg_iterations,
+            stats.cg_solves,
+        ));
+    }
+    if runs[0] != runs[1] {
+        return Err("two identical implicit GPU runs differ".into());
+    }
+    Ok(())
+}
+
+/// Implicit Euler on 2-D grids (grids forced one or two workgroups wide, as in
+/// `two_dimensional_grids`), 20 steps of the 8×8×8 cube falling towards the slope: the
+/// indirect CG dispatches and the partial sums of idle workgroups give the same steps, energies
+/// and CG counts, bit for bit. The active-set kernels run, with no contact yet (contacts on
+/// lavapipe cost ~30 s here; the runs above cover them on 1-D grids, and every kernel indexes
+/// particles through the same `thread_of`).
+fn implicit_two_dimensional_grids() -> Result<(), Failed> {
+    let scene = cube_scene_of(8, Integrator::ImplicitEuler, 2e-3, 0.1, SLOPE);
+    let (model, state) = Model::build(&scene);
+    let mut runs = Vec::new();
+    for width in [None, Some(1), Some(2)] {
+        let mut g = GpuSolver::with_grid_width(model.clone(), state.clone(), width)
+            .map_err(|e| e.to_string())?;
+        g.advance(20).map_err(step_error)?;
+        let e = g.energies().map_err(step_error)?;
+        let stats = g.statistics();
+        runs.push((
+            g.state().map_err(step_error)?.clone(),
+            e,
+            stats.cg_iterations,
+            stats.cg_solves,
+        ));
+    }
+    println!(
+        "{} particles: {} CG iterations in {} solves",
+        model.len(),
+        runs[0].2,
+        runs[0].3
+    );
+    if runs[1] != runs[0] || runs[2] != runs[0] {
+        return Err("2-D grids give different implicit results from 1-D grids".into());
     }
     Ok(())
 }

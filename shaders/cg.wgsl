@@ -1,0 +1,278 @@
+// cg.wgsl ↔ crates/cpu/src/integrators/implicit_euler/cg.rs: filtered, block-Jacobi
+// preconditioned conjugate gradients (Baraff and Witkin's modified PCG) for A Δv = rhs, where
+// each particle's constraint filters the prescribed directions out:
+//
+//   constraints[i] = (n, kind): kind 0 free (S p = p), 1 normal (S p = p − (p·n) n), 2 fixed
+//   (S p = 0); z holds the prescribed part of Δv. P⁻¹ is the inverse diagonal block of
+//   system.wgsl (`diag`), applied as S P⁻¹ S.
+//
+// A solve, as the host encodes it (system.wgsl provides A p):
+//
+//   cg_start:     Δv = S Δv + z                       (warm start from the last solve)
+//   apply(Δv) → q = A Δv
+//   cg_residual:  r = S(rhs − q), c = S P⁻¹ r;  partials of (Sb)ᵀP⁻¹(Sb) and rᵀc
+//   cg_begin:     δ₀, δ; scale = max(δ₀, δ); target = tol²·scale; done = !(δ > target)
+//   then per iteration, while not done:
+//   apply(c) → q = A c
+//   cg_curvature: q = S q;  partials of cᵀq
+//   cg_alpha:     α = δ / cᵀq  (stop if cᵀq is not positive and finite: round-off)
+//   cg_advance:   Δv += α c, r −= α q;  partials of rᵀP⁻¹r
+//   cg_beta:      δ' = Σ; stop on non-finite or round-off growth (δ' > 1e6·smallest: δ = smallest);
+//                 β = δ'/δ, δ = δ'; iterations + 1; done = !(δ > target) or the cap
+//   cg_direction: c = S(P⁻¹ r + β c)
+//
+// — the CPU's loop, operation for operation, in f32. Dot products are deterministic two-pass
+// sums: each workgroup writes its tree sum (reduce.wgsl) to `partials`, and the one-workgroup
+// scalar kernels (cg_begin, cg_alpha, cg_beta) add the partials in order (`sum_in_order`), on
+// the device: no read-back per iteration, no float atomics.
+//
+// The scalars live in `scalars` (twin: `softbody_gpu::layout::CgScalars`). The iteration's
+// vector kernels are dispatched indirectly from `dispatch`, whose argument slots the scalar
+// kernels rewrite: the full grids while the solve runs, zero workgroups once it is done, so
+// that the host can encode a batch of iterations per submission and the surplus costs only
+// empty dispatches. The scalar kernels themselves are dispatched directly (they write the
+// arguments) and return at once once the solve has stopped. The "finished" slots are the
+// reverse (zero while running, full once done): the active-set update after a solve
+// (implicit_euler.wgsl) is encoded behind each batch and runs once, at the end.
+
+struct CgScalars {
+    // rᵀP⁻¹r of the current residual.
+    delta: f32,
+    // max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀): what the residual is relative to.
+    scale: f32,
+    // tol²·scale.
+    target_delta: f32,
+    // The smallest δ so far (round-off guard).
+    smallest: f32,
+    alpha: f32,
+    beta: f32,
+    iterations: u32,
+    // 1 once the solve has stopped.
+    done: u32,
+    // Set by the host: the relative tolerance, the iteration cap, the number of per-workgroup
+    // partial sums (workgroups of the particle grid) and the grids (workgroups along x and y).
+    tolerance: f32,
+    max_iterations: u32,
+    n_partials: u32,
+    _pad: u32,
+    particle_grid: vec2<u32>,
+    spring_grid: vec2<u32>,
+}
+
+// Indirect dispatch arguments (x, y, z) per slot; see DISPATCH_* and `set_dispatch`.
+const DISPATCH_PARTICLES: u32 = 0u;
+const DISPATCH_SPRINGS: u32 = 3u;
+const DISPATCH_FINISHED_PARTICLES: u32 = 6u;
+const DISPATCH_FINISHED_SPRINGS: u32 = 9u;
+const DISPATCH_WORDS: u32 = 12u;
+
+@group(0) @binding(1) var<storage, read> constraints: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> z: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> dv: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> rhs: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> q: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> r: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read_write> c: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read> diag: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> partials: array<vec2<f32>>;
+@group(0) @binding(10) var<storage, read_write> scalars: CgScalars;
+@group(0) @binding(11) var<storage, read_write> dispatch: array<u32, DISPATCH_WORDS>;
+
+// S_i p: the free part of p.
+fn free_part(i: u32, p: vec3<f32>) -> vec3<f32> {
+    let s = constraints[i];
+    if s.w == CONSTRAINT_FREE {
+        return p;
+    }
+    if s.w == CONSTRAINT_NORMAL {
+        return p - dot(p, s.xyz) * s.xyz;
+    }
+    return vec3<f32>(0.0);
+}
+
+// P⁻¹_i p (the symmetric inverse block of system.wgsl).
+fn precondition(i: u32, p: vec3<f32>) -> vec3<f32> {
+    let d = diag[2u * i].xyz;
+    let o = diag[2u * i + 1u].xyz;
+    return vec3<f32>(
+        d.x * p.x + o.x * p.y + o.y * p.z,
+        o.x * p.x + d.y * p.y + o.z * p.z,
+        o.y * p.x + o.z * p.y + d.z * p.z,
+    );
+}
+
+fn vec4_of(p: vec3<f32>) -> vec4<f32> {
+    return vec4<f32>(p, 0.0);
+}
+
+// Writes the tree sum of this workgroup's terms to its partial slot.
+fn write_partial(id: Invocation, term: vec2<f32>) {
+    let sum = workgroup_sum(id.local, term);
+    if id.local == 0u {
+        partials[workgroup_of(id)] = sum;
+    }
+}
+
+var<workgroup> solve_done: u32;
+
+// Whether the solve has stopped, uniformly across the workgroup (so that a scalar kernel can
+// return before its barriers). The scalar kernels are dispatched directly, as they write the
+// indirect arguments (a buffer cannot be both in one dispatch), and return at once when done.
+fn stopped(local: u32) -> bool {
+    if local == 0u {
+        solve_done = scalars.done;
+    }
+    return workgroupUniformLoad(&solve_done) != 0u;
+}
+
+// The sum of the partials, in order: thread t adds partials t, t + 256, … in turn, then the
+// tree adds the 256 running sums. Run by one workgroup; every thread gets the total.
+fn sum_in_order(local: u32) -> vec2<f32> {
+    var acc = vec2<f32>(0.0);
+    for (var k = local; k < scalars.n_partials; k += WORKGROUP_SIZE) {
+        acc += partials[k];
+    }
+    return workgroup_sum(local, acc);
+}
+
+fn set_slot(at: u32, grid: vec2<u32>, on: bool) {
+    let g = select(vec3<u32>(0u), vec3<u32>(grid, 1u), on);
+    dispatch[at] = g.x;
+    dispatch[at + 1u] = g.y;
+    dispatch[at + 2u] = g.z;
+}
+
+// The iteration kernels' grids while the solve runs; the finished slots once it is done.
+fn set_dispatch(done: bool) {
+    set_slot(DISPATCH_PARTICLES, scalars.particle_grid, !done);
+    set_slot(DISPATCH_SPRINGS, scalars.spring_grid, !done);
+    set_slot(DISPATCH_FINISHED_PARTICLES, scalars.particle_grid, done);
+    set_slot(DISPATCH_FINISHED_SPRINGS, scalars.spring_grid, done);
+}
+
+fn finish(done: bool) {
+    scalars.done = select(0u, 1u, done);
+    set_dispatch(done);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_start(id: Invocation) {
+    let i = thread_of(id);
+    if i >= params.n_particles {
+        return;
+    }
+    dv[i] = vec4_of(free_part(i, dv[i].xyz) + z[i].xyz);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_residual(id: Invocation) {
+    let i = thread_of(id);
+    var term = vec2<f32>(0.0);
+    if i < params.n_particles {
+        let sb = free_part(i, rhs[i].xyz);
+        let ri = free_part(i, rhs[i].xyz - q[i].xyz);
+        let ci = free_part(i, precondition(i, ri));
+        r[i] = vec4_of(ri);
+        c[i] = vec4_of(ci);
+        term = vec2<f32>(dot(sb, free_part(i, precondition(i, sb))), dot(ri, ci));
+    }
+    write_partial(id, term);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_begin(id: Invocation) {
+    let sums = sum_in_order(id.local);
+    if id.local != 0u {
+        return;
+    }
+    let delta = sums.y;
+    // Relative to the larger of the right-hand side and the warm start's residual (see the CPU).
+    let scale = max(sums.x, delta);
+    let target_delta = scalars.tolerance * scalars.tolerance * scale;
+    scalars.delta = delta;
+    scalars.scale = scale;
+    scalars.target_delta = target_delta;
+    scalars.smallest = delta;
+    scalars.alpha = 0.0;
+    scalars.beta = 0.0;
+    scalars.iterations = 0u;
+    finish(!(delta > target_delta) || !all_finite(vec3<f32>(delta, scale, 0.0))
+        || scalars.max_iterations == 0u);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_curvature(id: Invocation) {
+    let i = thread_of(id);
+    var term = vec2<f32>(0.0);
+    if i < params.n_particles {
+        let qi = free_part(i, q[i].xyz);
+        q[i] = vec4_of(qi);
+        term = vec2<f32>(dot(c[i].xyz, qi), 0.0);
+    }
+    write_partial(id, term);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_alpha(id: Invocation) {
+    if stopped(id.local) {
+        return;
+    }
+    let cq = sum_in_order(id.local).x;
+    if id.local != 0u {
+        return;
+    }
+    // Only reachable through round-off once the residual is at machine precision.
+    if !(cq > 0.0 && all_finite(vec3<f32>(cq))) {
+        finish(true);
+        return;
+    }
+    scalars.alpha = scalars.delta / cq;
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_advance(id: Invocation) {
+    let i = thread_of(id);
+    var term = vec2<f32>(0.0);
+    if i < params.n_particles {
+        let alpha = scalars.alpha;
+        dv[i] = vec4_of(dv[i].xyz + alpha * c[i].xyz);
+        let ri = r[i].xyz - alpha * q[i].xyz;
+        r[i] = vec4_of(ri);
+        term = vec2<f32>(dot(ri, precondition(i, ri)), 0.0);
+    }
+    write_partial(id, term);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_beta(id: Invocation) {
+    if stopped(id.local) {
+        return;
+    }
+    let delta_new = sum_in_order(id.local).x;
+    if id.local != 0u {
+        return;
+    }
+    // Round-off dominates once the residual grows by orders of magnitude: stop there.
+    if !all_finite(vec3<f32>(delta_new)) || delta_new > 1e6 * scalars.smallest {
+        scalars.delta = scalars.smallest;
+        finish(true);
+        return;
+    }
+    scalars.smallest = min(scalars.smallest, delta_new);
+    scalars.beta = delta_new / scalars.delta;
+    scalars.delta = delta_new;
+    let iterations = scalars.iterations + 1u;
+    scalars.iterations = iterations;
+    let done = !(delta_new > scalars.target_delta) || iterations >= scalars.max_iterations;
+    // The last direction update is skipped: Δv is final.
+    finish(done);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_direction(id: Invocation) {
+    let i = thread_of(id);
+    if i >= params.n_particles {
+        return;
+    }
+    c[i] = vec4_of(free_part(i, precondition(i, r[i].xyz) + scalars.beta * c[i].xyz));
+}

@@ -1,0 +1,27 @@
+// gather.wgsl: the per-particle gather of per-spring vectors over the CSR adjacency, shared by
+// forces.wgsl and system.wgsl (prepended by crates/gpu/src/shaders.rs after common.wgsl).
+//
+// `adjacency` holds the offsets (n + 1 words) followed by the entries (2·springs words): particle
+// i's run is entries[offsets[i]..offsets[i+1]], in ascending spring order, entry e = 2s + side.
+// gather(i) = Σ over the run of +per_spring[s] (side 0: i is a) or −per_spring[s] (side 1: i is
+// b), in that order: the CPU's `spring_forces::gather`, with one fixed order per particle and no
+// float atomics, so a run repeats bit for bit on one adapter.
+
+@group(0) @binding(3) var<storage, read> per_spring: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> adjacency: array<u32>;
+
+fn gather(i: u32) -> vec3<f32> {
+    var sum = vec3<f32>(0.0);
+    let entries = params.n_particles + 1u;
+    let end = adjacency[i + 1u];
+    for (var k = adjacency[i]; k < end; k++) {
+        let e = adjacency[entries + k];
+        let f = per_spring[e >> 1u].xyz;
+        if (e & 1u) == 0u {
+            sum += f;
+        } else {
+            sum -= f;
+        }
+    }
+    return sum;
+}
