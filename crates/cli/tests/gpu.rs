@@ -1,0 +1,51 @@
+//! The GPU backend from the command line: without a usable adapter the run stops before
+//! writing anything, says which backends it tried and what to do, and exits with status 4.
+
+mod common;
+
+use std::process::{Command, Stdio};
+
+use common::{Sandbox, entries};
+
+/// `WGPU_BACKEND=metal` on a machine without Metal (any Linux) leaves wgpu no adapter at all,
+/// whatever drivers are installed: the one way to test the missing-adapter path everywhere.
+#[test]
+#[cfg(target_os = "linux")]
+fn no_adapter_exits_4_with_advice_and_writes_nothing() {
+    let sandbox = Sandbox::new();
+    let scene = sandbox.write(
+        "scene.toml",
+        "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nkind = \"particles\"\n\
+         positions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n",
+    );
+    let out_dir = sandbox.mkdir("frames");
+    let out = Command::new(env!("CARGO_BIN_EXE_softbody"))
+        .arg("run")
+        .arg(&scene)
+        .arg("--backend")
+        .arg("gpu")
+        .arg("--out")
+        .arg(out_dir.join("f.jsonl"))
+        .env("WGPU_BACKEND", "metal")
+        .stdin(Stdio::null())
+        .output()
+        .expect("the softbody binary starts");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(4), "stderr: {stderr}");
+    for hint in [
+        "backends tried",
+        "WGPU_BACKEND",
+        "mesa-vulkan-drivers",
+        "--backend cpu",
+    ] {
+        assert!(
+            stderr.to_lowercase().contains(&hint.to_lowercase()),
+            "names `{hint}`: {stderr}"
+        );
+    }
+    assert!(
+        entries(&out_dir).is_empty(),
+        "nothing written: {:?}",
+        entries(&out_dir)
+    );
+}
