@@ -4,12 +4,19 @@
 //! n³ particles on a unit grid (spacing 1/(n−1)) whose bottom face starts at y = 0.5, total
 //! mass 1, structural, shear and bending springs with k_s = 2000 and k_d = 5, gravity, a ground
 //! plane y = 0 with restitution 0.5 and no friction.
+//!
+//! [`measure`] times one size of it the way `softbody bench` reports it: build, warm up, then
+//! the stepping alone.
+
+use std::time::Instant;
 
 use glam::DVec3;
 use softbody_scene::{
-    Body, BodyShape, Cuboid, FrictionModel, Integrator, Scene, Simulation, SpringParams, Terrain,
-    TerrainShape,
+    Body, BodyShape, Cuboid, FrictionModel, Integrator, Model, Scene, Simulation, Solver,
+    SpringParams, StepError, Terrain, TerrainShape,
 };
+
+use crate::{Backend, CpuSolver, GpuSolver, OpenError};
 
 /// Spring stiffness of the benchmark cube, N/m.
 pub const STIFFNESS: f64 = 2000.0;
@@ -23,8 +30,13 @@ const MU_MAX: f64 = 18.0;
 /// `dt_max_symplectic`): the stiffest mode λ = k_s μ n³, c = 2 k_d μ n³ is stable iff
 /// h²λ + hc ≤ 4.
 pub fn dt_max_symplectic(n: u32) -> f64 {
+    dt_max_symplectic_with(n, STIFFNESS)
+}
+
+/// [`dt_max_symplectic`] for springs of stiffness `stiffness` (and the cube's damping).
+pub fn dt_max_symplectic_with(n: u32, stiffness: f64) -> f64 {
     let n3 = (n as f64).powi(3);
-    let a = STIFFNESS * MU_MAX * n3;
+    let a = stiffness * MU_MAX * n3;
     let b = 2.0 * DAMPING * MU_MAX * n3;
     (-b + (b * b + 16.0 * a).sqrt()) / (2.0 * a)
 }
@@ -71,4 +83,234 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             friction_model: FrictionModel::Coulomb,
         }],
     }
+}
+
+/// How [`measure`] runs one size.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Which solver.
+    pub backend: Backend,
+    /// The integrator stepping the cube.
+    pub integrator: Integrator,
+    /// CPU threads (all cores when `None`); the GPU ignores it.
+    pub threads: Option<usize>,
+    /// Timed steps; `None` picks about [`TARGET_PARTICLE_STEPS`] particle-steps, capped at
+    /// [`MAX_SECONDS`] of stepping.
+    pub steps: Option<u64>,
+    /// Spring stiffness k_s, N/m.
+    pub stiffness: f64,
+    /// Time step; `None` is half [`dt_max_symplectic_with`] for the size and stiffness.
+    pub dt: Option<f64>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            backend: Backend::Cpu,
+            integrator: Integrator::SymplecticEuler,
+            threads: None,
+            steps: None,
+            stiffness: STIFFNESS,
+            dt: None,
+        }
+    }
+}
+
+/// Particle-steps a size is timed for by default (as the peer script's step counts).
+pub const TARGET_PARTICLE_STEPS: f64 = 1e7;
+/// Longest the timed stepping of one size runs by default, seconds.
+pub const MAX_SECONDS: f64 = 20.0;
+/// Fewest timed steps by default.
+pub const MIN_STEPS: u64 = 3;
+/// The warm-up after the first step runs for about this long, seconds (at least one step).
+const PILOT_SECONDS: f64 = 0.25;
+
+/// What one size measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measurement {
+    /// Particles per edge.
+    pub n: u32,
+    /// Particles, n³.
+    pub particles: u64,
+    /// Springs.
+    pub springs: u64,
+    /// Time step, seconds.
+    pub dt: f64,
+    /// Steps taken before timing (first step and pilot).
+    pub warmup_steps: u64,
+    /// Timed steps.
+    pub steps: u64,
+    /// Wall-clock seconds of the timed steps (GPU: until the queue is done).
+    pub seconds: f64,
+    /// What the solver holds (state, masses, springs, adjacency, integrator scratch) per
+    /// particle, where the backend says (the CPU does; the GPU does not).
+    pub bytes_per_particle: Option<f64>,
+    /// Implicit Euler: conjugate-gradient iterations per timed step.
+    pub cg_iterations_per_step: Option<f64>,
+    /// Implicit Euler: CG solves per timed step (more than one when contacts change).
+    pub cg_solves_per_step: Option<f64>,
+    /// What ran it (thread count, adapter).
+    pub device: String,
+}
+
+impl Measurement {
+    /// Particle-steps per second.
+    pub fn particle_steps_per_s(&self) -> f64 {
+        self.particles as f64 * self.steps as f64 / self.seconds
+    }
+
+    /// Spring-steps per second.
+    pub fn spring_steps_per_s(&self) -> f64 {
+        self.springs as f64 * self.steps as f64 / self.seconds
+    }
+
+    /// Nanoseconds per particle-step.
+    pub fn ns_per_particle_step(&self) -> f64 {
+        1e9 / self.particle_steps_per_s()
+    }
+
+    /// One JSON object: `particles`, `springs`, `steps`, `seconds`, `particle_steps_per_s`,
+    /// `spring_steps_per_s`, `bytes_per_particle` (null where the backend does not say), and
+    /// `cg_iterations_per_step` for implicit Euler, plus what was run (`n`, `backend`,
+    /// `device`, `integrator`, `dt`, `stiffness`, `warmup_steps`).
+    pub fn to_json(&self, options: &Options) -> serde_json::Value {
+        let mut v = serde_json::json!({
+            "n": self.n,
+            "backend": options.backend.name(),
+            "device": self.device,
+            "integrator": options.integrator.name(),
+            "stiffness": options.stiffness,
+            "dt": self.dt,
+            "particles": self.particles,
+            "springs": self.springs,
+            "warmup_steps": self.warmup_steps,
+            "steps": self.steps,
+            "seconds": self.seconds,
+            "particle_steps_per_s": self.particle_steps_per_s(),
+            "spring_steps_per_s": self.spring_steps_per_s(),
+            "bytes_per_particle": self.bytes_per_particle,
+        });
+        if let Some(cg) = self.cg_iterations_per_step {
+            v["cg_iterations_per_step"] = cg.into();
+            v["cg_solves_per_step"] = self.cg_solves_per_step.into();
+        }
+        v
+    }
+}
+
+/// Why a size could not be measured.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// The cube is not a valid scene (a size below 2, a stiffness or step that is not positive).
+    #[error("{n}³ cube: {key}: {message}")]
+    Invalid {
+        /// Particles per edge.
+        n: u32,
+        /// The scene key at fault.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The solver could not be opened.
+    #[error(transparent)]
+    Open(#[from] OpenError),
+    /// A step failed: non-finite values, or a GPU device failure.
+    #[error("{n}³ cube: {source}")]
+    Step {
+        /// Particles per edge.
+        n: u32,
+        /// What happened.
+        source: StepError,
+    },
+    /// The final state holds a value that is not finite (checked after the timed steps).
+    #[error("{n}³ cube: the final state is not finite")]
+    NotFinite {
+        /// Particles per edge.
+        n: u32,
+    },
+}
+
+/// Builds the n³ benchmark cube for `options`, warms the solver up (one step, then about a
+/// quarter of a second of steps, which also estimates the time per step), times
+/// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps, at most
+/// [`MAX_SECONDS`]) with nothing else in the loop, and checks that the final state is finite.
+/// GPU timings end when the queue is done (reading the state back waits for it).
+pub fn measure(n: u32, options: &Options) -> Result<Measurement, BenchError> {
+    let dt = options
+        .dt
+        .unwrap_or_else(|| 0.5 * dt_max_symplectic_with(n, options.stiffness));
+    let scene = cube(n, options.stiffness, options.integrator, dt);
+    scene.validate().map_err(|e| BenchError::Invalid {
+        n,
+        key: e.key.to_string(),
+        message: e.message.to_string(),
+    })?;
+    let (model, state) = Model::build(&scene);
+    match options.backend {
+        Backend::Cpu => {
+            let mut solver =
+                CpuSolver::new(model, state, options.threads).map_err(|source| {
+                    OpenError::Threads {
+                        threads: options.threads.unwrap_or(0),
+                        source,
+                    }
+                })?;
+            let mut m = time(&mut solver, n, dt, options)?;
+            m.bytes_per_particle = Some(solver.memory_bytes() as f64 / m.particles as f64);
+            Ok(m)
+        }
+        Backend::Gpu => {
+            let mut solver = GpuSolver::new(model, state).map_err(OpenError::from)?;
+            time(&mut solver, n, dt, options)
+        }
+    }
+}
+
+/// The warm-up and the timed steps of [`measure`].
+fn time(
+    solver: &mut dyn Solver,
+    n: u32,
+    dt: f64,
+    options: &Options,
+) -> Result<Measurement, BenchError> {
+    let model = solver.model();
+    let (particles, springs) = (model.len() as u64, model.springs.len() as u64);
+    let step_error = |source| BenchError::Step { n, source };
+    let run = |solver: &mut dyn Solver, steps: u64| -> Result<f64, BenchError> {
+        let started = Instant::now();
+        solver.advance(steps).map_err(step_error)?;
+        solver.state().map_err(step_error)?; // waits for the GPU's queue
+        Ok(started.elapsed().as_secs_f64())
+    };
+    let first = run(solver, 1)?;
+    let pilot = ((PILOT_SECONDS / first.max(1e-9)) as u64).clamp(1, 10_000);
+    let per_step = run(solver, pilot)? / pilot as f64;
+    let steps = options.steps.unwrap_or_else(|| {
+        let target = (TARGET_PARTICLE_STEPS / particles as f64).ceil() as u64;
+        let cap = (MAX_SECONDS / per_step.max(1e-12)) as u64;
+        target.min(cap).max(MIN_STEPS)
+    });
+    let before = solver.statistics();
+    let seconds = run(solver, steps)?;
+    let after = solver.statistics();
+    let state = solver.state().map_err(step_error)?;
+    if !state.x.iter().chain(&state.v).all(|p| p.is_finite()) {
+        return Err(BenchError::NotFinite { n });
+    }
+    let implicit = options.integrator == Integrator::ImplicitEuler;
+    let per_step = |count: u64| (count as f64) / (steps as f64);
+    Ok(Measurement {
+        n,
+        particles,
+        springs,
+        dt,
+        warmup_steps: 1 + pilot,
+        steps,
+        seconds,
+        bytes_per_particle: None,
+        cg_iterations_per_step: implicit
+            .then(|| per_step(after.cg_iterations - before.cg_iterations)),
+        cg_solves_per_step: implicit.then(|| per_step(after.cg_solves - before.cg_solves)),
+        device: solver.device(),
+    })
 }

@@ -43,6 +43,8 @@ enum Command {
     Run(RunArgs),
     /// Validate a scene and describe it.
     Check(CheckArgs),
+    /// Time the standard benchmark cube (the peers' jelly cube) at several sizes.
+    Bench(BenchArgs),
 }
 
 #[derive(Args)]
@@ -87,6 +89,46 @@ struct CheckArgs {
     json: bool,
 }
 
+#[derive(Args)]
+struct BenchArgs {
+    /// Solver backend: cpu (f64) or gpu (wgpu compute shaders, f32).
+    #[arg(long, default_value = "cpu")]
+    backend: Backend,
+    /// Integrator: explicit-euler, symplectic-euler, midpoint, rk4 or implicit-euler.
+    #[arg(long, default_value = "symplectic-euler")]
+    integrator: Integrator,
+    /// Cube sizes: n for n³ particles, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "10,22,46,100",
+          value_parser = clap::value_parser!(u32).range(2..=1000))]
+    sizes: Vec<u32>,
+    /// Timed steps per size (default: about 1e7 particle-steps, at most about 20 s per size).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    steps: Option<u64>,
+    /// CPU threads (default: all cores).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..), allow_negative_numbers = true)]
+    threads: Option<u16>,
+    /// Spring stiffness k_s, N/m (default: the standard cube's 2000).
+    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
+    stiffness: Option<f64>,
+    /// Time step, seconds, e.g. 0.001 or 1/60 (default: half the largest stable
+    /// symplectic-Euler step for the size and stiffness).
+    #[arg(long, value_parser = positive_or_fraction, allow_negative_numbers = true)]
+    dt: Option<f64>,
+    /// One JSON object per line and size instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn positive_or_fraction(s: &str) -> Result<f64, String> {
+    match s.split_once('/') {
+        Some((a, b)) => {
+            let (a, b) = (positive(a.trim())?, positive(b.trim())?);
+            positive(&(a / b).to_string()).map_err(|_| format!("`{s}` is not a usable fraction"))
+        }
+        None => positive(s),
+    }
+}
+
 fn positive(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
@@ -128,6 +170,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run(args) => run(args),
         Command::Check(args) => check(args),
+        Command::Bench(args) => bench(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -295,6 +338,91 @@ fn open_failure(e: softbody::OpenError) -> Failure {
         status,
         error: e.into(),
     }
+}
+
+fn bench(args: BenchArgs) -> Result<(), Failure> {
+    use softbody::benchmark::{self, BenchError, Options};
+    let options = Options {
+        backend: args.backend,
+        integrator: args.integrator,
+        threads: args.threads.map(usize::from),
+        steps: args.steps,
+        stiffness: args.stiffness.unwrap_or(benchmark::STIFFNESS),
+        dt: args.dt,
+    };
+    let mut out = std::io::stdout().lock();
+    let mut header = false;
+    for &n in &args.sizes {
+        let m = benchmark::measure(n, &options).map_err(|e| match e {
+            BenchError::Invalid { .. } => bad_input(e),
+            BenchError::Open(o) => open_failure(o),
+            BenchError::Step {
+                source: softbody::StepError::Device(_),
+                ..
+            } => Failure {
+                status: status::NO_ADAPTER,
+                error: e.into(),
+            },
+            BenchError::Step { .. } | BenchError::NotFinite { .. } => Failure {
+                status: status::UNSTABLE,
+                error: e.into(),
+            },
+        })?;
+        // One write per size, as it completes, so that a long run shows its progress.
+        let text = if args.json {
+            format!("{}\n", m.to_json(&options))
+        } else {
+            let mut text = String::new();
+            if !header {
+                header = true;
+                text.push_str(&format!(
+                    "{} on {} ({}), k_s = {} N/m\n",
+                    options.integrator,
+                    options.backend,
+                    m.device,
+                    options.stiffness
+                ));
+                text.push_str(&format!(
+                    "{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}\n",
+                    "n",
+                    "particles",
+                    "springs",
+                    "steps",
+                    "dt [s]",
+                    "seconds",
+                    "Mparticle-st/s",
+                    "Mspring-st/s",
+                    "B/particle",
+                    if m.cg_iterations_per_step.is_some() {
+                        "  CG it/step"
+                    } else {
+                        ""
+                    }
+                ));
+            }
+            text.push_str(&format!(
+                "{:>5} {:>10} {:>11} {:>7} {:>10.3e} {:>8.3} {:>14.3} {:>13.2} {:>9}{}\n",
+                m.n,
+                m.particles,
+                m.springs,
+                m.steps,
+                m.dt,
+                m.seconds,
+                m.particle_steps_per_s() / 1e6,
+                m.spring_steps_per_s() / 1e6,
+                m.bytes_per_particle
+                    .map_or("-".to_owned(), |b| format!("{b:.0}")),
+                m.cg_iterations_per_step
+                    .map_or(String::new(), |c| format!(" {c:>11.1}"))
+            ));
+            text
+        };
+        match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+            r => r?,
+        }
+    }
+    Ok(())
 }
 
 fn check(args: CheckArgs) -> Result<(), Failure> {

@@ -11,8 +11,16 @@ use crate::contact::contact_force;
 use crate::spring_forces;
 use crate::terrain::Surface;
 
-/// Particles per rayon task in per-particle passes.
+/// Particles per rayon task in per-particle passes (the fewest in the fused passes, which size
+/// their tasks with [`particle_chunk`]).
 pub const PARTICLE_CHUNK: usize = 1024;
+
+/// Particles per rayon task in the fused per-particle passes: about four tasks per thread, at
+/// least 256 and at most 8192 particles. Only the speed depends on it.
+pub fn particle_chunk(particles: usize) -> usize {
+    let tasks = 4 * rayon::current_num_threads();
+    particles.div_ceil(tasks).clamp(256, 8192)
+}
 
 /// Gravity, drag and spring force on particle i (springs already computed per spring).
 #[inline(always)]
@@ -20,6 +28,46 @@ pub fn applied_force(model: &Model, per_spring: &[DVec3], v: DVec3, i: usize) ->
     let m = model.mass[i];
     let sim = &model.simulation;
     m * sim.gravity - sim.drag * m * v + spring_forces::gather(&model.adjacency, per_spring, i)
+}
+
+/// a(x, v) of particle i at position `x` and velocity `v`, the spring forces already computed
+/// into `per_spring`.
+#[inline(always)]
+pub fn acceleration(
+    model: &Model,
+    surfaces: &[Surface],
+    per_spring: &[DVec3],
+    i: usize,
+    x: DVec3,
+    v: DVec3,
+) -> DVec3 {
+    if model.inv_mass[i] == 0.0 {
+        return DVec3::ZERO;
+    }
+    let springs = spring_forces::gather(&model.adjacency, per_spring, i);
+    acceleration_with(model, surfaces, i, x, v, springs)
+}
+
+/// a(x, v) of particle i with the sum of its spring forces `springs` already gathered: what
+/// [`acceleration`] computes, in the same order.
+#[inline(always)]
+pub fn acceleration_with(
+    model: &Model,
+    surfaces: &[Surface],
+    i: usize,
+    x: DVec3,
+    v: DVec3,
+    springs: DVec3,
+) -> DVec3 {
+    let w = model.inv_mass[i];
+    if w == 0.0 {
+        return DVec3::ZERO;
+    }
+    let sim = &model.simulation;
+    let m = model.mass[i];
+    let f = m * sim.gravity - sim.drag * m * v + springs;
+    let fc = contact_force(surfaces, sim.contact_distance, sim.dt, m, x, v, f);
+    (f + fc) * w
 }
 
 /// Writes a(x, v) of every particle into `a`; `per_spring` is scratch of one entry per spring.
@@ -31,28 +79,34 @@ pub fn accelerations(
     per_spring: &mut [DVec3],
     a: &mut [DVec3],
 ) {
-    spring_forces::compute(&model.springs, x, v, per_spring);
+    accelerations_with(
+        spring_forces::Kernel::per_spring(),
+        model,
+        surfaces,
+        x,
+        v,
+        per_spring,
+        a,
+    );
+}
+
+/// [`accelerations`] with a spring kernel set up for the model.
+pub fn accelerations_with(
+    kernel: spring_forces::Kernel,
+    model: &Model,
+    surfaces: &[Surface],
+    x: &[DVec3],
+    v: &[DVec3],
+    per_spring: &mut [DVec3],
+    a: &mut [DVec3],
+) {
+    kernel.compute(&model.springs, x, v, per_spring);
     let per_spring = &*per_spring;
-    let sim = &model.simulation;
-    a.par_iter_mut()
-        .enumerate()
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(i, a)| {
-            let w = model.inv_mass[i];
-            if w == 0.0 {
-                *a = DVec3::ZERO;
-                return;
-            }
-            let f = applied_force(model, per_spring, v[i], i);
-            let fc = contact_force(
-                surfaces,
-                sim.contact_distance,
-                sim.dt,
-                model.mass[i],
-                x[i],
-                v[i],
-                f,
-            );
-            *a = (f + fc) * w;
-        });
+    let chunk = particle_chunk(a.len());
+    a.par_chunks_mut(chunk).enumerate().for_each(|(c, a)| {
+        for (k, a) in a.iter_mut().enumerate() {
+            let i = c * chunk + k;
+            *a = acceleration(model, surfaces, per_spring, i, x[i], v[i]);
+        }
+    });
 }

@@ -34,6 +34,7 @@ pub mod contact;
 pub mod energy;
 pub mod forces;
 pub mod integrators;
+mod pipeline;
 pub mod reduce;
 pub mod spring_forces;
 pub mod terrain;
@@ -54,10 +55,14 @@ pub struct Workspace {
     pub model: Model,
     /// One query object per terrain shape.
     pub surfaces: Vec<Surface>,
-    /// Force on `a` of each spring.
-    per_spring: Vec<DVec3>,
-    /// Accelerations of the last evaluation.
-    a: Vec<DVec3>,
+    /// The spring pass, set up for the model.
+    kernel: spring_forces::Kernel,
+    /// How the fused passes split the particles among threads, and their scratch.
+    plan: pipeline::Plan,
+    /// The explicit integrators' second state buffer: a pass writes the next state there, and
+    /// the buffers are swapped.
+    next_x: Vec<DVec3>,
+    next_v: Vec<DVec3>,
     /// Stage state of the multi-stage methods.
     stage_x: Vec<DVec3>,
     stage_v: Vec<DVec3>,
@@ -79,38 +84,72 @@ impl Workspace {
         let rk4 = integrator == Integrator::Rk4;
         let implicit = (integrator == Integrator::ImplicitEuler)
             .then(|| integrators::implicit_euler::Implicit::new(&model));
+        let explicit = implicit.is_none();
+
         Workspace {
-            per_spring: zeros(if implicit.is_some() {
-                0
+            next_x: zeros(if explicit { n } else { 0 }),
+            next_v: zeros(if explicit { n } else { 0 }),
+            // Implicit Euler has no use for the explicit passes' plan.
+            plan: if explicit {
+                pipeline::Plan::new(&model)
             } else {
-                model.springs.len()
-            }),
-            a: zeros(if implicit.is_some() { 0 } else { n }),
+                pipeline::Plan::empty()
+            },
             stage_x: zeros(if multi_stage { n } else { 0 }),
             stage_v: zeros(if multi_stage { n } else { 0 }),
             sum_x: zeros(if rk4 { n } else { 0 }),
             sum_v: zeros(if rk4 { n } else { 0 }),
             implicit,
             surfaces,
+            kernel: spring_forces::Kernel::new(&model.springs),
             model,
         }
     }
 
-    /// Evaluates a(x, v) into the workspace's acceleration buffer.
-    fn accelerations(&mut self, x: &[DVec3], v: &[DVec3]) {
-        forces::accelerations(
-            &self.model,
-            &self.surfaces,
-            x,
-            v,
-            &mut self.per_spring,
-            &mut self.a,
-        );
+    /// Bytes held on the heap: the model's particle, spring and adjacency arrays, and every
+    /// scratch buffer (terrain query structures and names excluded).
+    pub fn memory_bytes(&self) -> u64 {
+        let m = &self.model;
+        let s = &m.springs;
+        let model = vec_bytes(&m.mass)
+            + vec_bytes(&m.inv_mass)
+            + vec_bytes(&s.a)
+            + vec_bytes(&s.b)
+            + vec_bytes(&s.rest)
+            + vec_bytes(&s.stiffness)
+            + vec_bytes(&s.damping)
+            + vec_bytes(&m.adjacency.offsets)
+            + vec_bytes(&m.adjacency.entries);
+        let scratch = [
+            &self.next_x,
+            &self.next_v,
+            &self.stage_x,
+            &self.stage_v,
+            &self.sum_x,
+            &self.sum_v,
+        ]
+        .into_iter()
+        .map(vec_bytes)
+        .sum::<u64>();
+        model
+            + scratch
+            + self.plan.memory_bytes()
+            + self.implicit.as_ref().map_or(0, |i| i.memory_bytes())
     }
 
     /// Advances `state` by one step of the model's integrator.
     pub fn step(&mut self, state: &mut State) {
-        match self.model.simulation.integrator {
+        self.step_checked(state);
+    }
+
+    /// Advances `state` by one step and returns the first particle with a non-finite position
+    /// or velocity afterwards ([`first_non_finite`]), found within the step's last pass.
+    pub fn step_checked(&mut self, state: &mut State) -> Option<(usize, &'static str)> {
+        if self.implicit.is_none() && !self.plan.fits() {
+            // Stepped from another thread pool than the one the workspace was made in.
+            self.plan = pipeline::Plan::new(&self.model);
+        }
+        let bad = match self.model.simulation.integrator {
             Integrator::ExplicitEuler => integrators::explicit_euler::step(self, state),
             Integrator::SymplecticEuler => integrators::symplectic_euler::step(self, state),
             Integrator::Midpoint => integrators::midpoint::step(self, state),
@@ -122,11 +161,16 @@ impl Workspace {
                     .expect("sized for implicit-euler in Workspace::new");
                 implicit.step(&self.model, &self.surfaces, state);
                 self.implicit = Some(implicit);
-                return;
+                return first_non_finite(state);
             }
-        }
-        collision_response::respond(&self.model, &self.surfaces, &mut state.x, &mut state.v);
+        };
+        bad.map(|i| (i, non_finite_what(state, i)))
     }
+}
+
+/// Bytes a vector holds on the heap.
+pub(crate) fn vec_bytes<T>(v: &Vec<T>) -> u64 {
+    (v.capacity() * std::mem::size_of::<T>()) as u64
 }
 
 /// The first particle with a non-finite position or velocity, and which it is.
@@ -137,14 +181,15 @@ pub fn first_non_finite(state: &State) -> Option<(usize, &'static str)> {
         .zip(state.v.par_iter())
         .with_min_len(forces::PARTICLE_CHUNK)
         .position_first(|(x, v)| !x.is_finite() || !v.is_finite())?;
-    Some((
-        i,
-        if state.x[i].is_finite() {
-            "has a non-finite velocity"
-        } else {
-            "has a non-finite position"
-        },
-    ))
+    Some((i, non_finite_what(state, i)))
+}
+
+fn non_finite_what(state: &State, i: usize) -> &'static str {
+    if state.x[i].is_finite() {
+        "has a non-finite velocity"
+    } else {
+        "has a non-finite position"
+    }
 }
 
 /// The CPU backend: a [`Workspace`], the state, and a rayon pool of a fixed size.
@@ -177,6 +222,12 @@ impl CpuSolver {
             steps: 0,
         })
     }
+
+    /// Bytes the solver holds on the heap: the state, the model's particle, spring and
+    /// adjacency arrays, and the integrator's scratch (terrain query structures excluded).
+    pub fn memory_bytes(&self) -> u64 {
+        vec_bytes(&self.state.x) + vec_bytes(&self.state.v) + self.ws.memory_bytes()
+    }
 }
 
 impl Solver for CpuSolver {
@@ -202,9 +253,9 @@ impl Solver for CpuSolver {
         let done = &mut self.steps;
         self.pool.install(|| {
             for _ in 0..steps {
-                ws.step(state);
+                let bad = ws.step_checked(state);
                 *done += 1;
-                if let Some((i, what)) = first_non_finite(state) {
+                if let Some((i, what)) = bad {
                     return Err(StepError::Unstable(Instability {
                         step: *done,
                         time: *done as f64 * dt,

@@ -13,7 +13,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{Adjacency, Springs};
 
-/// Springs per rayon task: large enough to amortise scheduling, small enough to balance.
+/// Fewest springs per rayon task: enough to amortise scheduling.
 const SPRING_CHUNK: usize = 4096;
 
 /// Force on particle `a` of one spring.
@@ -38,26 +38,205 @@ pub fn spring_force(
     -(ks * (len - rest) + kd * (va - vb).dot(l)) * l
 }
 
-/// Writes the force on `a` of every spring into `out`.
+/// Writes the force on `a` of every spring into `out` (per-spring stiffness and damping).
 pub fn compute(springs: &Springs, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
-    out.par_chunks_mut(SPRING_CHUNK)
-        .enumerate()
-        .for_each(|(c, chunk)| {
-            let base = c * SPRING_CHUNK;
-            for (k, f) in chunk.iter_mut().enumerate() {
-                let s = base + k;
-                let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
-                *f = spring_force(
-                    x[a],
-                    x[b],
-                    v[a],
-                    v[b],
-                    springs.rest[s],
-                    springs.stiffness[s],
-                    springs.damping[s],
-                );
+    Kernel::per_spring().compute(springs, x, v, out);
+}
+
+/// The spring pass, set up once per model: whether every spring shares one stiffness and one
+/// damping (then the pass streams only the end points and rest lengths), and whether the CPU
+/// runs AVX2 (then each group of [`LANES`] springs is computed in vector registers).
+///
+/// Every variant performs, per spring, exactly the operations of [`spring_force`] in the same
+/// order (IEEE division and square root, no fused multiply-add), so all give the same bits.
+#[derive(Debug, Clone, Copy)]
+pub struct Kernel {
+    /// `Some((k_s, k_d))` when every spring has these.
+    uniform: Option<(f64, f64)>,
+    avx2: bool,
+}
+
+/// Springs computed side by side.
+pub const LANES: usize = 4;
+
+impl Kernel {
+    /// The kernel for `springs`.
+    pub fn new(springs: &Springs) -> Kernel {
+        let uniform = match (springs.stiffness.first(), springs.damping.first()) {
+            (Some(&ks), Some(&kd))
+                if springs.stiffness.iter().all(|&k| k.to_bits() == ks.to_bits())
+                    && springs.damping.iter().all(|&k| k.to_bits() == kd.to_bits()) =>
+            {
+                Some((ks, kd))
             }
-        });
+            _ => None,
+        };
+        Kernel {
+            uniform,
+            ..Kernel::per_spring()
+        }
+    }
+
+    /// A kernel that reads every spring's stiffness and damping.
+    pub fn per_spring() -> Kernel {
+        Kernel {
+            uniform: None,
+            avx2: avx2(),
+        }
+    }
+
+    /// Writes the force on `a` of every spring into `out`.
+    pub fn compute(self, springs: &Springs, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
+        assert!(out.len() == springs.len() && springs.b.len() == springs.len());
+        assert!(springs.rest.len() == springs.len());
+        if self.uniform.is_none() {
+            assert!(springs.stiffness.len() == springs.len());
+            assert!(springs.damping.len() == springs.len());
+        }
+        let chunk = spring_chunk(springs.len());
+        out.par_chunks_mut(chunk)
+            .enumerate()
+            .for_each(|(c, chunk_out)| self.range(springs, x, v, c * chunk, chunk_out));
+    }
+
+    /// Forces of springs `first..first + out.len()`.
+    #[inline]
+    pub(crate) fn range(
+        self,
+        springs: &Springs,
+        x: &[DVec3],
+        v: &[DVec3],
+        first: usize,
+        out: &mut [DVec3],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 was detected at run time.
+            unsafe { range_avx2(self.uniform, springs, x, v, first, out) };
+            return;
+        }
+        range_generic(self.uniform, springs, x, v, first, out);
+    }
+}
+
+/// Springs per rayon task: at least [`SPRING_CHUNK`], and about four tasks per thread on
+/// large models.
+pub(crate) fn spring_chunk(springs: usize) -> usize {
+    let tasks = 4 * rayon::current_num_threads();
+    springs.div_ceil(tasks).clamp(SPRING_CHUNK, 1 << 16).next_multiple_of(LANES)
+}
+
+fn avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn range_avx2(
+    uniform: Option<(f64, f64)>,
+    springs: &Springs,
+    x: &[DVec3],
+    v: &[DVec3],
+    first: usize,
+    out: &mut [DVec3],
+) {
+    match uniform {
+        Some((ks, kd)) => avx::range(springs, Some((ks, kd)), x, v, first, out),
+        None => avx::range(springs, None, x, v, first, out),
+    }
+}
+
+fn range_generic(
+    uniform: Option<(f64, f64)>,
+    springs: &Springs,
+    x: &[DVec3],
+    v: &[DVec3],
+    first: usize,
+    out: &mut [DVec3],
+) {
+    match uniform {
+        Some((ks, kd)) => range_body(springs, |_| (ks, kd), x, v, first, out),
+        None => range_body(
+            springs,
+            |s| (springs.stiffness[s], springs.damping[s]),
+            x,
+            v,
+            first,
+            out,
+        ),
+    }
+}
+
+/// [`spring_force`] for springs `first..first + out.len()`, [`LANES`] at a time: each lane's
+/// operations are those of the scalar function, in the same order.
+#[inline(always)]
+fn range_body(
+    springs: &Springs,
+    params: impl Fn(usize) -> (f64, f64),
+    x: &[DVec3],
+    v: &[DVec3],
+    first: usize,
+    out: &mut [DVec3],
+) {
+    let (sa, sb, rest) = (
+        &springs.a[first..first + out.len()],
+        &springs.b[first..first + out.len()],
+        &springs.rest[first..first + out.len()],
+    );
+    let groups = out.len() / LANES;
+    for g in 0..groups {
+        let o = g * LANES;
+        let mut d = [[0.0; LANES]; 3];
+        let mut w = [[0.0; LANES]; 3];
+        let mut r = [0.0; LANES];
+        let mut ks = [0.0; LANES];
+        let mut kd = [0.0; LANES];
+        for l in 0..LANES {
+            let (a, b) = (sa[o + l] as usize, sb[o + l] as usize);
+            let (dd, ww) = (x[a] - x[b], v[a] - v[b]);
+            (d[0][l], d[1][l], d[2][l]) = (dd.x, dd.y, dd.z);
+            (w[0][l], w[1][l], w[2][l]) = (ww.x, ww.y, ww.z);
+            r[l] = rest[o + l];
+            (ks[l], kd[l]) = params(first + o + l);
+        }
+        let mut len = [0.0; LANES];
+        for l in 0..LANES {
+            len[l] = ((d[0][l] * d[0][l]) + (d[1][l] * d[1][l]) + (d[2][l] * d[2][l])).sqrt();
+        }
+        let mut u = [[0.0; LANES]; 3];
+        for c in 0..3 {
+            for l in 0..LANES {
+                u[c][l] = d[c][l] / len[l];
+            }
+        }
+        let mut mag = [0.0; LANES];
+        for l in 0..LANES {
+            let wu = (w[0][l] * u[0][l]) + (w[1][l] * u[1][l]) + (w[2][l] * u[2][l]);
+            mag[l] = -(ks[l] * (len[l] - r[l]) + kd[l] * wu);
+        }
+        let mut f = [[0.0; LANES]; 3];
+        for c in 0..3 {
+            for l in 0..LANES {
+                // A spring crushed to zero length exerts no force (see `spring_force`).
+                f[c][l] = if len[l] == 0.0 { 0.0 } else { mag[l] * u[c][l] };
+            }
+        }
+        for l in 0..LANES {
+            out[o + l] = DVec3::new(f[0][l], f[1][l], f[2][l]);
+        }
+    }
+    for k in groups * LANES..out.len() {
+        let (a, b) = (sa[k] as usize, sb[k] as usize);
+        let (ks, kd) = params(first + k);
+        out[k] = spring_force(x[a], x[b], v[a], v[b], rest[k], ks, kd);
+    }
 }
 
 /// Sum of the spring forces on particle `i`.
@@ -65,12 +244,285 @@ pub fn compute(springs: &Springs, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
 pub fn gather(adjacency: &Adjacency, per_spring: &[DVec3], i: usize) -> DVec3 {
     let mut f = DVec3::ZERO;
     for &e in adjacency.of(i) {
-        let s = (e >> 1) as usize;
-        if e & 1 == 0 {
-            f += per_spring[s];
-        } else {
-            f -= per_spring[s];
-        }
+        // f − p is f + (−p) in IEEE arithmetic: flip the sign bit instead of branching.
+        let sign = ((e & 1) as u64) << 63;
+        let p = per_spring[(e >> 1) as usize];
+        f += DVec3::new(
+            f64::from_bits(p.x.to_bits() ^ sign),
+            f64::from_bits(p.y.to_bits() ^ sign),
+            f64::from_bits(p.z.to_bits() ^ sign),
+        );
     }
     f
+}
+
+/// Where [`gather_block`] reads per-spring forces from.
+///
+/// # Safety
+/// `at(s)` either panics or returns a pointer to a `DVec3` (three `f64`) that stays valid and
+/// that no thread writes while the gather that asked for it runs.
+pub unsafe trait Forces: Sync {
+    /// The force of spring `s`.
+    fn at(&self, s: usize) -> *const f64;
+}
+
+// SAFETY: a shared slice is immutable while borrowed; indexing checks the bounds.
+unsafe impl Forces for [DVec3] {
+    #[inline(always)]
+    fn at(&self, s: usize) -> *const f64 {
+        (&self[s] as *const DVec3).cast()
+    }
+}
+
+/// [`gather`] through [`Forces`].
+#[inline(always)]
+fn gather_from<F: Forces + ?Sized>(adjacency: &Adjacency, per_spring: &F, i: usize) -> DVec3 {
+    let mut f = DVec3::ZERO;
+    for &e in adjacency.of(i) {
+        // SAFETY: `Forces` promises a readable DVec3 that nobody writes meanwhile.
+        let p = unsafe { per_spring.at((e >> 1) as usize).cast::<DVec3>().read() };
+        f += if e & 1 == 0 { p } else { -p };
+    }
+    f
+}
+
+/// Sums of the spring forces on particles `first..first + out.len()`: [`gather`] for each, four
+/// particles side by side (independent addition chains; each particle's own sum keeps its
+/// order, so the bits are [`gather`]'s).
+pub fn gather_block<F: Forces + ?Sized>(
+    adjacency: &Adjacency,
+    per_spring: &F,
+    first: usize,
+    out: &mut [DVec3],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        sse::gather_block(adjacency, per_spring, first, out);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    for (k, f) in out.iter_mut().enumerate() {
+        *f = gather_from(adjacency, per_spring, first + k);
+    }
+}
+
+/// [`gather_block`] in 128-bit registers (SSE2, part of every x86-64): x and y of a sum in one
+/// register, z in another; −p by flipping the sign bit, as in [`gather`].
+#[cfg(target_arch = "x86_64")]
+mod sse {
+    use std::arch::x86_64::*;
+
+    use glam::DVec3;
+    use softbody_scene::Adjacency;
+
+    use super::{Forces, gather_from};
+
+    /// Particles gathered side by side.
+    const WAYS: usize = 4;
+
+    // SAFETY (every `unsafe` below): SSE2 is part of the x86-64 baseline, so its intrinsics
+    // are always available; the loads read the DVec3 that `Forces::at` vouches for.
+
+    #[inline(always)]
+    fn add<F: Forces + ?Sized>(acc: &mut (__m128d, __m128d), per_spring: &F, e: u32) {
+        let p = per_spring.at((e >> 1) as usize);
+        unsafe {
+            let sign = _mm_castsi128_pd(_mm_set1_epi64x(((e & 1) as i64) << 63));
+            // x and y together, then z.
+            let (xy, z) = (_mm_loadu_pd(p), _mm_load_sd(p.add(2)));
+            acc.0 = _mm_add_pd(acc.0, _mm_xor_pd(xy, sign));
+            acc.1 = _mm_add_sd(acc.1, _mm_xor_pd(z, sign));
+        }
+    }
+
+    #[inline(always)]
+    fn store(acc: (__m128d, __m128d)) -> DVec3 {
+        let mut xy = [0.0; 2];
+        unsafe {
+            _mm_storeu_pd(xy.as_mut_ptr(), acc.0);
+            DVec3::new(xy[0], xy[1], _mm_cvtsd_f64(acc.1))
+        }
+    }
+
+    #[inline]
+    pub(super) fn gather_block<F: Forces + ?Sized>(
+        adjacency: &Adjacency,
+        per_spring: &F,
+        first: usize,
+        out: &mut [DVec3],
+    ) {
+        let (offsets, entries) = (&adjacency.offsets, &adjacency.entries[..]);
+        let mut chunks = out.chunks_exact_mut(WAYS);
+        let mut i = first;
+        for out in &mut chunks {
+            let o: [usize; WAYS + 1] = std::array::from_fn(|l| offsets[i + l] as usize);
+            let runs: [&[u32]; WAYS] = std::array::from_fn(|l| &entries[o[l]..o[l + 1]]);
+            let common = runs.iter().map(|r| r.len()).min().unwrap_or(0);
+            let zero = unsafe { _mm_setzero_pd() };
+            let mut acc = [(zero, zero); WAYS];
+            for j in 0..common {
+                for l in 0..WAYS {
+                    add(&mut acc[l], per_spring, runs[l][j]);
+                }
+            }
+            for l in 0..WAYS {
+                for &e in &runs[l][common..] {
+                    add(&mut acc[l], per_spring, e);
+                }
+                out[l] = store(acc[l]);
+            }
+            i += WAYS;
+        }
+        for (k, f) in chunks.into_remainder().iter_mut().enumerate() {
+            *f = gather_from(adjacency, per_spring, i + k);
+        }
+    }
+}
+
+/// The spring pass in 256-bit vectors: four springs per iteration, each lane doing exactly the
+/// scalar [`spring_force`]'s IEEE operations in its order (`vdivpd`, `vsqrtpd` are correctly
+/// rounded like their scalar forms; nothing is fused).
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use std::arch::x86_64::*;
+
+    use glam::DVec3;
+    use softbody_scene::Springs;
+
+    use super::{LANES, spring_force};
+
+    /// Loads x, y, z of `p` into lanes 0..3 (lane 3 = 0) without reading past it.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn load3(p: &DVec3) -> __m256d {
+        // SAFETY: DVec3 is three contiguous f64 (`#[repr(C)]`); the mask reads only those.
+        unsafe {
+            _mm256_maskload_pd(
+                (p as *const DVec3).cast::<f64>(),
+                _mm256_setr_epi64x(-1, -1, -1, 0),
+            )
+        }
+    }
+
+    /// Rows (x, y, z, ·) of four vectors → (x0..x3), (y0..y3), (z0..z3).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn transpose_in(r: [__m256d; 4]) -> [__m256d; 3] {
+        let t0 = _mm256_unpacklo_pd(r[0], r[1]);
+        let t1 = _mm256_unpackhi_pd(r[0], r[1]);
+        let t2 = _mm256_unpacklo_pd(r[2], r[3]);
+        let t3 = _mm256_unpackhi_pd(r[2], r[3]);
+        [
+            _mm256_permute2f128_pd::<0x20>(t0, t2),
+            _mm256_permute2f128_pd::<0x20>(t1, t3),
+            _mm256_permute2f128_pd::<0x31>(t0, t2),
+        ]
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn range(
+        springs: &Springs,
+        uniform: Option<(f64, f64)>,
+        x: &[DVec3],
+        v: &[DVec3],
+        first: usize,
+        out: &mut [DVec3],
+    ) {
+        let len = out.len();
+        let (sa, sb, rest) = (
+            &springs.a[first..first + len],
+            &springs.b[first..first + len],
+            &springs.rest[first..first + len],
+        );
+        let (ks_all, kd_all) = match uniform {
+            Some(_) => (&[][..], &[][..]),
+            None => (
+                &springs.stiffness[first..first + len],
+                &springs.damping[first..first + len],
+            ),
+        };
+        let groups = len / LANES;
+        let zero = _mm256_setzero_pd();
+        let sign = _mm256_set1_pd(-0.0);
+        for g in 0..groups {
+            let o = g * LANES;
+            let mut dr = [zero; 4];
+            let mut wr = [zero; 4];
+            for l in 0..LANES {
+                let (a, b) = (sa[o + l] as usize, sb[o + l] as usize);
+                dr[l] = _mm256_sub_pd(load3(&x[a]), load3(&x[b]));
+                wr[l] = _mm256_sub_pd(load3(&v[a]), load3(&v[b]));
+            }
+            let [dx, dy, dz] = transpose_in(dr);
+            let [wx, wy, wz] = transpose_in(wr);
+            // SAFETY (loads below): o + 4 ≤ len, the slices' length.
+            let r = unsafe { _mm256_loadu_pd(rest.as_ptr().add(o)) };
+            let (ks, kd) = match uniform {
+                Some((ks, kd)) => (_mm256_set1_pd(ks), _mm256_set1_pd(kd)),
+                None => unsafe {
+                    (
+                        _mm256_loadu_pd(ks_all.as_ptr().add(o)),
+                        _mm256_loadu_pd(kd_all.as_ptr().add(o)),
+                    )
+                },
+            };
+            // |d| = sqrt((dx² + dy²) + dz²)
+            let l2 = _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
+                _mm256_mul_pd(dz, dz),
+            );
+            let n = _mm256_sqrt_pd(l2);
+            let (ux, uy, uz) = (
+                _mm256_div_pd(dx, n),
+                _mm256_div_pd(dy, n),
+                _mm256_div_pd(dz, n),
+            );
+            // −(k_s(|d| − r) + k_d((wx ux + wy uy) + wz uz))
+            let wu = _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(wx, ux), _mm256_mul_pd(wy, uy)),
+                _mm256_mul_pd(wz, uz),
+            );
+            let mag = _mm256_xor_pd(
+                _mm256_add_pd(
+                    _mm256_mul_pd(ks, _mm256_sub_pd(n, r)),
+                    _mm256_mul_pd(kd, wu),
+                ),
+                sign,
+            );
+            // Lanes of zero length exert no force.
+            let live = _mm256_cmp_pd::<_CMP_NEQ_UQ>(n, zero);
+            let fx = _mm256_and_pd(_mm256_mul_pd(mag, ux), live);
+            let fy = _mm256_and_pd(_mm256_mul_pd(mag, uy), live);
+            let fz = _mm256_and_pd(_mm256_mul_pd(mag, uz), live);
+            // Back to rows (x, y, z, z) and stored in order, each row's fourth lane overwritten
+            // by the next row; the last row stores three lanes.
+            let t0 = _mm256_unpacklo_pd(fx, fy);
+            let t1 = _mm256_unpackhi_pd(fx, fy);
+            let t2 = _mm256_unpacklo_pd(fz, fz);
+            let t3 = _mm256_unpackhi_pd(fz, fz);
+            let rows = [
+                _mm256_permute2f128_pd::<0x20>(t0, t2),
+                _mm256_permute2f128_pd::<0x20>(t1, t3),
+                _mm256_permute2f128_pd::<0x31>(t0, t2),
+                _mm256_permute2f128_pd::<0x31>(t1, t3),
+            ];
+            let dst = out[o..o + LANES].as_mut_ptr().cast::<f64>();
+            // SAFETY: out[o..o + 4] is 12 contiguous f64; rows 0..2 write 4 of them from
+            // offsets 0, 3, 6 (at most up to 10), the last row 3 from offset 9.
+            unsafe {
+                _mm256_storeu_pd(dst, rows[0]);
+                _mm256_storeu_pd(dst.add(3), rows[1]);
+                _mm256_storeu_pd(dst.add(6), rows[2]);
+                _mm256_maskstore_pd(dst.add(9), _mm256_setr_epi64x(-1, -1, -1, 0), rows[3]);
+            }
+        }
+        for k in groups * LANES..len {
+            let (a, b) = (sa[k] as usize, sb[k] as usize);
+            let (ks, kd) = match uniform {
+                Some(p) => p,
+                None => (ks_all[k], kd_all[k]),
+            };
+            out[k] = spring_force(x[a], x[b], v[a], v[b], rest[k], ks, kd);
+        }
+    }
 }

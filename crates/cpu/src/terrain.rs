@@ -186,7 +186,25 @@ impl Surface {
     /// Some(contact) when the point's signed distance φ < `reach` (this includes every
     /// penetrating point, however deep); None when the point is at least `reach` away in free
     /// space. `reach` may be `f64::INFINITY` (then always Some, for a finite point).
+    #[inline]
     pub fn query(&self, x: DVec3, reach: f64) -> Option<Contact> {
+        // Planes, the common ground, are answered inline: the same expressions as below.
+        if let Geometry::Plane { point, half_space } = &self.geometry {
+            if !x.is_finite() || reach.is_nan() {
+                return None;
+            }
+            let phi = half_space.distance_to_local_point(x - *point, false);
+            return (phi < reach).then_some(Contact {
+                phi,
+                normal: half_space.normal,
+            });
+        }
+        self.query_shape(x, reach)
+    }
+
+    /// [`Surface::query`] for every kind of shape.
+    #[inline(never)]
+    fn query_shape(&self, x: DVec3, reach: f64) -> Option<Contact> {
         if !x.is_finite() || reach.is_nan() {
             return None;
         }

@@ -1,10 +1,13 @@
 //! Time integrators. Each advances the state by one step h = dt; the explicit family
-//! (explicit Euler, symplectic Euler, midpoint, RK4) evaluates [`crate::forces::accelerations`]
-//! and is followed by [`crate::collision_response`]; implicit Euler handles contact inside its
-//! solve.
+//! (explicit Euler, symplectic Euler, midpoint, RK4) evaluates accelerations (gravity, drag,
+//! springs, [`crate::contact`]) and ends with [`crate::collision_response`]; implicit Euler
+//! handles contact inside its solve.
 //!
-//! Element-wise updates are parallel over particles; they have no reductions, so any split
-//! gives the same bits.
+//! Each explicit stage is one fused [`pipeline::pass`](crate::pipeline::pass): spring forces at
+//! the stage's (x, v), then per particle its acceleration and the stage update, written to other
+//! arrays than the ones read (the workspace double-buffers the state). The last stage also
+//! applies the collision response and checks finiteness ([`finish`]). Updates have no
+//! reductions, so any split gives the same bits.
 
 pub mod explicit_euler;
 pub mod implicit_euler;
@@ -13,22 +16,23 @@ pub mod rk4;
 pub mod symplectic_euler;
 
 use glam::DVec3;
-use rayon::prelude::*;
+use softbody_scene::Model;
 
-use crate::forces::PARTICLE_CHUNK;
+use crate::collision_response::respond_one;
+use crate::terrain::Surface;
 
-/// `y[i] = x[i] + s·d[i]` for every i.
-pub(crate) fn axpy_into(y: &mut [DVec3], x: &[DVec3], s: f64, d: &[DVec3]) {
-    y.par_iter_mut()
-        .zip(x.par_iter().zip(d.par_iter()))
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(y, (x, d))| *y = *x + s * *d);
-}
-
-/// `y[i] += s·d[i]` for every i.
-pub(crate) fn axpy(y: &mut [DVec3], s: f64, d: &[DVec3]) {
-    y.par_iter_mut()
-        .zip(d.par_iter())
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(y, d)| *y += s * *d);
+/// The end of an explicit step for particle i: its collision response (unless it is pinned),
+/// then whether its position and velocity are finite.
+#[inline(always)]
+pub(crate) fn finish(
+    model: &Model,
+    surfaces: &[Surface],
+    i: usize,
+    x: &mut DVec3,
+    v: &mut DVec3,
+) -> bool {
+    if !surfaces.is_empty() && model.inv_mass[i] != 0.0 {
+        respond_one(surfaces, model.simulation.contact_distance, x, v);
+    }
+    x.is_finite() && v.is_finite()
 }

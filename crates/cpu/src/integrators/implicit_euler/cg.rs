@@ -70,6 +70,14 @@ impl Scratch {
             q: vec![DVec3::ZERO; n],
         }
     }
+
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        [&self.r, &self.c, &self.q]
+            .into_iter()
+            .map(crate::vec_bytes)
+            .sum()
+    }
 }
 
 fn dot(a: &[DVec3], b: &[DVec3]) -> f64 {

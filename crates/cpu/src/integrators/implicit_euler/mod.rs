@@ -115,6 +115,20 @@ impl Implicit {
         }
     }
 
+    /// Bytes held on the heap (the per-step contact candidates excluded).
+    pub fn memory_bytes(&self) -> u64 {
+        use crate::vec_bytes;
+        self.system.memory_bytes()
+            + self.scratch.memory_bytes()
+            + [&self.b, &self.rhs, &self.z, &self.dv, &self.impulse]
+                .into_iter()
+                .map(vec_bytes)
+                .sum::<u64>()
+            + vec_bytes(&self.constraints)
+            + vec_bytes(&self.touching)
+            + vec_bytes(&self.sticking)
+    }
+
     /// One step.
     pub fn step(&mut self, model: &Model, surfaces: &[Surface], state: &mut State) {
         let sim = &model.simulation;

@@ -55,6 +55,17 @@ impl System {
         }
     }
 
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        use crate::vec_bytes;
+        vec_bytes(&self.u)
+            + vec_bytes(&self.beta)
+            + vec_bytes(&self.gamma)
+            + vec_bytes(&self.per_spring)
+            + vec_bytes(&self.mass_diag)
+            + vec_bytes(&self.inv_diag)
+    }
+
     /// Linearises at (x, v) and writes the right-hand side h(f + h ∂f/∂x v) into `b`.
     pub fn assemble(&mut self, model: &Model, x: &[DVec3], v: &[DVec3], b: &mut [DVec3]) {
         let h = model.simulation.dt;

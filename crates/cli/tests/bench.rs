@@ -1,0 +1,131 @@
+//! `softbody bench`: the JSON keys, finite figures, the table, and bad arguments.
+
+mod common;
+
+use common::*;
+use serde_json::Value;
+
+fn json_lines(out: &Outcome) -> Vec<Value> {
+    out.stdout_text()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect()
+}
+
+fn positive_number(v: &Value, key: &str) -> f64 {
+    let x = v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("`{key}` is not a number in {v}"));
+    assert!(x.is_finite() && x > 0.0, "`{key}` = {x} in {v}");
+    x
+}
+
+#[test]
+fn json_has_one_line_per_size_with_the_documented_keys() {
+    let sandbox = Sandbox::new();
+    let out = sandbox.run(&["bench", "--sizes", "3,5", "--steps", "20", "--json"]);
+    out.expect_status(EXIT_OK);
+    let lines = json_lines(&out);
+    assert_eq!(lines.len(), 2);
+    for (v, n) in lines.iter().zip([3u64, 5]) {
+        assert_eq!(v["particles"].as_u64(), Some(n * n * n));
+        assert_eq!(v["steps"].as_u64(), Some(20));
+        let springs = v["springs"].as_u64().unwrap();
+        // structural 3n²(n−1), shear 6n(n−1)² + 4(n−1)³, bending 3n²(n−2)
+        let m = n - 1;
+        assert_eq!(springs, 3 * n * n * m + 6 * n * m * m + 4 * m * m * m + 3 * n * n * (n - 2));
+        let seconds = positive_number(v, "seconds");
+        let p = positive_number(v, "particle_steps_per_s");
+        let s = positive_number(v, "spring_steps_per_s");
+        let bytes = positive_number(v, "bytes_per_particle");
+        assert!((p * seconds / (20 * n * n * n) as f64 - 1.0).abs() < 1e-9);
+        assert!((s / p - springs as f64 / (n * n * n) as f64).abs() < 1e-9);
+        // At least the state, masses, springs and the per-spring forces.
+        assert!(bytes > 48.0 + 16.0 + (springs * 56) as f64 / (n * n * n) as f64);
+        assert!(v.get("cg_iterations_per_step").is_none());
+        assert_eq!(v["integrator"], "symplectic-euler");
+        assert_eq!(v["backend"], "cpu");
+    }
+}
+
+#[test]
+fn implicit_reports_cg_iterations_and_takes_dt_and_stiffness() {
+    let sandbox = Sandbox::new();
+    let out = sandbox.run(&[
+        "bench",
+        "--integrator",
+        "implicit-euler",
+        "--sizes",
+        "4",
+        "--steps",
+        "5",
+        "--stiffness",
+        "1e4",
+        "--dt",
+        "1/60",
+        "--threads",
+        "1",
+        "--json",
+    ]);
+    out.expect_status(EXIT_OK);
+    let lines = json_lines(&out);
+    assert_eq!(lines.len(), 1);
+    let v = &lines[0];
+    assert_eq!(v["dt"].as_f64(), Some(1.0 / 60.0));
+    assert_eq!(v["stiffness"].as_f64(), Some(1e4));
+    assert_eq!(v["device"], "CPU, 1 thread");
+    positive_number(v, "cg_iterations_per_step");
+    positive_number(v, "particle_steps_per_s");
+    positive_number(v, "bytes_per_particle");
+}
+
+#[test]
+fn table_names_the_columns_and_each_size() {
+    let sandbox = Sandbox::new();
+    let out = sandbox.run(&["bench", "--sizes", "3,4", "--steps", "10"]);
+    out.expect_status(EXIT_OK);
+    let text = out.stdout_text();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 4, "{text}");
+    assert!(lines[0].starts_with("symplectic-euler on cpu"), "{text}");
+    assert!(lines[1].contains("particles") && lines[1].contains("Mparticle-st/s"));
+    assert!(lines[2].split_whitespace().take(2).eq(["3", "27"]), "{text}");
+    assert!(lines[3].split_whitespace().take(2).eq(["4", "64"]), "{text}");
+}
+
+#[test]
+fn bad_arguments_are_bad_input() {
+    let sandbox = Sandbox::new();
+    for args in [
+        &["bench", "--sizes", "1"][..],
+        &["bench", "--sizes", "3,x"],
+        &["bench", "--dt", "0"],
+        &["bench", "--dt", "1/0"],
+        &["bench", "--stiffness", "-5"],
+        &["bench", "--steps", "0"],
+        &["bench", "--integrator", "leapfrog"],
+    ] {
+        let out = sandbox.run(args);
+        out.expect_status(EXIT_BAD_INPUT);
+        assert!(out.stdout.is_empty(), "{args:?}");
+    }
+}
+
+#[test]
+fn an_unstable_step_is_exit_status_3() {
+    // Explicit Euler at a step a hundred times the stable one blows up within the timed steps.
+    let sandbox = Sandbox::new();
+    let out = sandbox.run(&[
+        "bench",
+        "--integrator",
+        "explicit-euler",
+        "--sizes",
+        "4",
+        "--dt",
+        "0.05",
+        "--steps",
+        "2000",
+    ]);
+    out.expect_status(EXIT_UNSTABLE);
+    assert!(out.stderr.contains("4³ cube"), "{}", out.stderr);
+}
