@@ -248,13 +248,12 @@ pub fn measure(n: u32, options: &Options) -> Result<Measurement, BenchError> {
     let (model, state) = Model::build(&scene);
     match options.backend {
         Backend::Cpu => {
-            let mut solver =
-                CpuSolver::new(model, state, options.threads).map_err(|source| {
-                    OpenError::Threads {
-                        threads: options.threads.unwrap_or(0),
-                        source,
-                    }
-                })?;
+            let mut solver = CpuSolver::new(model, state, options.threads).map_err(|source| {
+                OpenError::Threads {
+                    threads: options.threads.unwrap_or(0),
+                    source,
+                }
+            })?;
             let mut m = time(&mut solver, n, dt, options)?;
             m.bytes_per_particle = Some(solver.memory_bytes() as f64 / m.particles as f64);
             Ok(m)

@@ -2,7 +2,7 @@
 //! itself lives in the `softbody` library.
 //!
 //! Exit status: 0 done; 1 the output could not be written; 2 bad input (scene file or
-//! arguments, or a scene beyond what `--backend gpu` runs: adapter limits, implicit Euler);
+//! arguments, or a scene beyond what `--backend gpu` runs: the adapter's limits);
 //! 3 the simulation became unstable (the frames before it are written); 4 `--backend gpu`
 //! found no usable GPU adapter, or the device failed during the run (the frames before it are
 //! written).
@@ -377,10 +377,7 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
                 header = true;
                 text.push_str(&format!(
                     "{} on {} ({}), k_s = {} N/m\n",
-                    options.integrator,
-                    options.backend,
-                    m.device,
-                    options.stiffness
+                    options.integrator, options.backend, m.device, options.stiffness
                 ));
                 text.push_str(&format!(
                     "{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}\n",

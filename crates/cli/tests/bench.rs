@@ -33,7 +33,10 @@ fn json_has_one_line_per_size_with_the_documented_keys() {
         let springs = v["springs"].as_u64().unwrap();
         // structural 3n²(n−1), shear 6n(n−1)² + 4(n−1)³, bending 3n²(n−2)
         let m = n - 1;
-        assert_eq!(springs, 3 * n * n * m + 6 * n * m * m + 4 * m * m * m + 3 * n * n * (n - 2));
+        assert_eq!(
+            springs,
+            3 * n * n * m + 6 * n * m * m + 4 * m * m * m + 3 * n * n * (n - 2)
+        );
         let seconds = positive_number(v, "seconds");
         let p = positive_number(v, "particle_steps_per_s");
         let s = positive_number(v, "spring_steps_per_s");
@@ -89,8 +92,14 @@ fn table_names_the_columns_and_each_size() {
     assert_eq!(lines.len(), 4, "{text}");
     assert!(lines[0].starts_with("symplectic-euler on cpu"), "{text}");
     assert!(lines[1].contains("particles") && lines[1].contains("Mparticle-st/s"));
-    assert!(lines[2].split_whitespace().take(2).eq(["3", "27"]), "{text}");
-    assert!(lines[3].split_whitespace().take(2).eq(["4", "64"]), "{text}");
+    assert!(
+        lines[2].split_whitespace().take(2).eq(["3", "27"]),
+        "{text}"
+    );
+    assert!(
+        lines[3].split_whitespace().take(2).eq(["4", "64"]),
+        "{text}"
+    );
 }
 
 #[test]
