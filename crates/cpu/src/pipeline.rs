@@ -102,7 +102,13 @@ impl Plan {
                 let springs = a_start[t] as usize..a_start[end] as usize;
                 tail.push(t);
                 tail_offset.push(offset);
-                tail_reach.push(b[springs.clone()].iter().map(|&b| b as usize).max().unwrap_or(0));
+                tail_reach.push(
+                    b[springs.clone()]
+                        .iter()
+                        .map(|&b| b as usize)
+                        .max()
+                        .unwrap_or(0),
+                );
                 offset += springs.len();
             }
             Forward {
@@ -234,8 +240,20 @@ impl<'o> Outputs for (&'o mut [DVec3], &'o mut [DVec3]) {
     }
 }
 
-impl<'o> Outputs for (&'o mut [DVec3], &'o mut [DVec3], &'o mut [DVec3], &'o mut [DVec3]) {
-    type Chunk = (&'o mut [DVec3], &'o mut [DVec3], &'o mut [DVec3], &'o mut [DVec3]);
+impl<'o> Outputs
+    for (
+        &'o mut [DVec3],
+        &'o mut [DVec3],
+        &'o mut [DVec3],
+        &'o mut [DVec3],
+    )
+{
+    type Chunk = (
+        &'o mut [DVec3],
+        &'o mut [DVec3],
+        &'o mut [DVec3],
+        &'o mut [DVec3],
+    );
     type Item<'a> = (&'a mut DVec3, &'a mut DVec3, &'a mut DVec3, &'a mut DVec3);
     fn chunks(self, size: usize) -> impl IndexedParallelIterator<Item = Self::Chunk> {
         let n = self.0.len();
@@ -315,7 +333,8 @@ pub(crate) fn pass<O: Outputs>(
         tail_forces,
         sums,
     } = fw;
-    let (a_start, tail, tail_offset, tail_reach) = (&a_start[..], &tail[..], &tail_offset[..], &tail_reach[..]);
+    let (a_start, tail, tail_offset, tail_reach) =
+        (&a_start[..], &tail[..], &tail_offset[..], &tail_reach[..]);
     assert!(a_start.len() == n + 1 && a_start[n] as usize == springs.len());
     assert!(springs.b.len() == springs.len());
     // Phase A: the forces of the springs starting in every chunk's tail.

@@ -64,7 +64,10 @@ impl Kernel {
     pub fn new(springs: &Springs) -> Kernel {
         let uniform = match (springs.stiffness.first(), springs.damping.first()) {
             (Some(&ks), Some(&kd))
-                if springs.stiffness.iter().all(|&k| k.to_bits() == ks.to_bits())
+                if springs
+                    .stiffness
+                    .iter()
+                    .all(|&k| k.to_bits() == ks.to_bits())
                     && springs.damping.iter().all(|&k| k.to_bits() == kd.to_bits()) =>
             {
                 Some((ks, kd))
@@ -123,7 +126,10 @@ impl Kernel {
 /// large models.
 pub(crate) fn spring_chunk(springs: usize) -> usize {
     let tasks = 4 * rayon::current_num_threads();
-    springs.div_ceil(tasks).clamp(SPRING_CHUNK, 1 << 16).next_multiple_of(LANES)
+    springs
+        .div_ceil(tasks)
+        .clamp(SPRING_CHUNK, 1 << 16)
+        .next_multiple_of(LANES)
 }
 
 fn avx2() -> bool {
