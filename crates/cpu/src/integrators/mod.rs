@@ -16,9 +16,12 @@ pub mod rk4;
 pub mod symplectic_euler;
 
 use glam::DVec3;
-use softbody_scene::Model;
+use softbody_scene::{Model, State};
 
+use crate::Workspace;
 use crate::collision_response::respond_one;
+use crate::forces::acceleration_with;
+use crate::pipeline::pass;
 use crate::terrain::Surface;
 
 /// The end of an explicit step for particle i: its collision response (unless it is pinned),
@@ -35,4 +38,33 @@ pub(crate) fn finish(
         respond_one(surfaces, model.simulation.contact_distance, x, v);
     }
     x.is_finite() && v.is_finite()
+}
+
+/// One step of a single-stage Euler method in one fused pass: spring forces, then per particle
+/// the gathered forces, gravity, drag and contact, `update(x, v, a, h) -> (x', v')`, the
+/// collision response and the finiteness check. Returns the first particle that is not finite.
+pub(crate) fn euler_step(
+    ws: &mut Workspace,
+    state: &mut State,
+    update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
+) -> Option<usize> {
+    let h = ws.model.simulation.dt;
+    let (model, surfaces) = (&ws.model, &ws.surfaces[..]);
+    let (x, v) = (&state.x[..], &state.v[..]);
+    let bad = pass(
+        &mut ws.plan,
+        ws.kernel,
+        model,
+        x,
+        v,
+        (&mut ws.next_x[..], &mut ws.next_v[..]),
+        |i, springs, (xn, vn)| {
+            let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+            (*xn, *vn) = update(x[i], v[i], a, h);
+            finish(model, surfaces, i, xn, vn)
+        },
+    );
+    std::mem::swap(&mut state.x, &mut ws.next_x);
+    std::mem::swap(&mut state.v, &mut ws.next_v);
+    bad
 }
