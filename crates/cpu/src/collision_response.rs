@@ -28,7 +28,7 @@ pub fn respond(model: &Model, surfaces: &[Surface], x: &mut [DVec3], v: &mut [DV
 }
 
 /// The response of one particle.
-#[inline]
+#[inline(always)]
 pub fn respond_one(surfaces: &[Surface], eps: f64, x: &mut DVec3, v: &mut DVec3) {
     for s in surfaces {
         let Some(c) = s.query(*x, eps) else { continue };

@@ -22,7 +22,7 @@ use crate::terrain::Surface;
 
 /// The contact and friction force on one particle (mass m, position x, velocity v, applied
 /// force f) for step size h.
-#[inline]
+#[inline(always)]
 pub fn contact_force(
     surfaces: &[Surface],
     eps: f64,
@@ -58,7 +58,7 @@ pub fn contact_force(
 
 /// Friction force for a contact pressed with `press`, slip `vt` and tangential applied force
 /// `ft`.
-#[inline]
+#[inline(never)]
 pub fn friction(
     model: FrictionModel,
     mu: f64,

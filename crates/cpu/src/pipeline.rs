@@ -24,12 +24,13 @@
 //!
 //! The particles are split into one chunk per thread. A chunk's *tail* is its particles from
 //! the first one with a spring reaching beyond the chunk. Phase A computes the forces of the
-//! springs starting in every tail into a small buffer. Phase B runs one task per chunk: it
+//! springs starting in every tail into a small buffer, split evenly among the threads. Phase B
+//! runs one task per chunk (the chunk boundaries are placed so that these take equal work): it
 //! zeroes its particles' sums, subtracts the forces of earlier chunks' tail springs that end in
 //! it (in ascending order: those springs come before any of its own), then sweeps its own
-//! springs in windows of [`WINDOW`], computing each window's forces with the spring kernel (or
-//! taking them from phase A in the tail), adding each to its first end and subtracting it from
-//! its second end when that lies in the chunk (the next chunks take the others from phase A).
+//! springs, computing their forces with the spring kernel four at a time (or taking them from
+//! phase A in the tail), adding each to its first end and subtracting it from its second end
+//! when that lies in the chunk (the next chunks take the others from phase A).
 //! Each spring is computed once, by the same kernel, from the same inputs, and every sum has
 //! the gather's order, so the result does not depend on the number of chunks or threads.
 //!
@@ -43,12 +44,12 @@ use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{Model, Springs};
 
-use crate::spring_forces::{Kernel, gather_block};
+use crate::spring_forces::{Cursor, Kernel, LANES, gather_block};
 
-/// Particles gathered together on the plain route.
+/// Particles gathered, or updated, together.
 const BLOCK: usize = 64;
-/// Springs whose forces are computed together in a sweep.
-pub(crate) const WINDOW: usize = 512;
+/// Fewest particles per chunk.
+const MIN_CHUNK: usize = 256;
 
 /// How a model's particles are split into chunks, made once per thread count, and the scratch
 /// of the passes.
@@ -56,8 +57,8 @@ pub(crate) const WINDOW: usize = 512;
 pub(crate) struct Plan {
     /// Rayon threads the plan was made for.
     threads: usize,
-    /// Particles per chunk (the last may have fewer).
-    chunk: usize,
+    /// Chunk c is particles `bounds[c]..bounds[c + 1]`.
+    bounds: Vec<usize>,
     /// The sweep's plan, for forward models.
     forward: Option<Forward>,
     /// Plain route: the force of every spring.
@@ -70,7 +71,7 @@ struct Forward {
     a_start: Vec<u32>,
     /// Per chunk, its first tail particle (its end when no spring reaches beyond it).
     tail: Vec<usize>,
-    /// Per chunk, where its tail springs' forces start in `tail_forces`.
+    /// Chunk c's tail springs' forces are `tail_forces[tail_offset[c]..tail_offset[c + 1]]`.
     tail_offset: Vec<usize>,
     /// Per chunk, the largest second end among its tail springs (0 when none).
     tail_reach: Vec<usize>,
@@ -85,48 +86,61 @@ impl Plan {
     pub(crate) fn new(model: &Model) -> Plan {
         let n = model.len();
         let threads = rayon::current_num_threads();
-        // One chunk per thread: every chunk boundary costs phase-A work, and the chunks are
-        // equal.
-        let chunk = n.div_ceil(threads).max(BLOCK);
-        let forward = forward_starts(n, &model.springs).map(|a_start| {
-            let b = &model.springs.b;
-            let chunks = n.div_ceil(chunk);
-            let (mut tail, mut tail_offset, mut tail_reach) = (vec![], vec![], vec![]);
-            let mut offset = 0;
-            for c in 0..chunks {
-                let (start, end) = (c * chunk, ((c + 1) * chunk).min(n));
-                let starting = |p: usize| a_start[p] as usize..a_start[p + 1] as usize;
-                let t = (start..end)
-                    .find(|&p| b[starting(p)].iter().any(|&b| b as usize >= end))
-                    .unwrap_or(end);
-                let springs = a_start[t] as usize..a_start[end] as usize;
-                tail.push(t);
-                tail_offset.push(offset);
-                tail_reach.push(
-                    b[springs.clone()]
-                        .iter()
-                        .map(|&b| b as usize)
-                        .max()
-                        .unwrap_or(0),
-                );
-                offset += springs.len();
+        let springs = &model.springs;
+        let (bounds, forward) = match forward_starts(n, springs) {
+            Some(a_start) => {
+                // One chunk per thread (each boundary costs phase-A work), placed so that the
+                // chunks' phase B take about equal time: a chunk computes the forces of its
+                // springs before its tail (the last chunk: all of its springs), and sums all.
+                let k = threads.min(n / MIN_CHUNK).max(1);
+                let equal: Vec<usize> = (0..=k).map(|c| c * n / k).collect();
+                let first_tails = tails(&a_start, &springs.b, &equal);
+                let tail_springs =
+                    |c: usize| (a_start[equal[c + 1]] - a_start[first_tails[c]]) as usize;
+                let in_tails: usize = (0..k).map(tail_springs).sum();
+                // Phase B costs each chunk its springs' sums and its particles' updates, plus
+                // the forces of its springs before the tail: about half of a spring's cost is
+                // its force, so a chunk gets half its tail's springs on top of an equal share.
+                let work = (springs.len() - in_tails / 2) / k;
+                let mut bounds = vec![0];
+                let mut target = 0;
+                for c in 0..k - 1 {
+                    target += work + tail_springs(c) / 2;
+                    let p = a_start.partition_point(|&s| (s as usize) < target);
+                    bounds.push(p.clamp(bounds[c] + 1, n - (k - 1 - c)));
+                }
+                bounds.push(n);
+                let tail = tails(&a_start, &springs.b, &bounds);
+                let mut tail_offset = vec![0];
+                let mut tail_reach = Vec::with_capacity(k);
+                for c in 0..k {
+                    let r = a_start[tail[c]] as usize..a_start[bounds[c + 1]] as usize;
+                    tail_offset.push(tail_offset[c] + r.len());
+                    tail_reach.push(springs.b[r].iter().map(|&b| b as usize).max().unwrap_or(0));
+                }
+                let forward = Forward {
+                    tail_forces: vec![DVec3::ZERO; tail_offset[k]],
+                    a_start,
+                    tail,
+                    tail_offset,
+                    tail_reach,
+                    sums: vec![DVec3::ZERO; n],
+                };
+                (bounds, Some(forward))
             }
-            Forward {
-                a_start,
-                tail,
-                tail_offset,
-                tail_reach,
-                tail_forces: vec![DVec3::ZERO; offset],
-                sums: vec![DVec3::ZERO; n],
+            None => {
+                // Gathers are independent: four chunks per thread balance the load.
+                let k = (4 * threads).min(n / MIN_CHUNK).max(1);
+                ((0..=k).map(|c| c * n / k).collect(), None)
             }
-        });
+        };
         let per_spring = match forward {
             Some(_) => Vec::new(),
-            None => vec![DVec3::ZERO; model.springs.len()],
+            None => vec![DVec3::ZERO; springs.len()],
         };
         Plan {
             threads,
-            chunk,
+            bounds,
             forward,
             per_spring,
         }
@@ -136,7 +150,7 @@ impl Plan {
     pub(crate) fn empty() -> Plan {
         Plan {
             threads: rayon::current_num_threads(),
-            chunk: BLOCK,
+            bounds: vec![0, 0],
             forward: None,
             per_spring: Vec::new(),
         }
@@ -151,6 +165,7 @@ impl Plan {
     pub(crate) fn memory_bytes(&self) -> u64 {
         use crate::vec_bytes;
         vec_bytes(&self.per_spring)
+            + vec_bytes(&self.bounds)
             + self.forward.as_ref().map_or(0, |f| {
                 vec_bytes(&f.a_start)
                     + vec_bytes(&f.tail)
@@ -162,10 +177,11 @@ impl Plan {
     }
 }
 
-/// `a_start` when every spring has a < b and the springs are sorted by a; None otherwise.
+/// `a_start` when every spring has a < b < n and the springs are sorted by a; None otherwise.
 fn forward_starts(n: usize, springs: &Springs) -> Option<Vec<u32>> {
     let (a, b) = (&springs.a, &springs.b);
-    let forward = a.iter().zip(b).all(|(a, b)| a < b && (*b as usize) < n)
+    let forward = a.len() == b.len()
+        && a.iter().zip(b).all(|(a, b)| a < b && (*b as usize) < n)
         && a.windows(2).all(|w| w[0] <= w[1]);
     if !forward {
         return None;
@@ -178,6 +194,22 @@ fn forward_starts(n: usize, springs: &Springs) -> Option<Vec<u32>> {
         start[p + 1] += start[p];
     }
     Some(start)
+}
+
+/// Each chunk's first particle with a spring reaching beyond the chunk (its end if none).
+fn tails(a_start: &[u32], b: &[u32], bounds: &[usize]) -> Vec<usize> {
+    bounds
+        .windows(2)
+        .map(|w| {
+            let (start, end) = (w[0], w[1]);
+            (start..end)
+                .find(|&p| {
+                    let r = a_start[p] as usize..a_start[p + 1] as usize;
+                    b[r].iter().any(|&b| b as usize >= end)
+                })
+                .unwrap_or(end)
+        })
+        .collect()
 }
 
 /// A buffer that phase A's tasks write in disjoint ranges.
@@ -210,33 +242,40 @@ impl<'a> Shared<'a> {
     }
 }
 
-/// Per-particle output arrays that a pass writes, split into chunks for the tasks.
-pub(crate) trait Outputs: Send {
-    /// One chunk of each array.
+/// Per-particle output arrays that a pass writes: a tuple of two or four `&mut [DVec3]`.
+pub(crate) trait Outputs {
+    /// The arrays, or a range of particles of them.
     type Chunk: Send;
     /// One element of each.
     type Item<'a>;
-    /// The arrays in chunks of `size` particles.
-    fn chunks(self, size: usize) -> impl IndexedParallelIterator<Item = Self::Chunk>;
-    /// Element k of a chunk.
-    fn item(chunk: &mut Self::Chunk, k: usize) -> Self::Item<'_>;
-    /// Particles in a chunk.
-    fn len(chunk: &Self::Chunk) -> usize;
+    /// All of them.
+    fn whole(self) -> Self::Chunk;
+    /// Particles in `c`.
+    fn len(c: &Self::Chunk) -> usize;
+    /// The first `mid` particles of `c` and the rest.
+    fn split_at(c: Self::Chunk, mid: usize) -> (Self::Chunk, Self::Chunk);
+    /// Element k of each.
+    fn item(c: &mut Self::Chunk, k: usize) -> Self::Item<'_>;
 }
 
 impl<'o> Outputs for (&'o mut [DVec3], &'o mut [DVec3]) {
     type Chunk = (&'o mut [DVec3], &'o mut [DVec3]);
     type Item<'a> = (&'a mut DVec3, &'a mut DVec3);
-    fn chunks(self, size: usize) -> impl IndexedParallelIterator<Item = Self::Chunk> {
+    fn whole(self) -> Self::Chunk {
         assert_eq!(self.0.len(), self.1.len());
-        (self.0.par_chunks_mut(size), self.1.par_chunks_mut(size)).into_par_iter()
+        self
+    }
+    fn len(c: &Self::Chunk) -> usize {
+        c.0.len()
+    }
+    fn split_at(c: Self::Chunk, mid: usize) -> (Self::Chunk, Self::Chunk) {
+        let (a0, a1) = c.0.split_at_mut(mid);
+        let (b0, b1) = c.1.split_at_mut(mid);
+        ((a0, b0), (a1, b1))
     }
     #[inline(always)]
-    fn item(chunk: &mut Self::Chunk, k: usize) -> Self::Item<'_> {
-        (&mut chunk.0[k], &mut chunk.1[k])
-    }
-    fn len(chunk: &Self::Chunk) -> usize {
-        chunk.0.len()
+    fn item(c: &mut Self::Chunk, k: usize) -> Self::Item<'_> {
+        (&mut c.0[k], &mut c.1[k])
     }
 }
 
@@ -255,28 +294,58 @@ impl<'o> Outputs
         &'o mut [DVec3],
     );
     type Item<'a> = (&'a mut DVec3, &'a mut DVec3, &'a mut DVec3, &'a mut DVec3);
-    fn chunks(self, size: usize) -> impl IndexedParallelIterator<Item = Self::Chunk> {
+    fn whole(self) -> Self::Chunk {
         let n = self.0.len();
         assert!(self.1.len() == n && self.2.len() == n && self.3.len() == n);
-        (
-            self.0.par_chunks_mut(size),
-            self.1.par_chunks_mut(size),
-            self.2.par_chunks_mut(size),
-            self.3.par_chunks_mut(size),
-        )
-            .into_par_iter()
+        self
+    }
+    fn len(c: &Self::Chunk) -> usize {
+        c.0.len()
+    }
+    fn split_at(c: Self::Chunk, mid: usize) -> (Self::Chunk, Self::Chunk) {
+        let (a0, a1) = c.0.split_at_mut(mid);
+        let (b0, b1) = c.1.split_at_mut(mid);
+        let (c0, c1) = c.2.split_at_mut(mid);
+        let (d0, d1) = c.3.split_at_mut(mid);
+        ((a0, b0, c0, d0), (a1, b1, c1, d1))
     }
     #[inline(always)]
-    fn item(chunk: &mut Self::Chunk, k: usize) -> Self::Item<'_> {
-        (
-            &mut chunk.0[k],
-            &mut chunk.1[k],
-            &mut chunk.2[k],
-            &mut chunk.3[k],
-        )
+    fn item(c: &mut Self::Chunk, k: usize) -> Self::Item<'_> {
+        (&mut c.0[k], &mut c.1[k], &mut c.2[k], &mut c.3[k])
     }
-    fn len(chunk: &Self::Chunk) -> usize {
-        chunk.0.len()
+}
+
+/// The chunks of a pass: chunk c is particles `bounds[c]..bounds[c + 1]`.
+struct Chunks<'a> {
+    bounds: &'a [usize],
+}
+
+impl Chunks<'_> {
+    /// Runs `leaf(c, sums, outputs)` for chunks `c0..c1` in parallel, each with its particles'
+    /// part of `sums` and `outputs`; returns the least of their results.
+    fn chunks<O: Outputs>(
+        &self,
+        c0: usize,
+        c1: usize,
+        sums: &mut [DVec3],
+        outputs: O::Chunk,
+        leaf: &(impl Fn(usize, &mut [DVec3], O::Chunk) -> Option<usize> + Sync),
+    ) -> Option<usize> {
+        if c1 - c0 == 1 {
+            return leaf(c0, sums, outputs);
+        }
+        let mid = (c0 + c1) / 2;
+        let at = self.bounds[mid] - self.bounds[c0];
+        let (s0, s1) = sums.split_at_mut(at.min(sums.len()));
+        let (o0, o1) = O::split_at(outputs, at);
+        let (a, b) = rayon::join(
+            || self.chunks::<O>(c0, mid, s0, o0, leaf),
+            || self.chunks::<O>(mid, c1, s1, o1, leaf),
+        );
+        match (a, b) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 }
 
@@ -284,46 +353,49 @@ impl<'o> Outputs
 /// `update(i, springs_i, outputs_i)` with `springs_i` the sum of its spring forces. `update`
 /// returns false for a particle it finds not finite; the pass returns the first such particle.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn pass<O: Outputs>(
+pub(crate) fn pass<O: Outputs, U>(
     plan: &mut Plan,
     kernel: Kernel,
     model: &Model,
     x: &[DVec3],
     v: &[DVec3],
     outputs: O,
-    update: impl Fn(usize, DVec3, O::Item<'_>) -> bool + Sync,
-) -> Option<usize> {
+    update: U,
+) -> Option<usize>
+where
+    U: Fn(usize, DVec3, O::Item<'_>) -> bool + Sync,
+{
     let n = model.len();
-    assert!(x.len() == n && v.len() == n && plan.fits());
+    let outputs = outputs.whole();
+    assert!(x.len() == n && v.len() == n && O::len(&outputs) == n && plan.fits());
     let springs = &model.springs;
-    let chunk = plan.chunk;
+    let k = plan.bounds.len() - 1;
+    let ctx = Chunks {
+        bounds: &plan.bounds,
+    };
     let Some(fw) = &mut plan.forward else {
         // The plain route: every spring, then a gather per block of particles.
         let per_spring = &mut plan.per_spring[..];
         kernel.compute(springs, x, v, per_spring);
         let per_spring = &*per_spring;
-        return outputs
-            .chunks(chunk)
-            .enumerate()
-            .filter_map(|(c, mut out)| {
-                let start = c * chunk;
-                let end = start + O::len(&out);
-                let mut bad = None;
-                let mut sums = [DVec3::ZERO; BLOCK];
-                for b0 in (start..end).step_by(BLOCK) {
-                    let b1 = (b0 + BLOCK).min(end);
-                    let sums = &mut sums[..b1 - b0];
-                    gather_block(&model.adjacency, per_spring, b0, sums);
-                    for (k, &f) in sums.iter().enumerate() {
-                        let i = b0 + k;
-                        if !update(i, f, O::item(&mut out, i - start)) && bad.is_none() {
-                            bad = Some(i);
-                        }
+        let leaf = |c: usize, _: &mut [DVec3], mut out: O::Chunk| {
+            let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
+            let mut bad = None;
+            let mut sums = [DVec3::ZERO; BLOCK];
+            for b0 in (start..end).step_by(BLOCK) {
+                let b1 = (b0 + BLOCK).min(end);
+                let sums = &mut sums[..b1 - b0];
+                gather_block(&model.adjacency, per_spring, b0, sums);
+                for (k, &f) in sums.iter().enumerate() {
+                    let i = b0 + k;
+                    if !update(i, f, O::item(&mut out, i - start)) && bad.is_none() {
+                        bad = Some(i);
                     }
                 }
-                bad
-            })
-            .min();
+            }
+            bad
+        };
+        return ctx.chunks::<O>(0, k, &mut [], outputs, &leaf);
     };
     let Forward {
         a_start,
@@ -336,71 +408,94 @@ pub(crate) fn pass<O: Outputs>(
     let (a_start, tail, tail_offset, tail_reach) =
         (&a_start[..], &tail[..], &tail_offset[..], &tail_reach[..]);
     assert!(a_start.len() == n + 1 && a_start[n] as usize == springs.len());
-    assert!(springs.b.len() == springs.len());
-    // Phase A: the forces of the springs starting in every chunk's tail.
+    assert!(springs.b.len() == springs.len() && springs.rest.len() == springs.len());
+    assert!(springs.stiffness.len() == springs.len() && springs.damping.len() == springs.len());
+    // Phase A: the forces of the springs starting in every chunk's tail, in equal pieces.
     {
+        let total = tail_forces.len();
+        let piece = total
+            .div_ceil(rayon::current_num_threads())
+            .next_multiple_of(LANES)
+            .max(LANES);
         let shared = Shared::new(tail_forces);
-        tail.par_iter().enumerate().for_each(|(c, &t)| {
-            let end = ((c + 1) * chunk).min(n);
-            let r = a_start[t] as usize..a_start[end] as usize;
-            // SAFETY: each chunk writes its own range of the buffer; nothing reads it now.
-            let out = unsafe { shared.range_mut(tail_offset[c]..tail_offset[c] + r.len()) };
-            kernel.range(springs, x, v, r.start, out);
+        (0..total.div_ceil(piece)).into_par_iter().for_each(|q| {
+            let (q0, q1) = (q * piece, ((q + 1) * piece).min(total));
+            for c in 0..k {
+                let (o0, o1) = (tail_offset[c].max(q0), tail_offset[c + 1].min(q1));
+                if o0 < o1 {
+                    // SAFETY: the pieces are disjoint; nothing reads the buffer now.
+                    let out = unsafe { shared.range_mut(o0..o1) };
+                    let first = a_start[tail[c]] as usize + (o0 - tail_offset[c]);
+                    kernel.range(springs, x, v, first, out);
+                }
+            }
         });
     }
     let tail_forces = &tail_forces[..];
-    let b_of = &springs.b[..];
     // Phase B: one sweep per chunk.
-    (sums.par_chunks_mut(chunk), outputs.chunks(chunk))
-        .into_par_iter()
-        .enumerate()
-        .filter_map(|(c, (sums, mut out))| {
-            let start = c * chunk;
-            let end = start + sums.len();
-            sums.fill(DVec3::ZERO);
-            // Earlier chunks' tail springs ending here, in ascending order.
-            for e in 0..c {
-                if tail_reach[e] < start {
-                    continue;
-                }
-                let r = a_start[tail[e]] as usize..a_start[((e + 1) * chunk).min(n)] as usize;
-                for (k, s) in r.enumerate() {
-                    let b = b_of[s] as usize;
-                    if (start..end).contains(&b) {
-                        sums[b - start] -= tail_forces[tail_offset[e] + k];
-                    }
+    let leaf = |c: usize, sums: &mut [DVec3], mut out: O::Chunk| {
+        let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
+        sums.fill(DVec3::ZERO);
+        // Earlier chunks' tail springs ending here, in ascending order.
+        for e in 0..c {
+            if tail_reach[e] < start {
+                continue;
+            }
+            let r = a_start[tail[e]] as usize..a_start[ctx.bounds[e + 1]] as usize;
+            let forces = &tail_forces[tail_offset[e]..tail_offset[e + 1]];
+            for (&b, f) in springs.b[r].iter().zip(forces) {
+                let b = b as usize;
+                if (start..end).contains(&b) {
+                    sums[b - start] -= *f;
                 }
             }
-            let own_tail = a_start[tail[c]] as usize;
-            let own_end = a_start[end] as usize;
-            let mut window = [DVec3::ZERO; WINDOW];
-            // The window of computed forces, [w0, w1): empty, at the chunk's first spring.
-            let (mut w0, mut w1) = (a_start[start] as usize, a_start[start] as usize);
-            let mut bad = None;
-            for p in start..end {
-                let mut sum = sums[p - start];
-                for s in a_start[p] as usize..a_start[p + 1] as usize {
-                    let f = if s >= own_tail {
-                        tail_forces[tail_offset[c] + s - own_tail]
-                    } else {
-                        if s == w1 {
-                            (w0, w1) = (s, (s + WINDOW).min(own_tail));
-                            kernel.range(springs, x, v, w0, &mut window[..w1 - w0]);
-                        }
-                        window[s - w0]
-                    };
-                    sum += f;
-                    let b = b_of[s] as usize;
-                    if b < end {
-                        sums[b - start] -= f;
-                    }
-                }
+        }
+        let mut bad = None;
+        let mut cursor = Cursor {
+            p: start,
+            sum: sums.first().copied().unwrap_or(DVec3::ZERO),
+        };
+        // The chunk's springs before its tail are computed here; its tail's come from
+        // phase A.
+        let tail_first = a_start[tail[c]] as usize;
+        let forces = &tail_forces[tail_offset[c]..tail_offset[c + 1]];
+        let mut block = [DVec3::ZERO; BLOCK];
+        for b0 in (start..end).step_by(BLOCK) {
+            let b1 = (b0 + BLOCK).min(end);
+            // The sums of the block's particles, as the sweep completes them.
+            let mut record = |p: usize, sum: DVec3| block[p - b0] = sum;
+            let (s0, s1) = (a_start[b0] as usize, a_start[b1] as usize);
+            let computed = s0..s1.min(tail_first);
+            if !computed.is_empty() {
+                // SAFETY: the plan checked that every spring has a < b < n, and the pass
+                // that x, v, rest (and parameters) have their lengths.
+                cursor = unsafe {
+                    kernel.sweep_checked(
+                        springs,
+                        x,
+                        v,
+                        computed.start,
+                        computed.len(),
+                        sums,
+                        start,
+                        cursor,
+                        &mut record,
+                    )
+                };
+            }
+            for s in s0.max(tail_first)..s1 {
+                let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+                cursor.take(a, b, forces[s - tail_first], sums, start, &mut record);
+            }
+            cursor.advance(b1, sums, start, &mut record);
+            for (k, &sum) in block[..b1 - b0].iter().enumerate() {
+                let p = b0 + k;
                 if !update(p, sum, O::item(&mut out, p - start)) && bad.is_none() {
                     bad = Some(p);
                 }
             }
-            debug_assert!(w1 <= own_tail && own_tail <= own_end);
-            bad
-        })
-        .min()
+        }
+        bad
+    };
+    ctx.chunks::<O>(0, k, sums, outputs, &leaf)
 }

@@ -43,9 +43,62 @@ pub fn compute(springs: &Springs, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
     Kernel::per_spring().compute(springs, x, v, out);
 }
 
+/// Where a sweep stands ([`Kernel::sweep`]): the particle whose springs it is taking, and that
+/// particle's running sum.
+#[derive(Debug, Clone, Copy)]
+pub struct Cursor {
+    /// The particle.
+    pub p: usize,
+    /// Its running sum of spring forces.
+    pub sum: DVec3,
+}
+
+impl Cursor {
+    /// Takes the force `f` of a spring from `a` to `b` (springs come in ascending order, sorted
+    /// by `a`, with `a < b`): hands the particles before `a` to `done` with their sums (they
+    /// are complete), adds `f` to a's sum and subtracts it from b's when b lies in `sums`
+    /// (the running sums of particles `start..start + sums.len()`).
+    #[inline(always)]
+    pub fn take(
+        &mut self,
+        a: usize,
+        b: usize,
+        f: DVec3,
+        sums: &mut [DVec3],
+        start: usize,
+        done: &mut impl FnMut(usize, DVec3),
+    ) {
+        if a != self.p {
+            self.advance(a, sums, start, done);
+        }
+        self.sum += f;
+        if let Some(t) = sums.get_mut(b.wrapping_sub(start)) {
+            *t -= f;
+        }
+    }
+
+    /// Hands particles up to (not including) `until` to `done` with their sums.
+    #[inline(always)]
+    pub fn advance(
+        &mut self,
+        until: usize,
+        sums: &[DVec3],
+        start: usize,
+        done: &mut impl FnMut(usize, DVec3),
+    ) {
+        while self.p < until {
+            done(self.p, self.sum);
+            self.p += 1;
+            if let Some(&s) = sums.get(self.p - start) {
+                self.sum = s;
+            }
+        }
+    }
+}
+
 /// The spring pass, set up once per model: whether every spring shares one stiffness and one
 /// damping (then the pass streams only the end points and rest lengths), and whether the CPU
-/// runs AVX2 (then each group of [`LANES`] springs is computed in vector registers).
+/// runs AVX2 (then each group of [`LANES`] springs is computed in 256-bit registers).
 ///
 /// Every variant performs, per spring, exactly the operations of [`spring_force`] in the same
 /// order (IEEE division and square root, no fused multiply-add), so all give the same bits.
@@ -88,23 +141,18 @@ impl Kernel {
         }
     }
 
-    /// Writes the force on `a` of every spring into `out`.
+    /// Writes the force on `a` of every spring into `out`, in parallel.
     pub fn compute(self, springs: &Springs, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
-        assert!(out.len() == springs.len() && springs.b.len() == springs.len());
-        assert!(springs.rest.len() == springs.len());
-        if self.uniform.is_none() {
-            assert!(springs.stiffness.len() == springs.len());
-            assert!(springs.damping.len() == springs.len());
-        }
+        assert_eq!(out.len(), springs.len());
         let chunk = spring_chunk(springs.len());
         out.par_chunks_mut(chunk)
             .enumerate()
             .for_each(|(c, chunk_out)| self.range(springs, x, v, c * chunk, chunk_out));
     }
 
-    /// Forces of springs `first..first + out.len()`.
+    /// Forces of springs `first..first + out.len()` into `out`, on this thread.
     #[inline]
-    pub(crate) fn range(
+    pub fn range(
         self,
         springs: &Springs,
         x: &[DVec3],
@@ -112,19 +160,113 @@ impl Kernel {
         first: usize,
         out: &mut [DVec3],
     ) {
+        self.check(springs, x, v, first, out.len());
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
-            // SAFETY: AVX2 was detected at run time.
-            unsafe { range_avx2(self.uniform, springs, x, v, first, out) };
+            // SAFETY: AVX2 was detected at run time; `check` vouched for the ranges.
+            unsafe { avx::range(springs, self.uniform, x, v, first, out) };
             return;
         }
-        range_generic(self.uniform, springs, x, v, first, out);
+        for (k, f) in out.iter_mut().enumerate() {
+            *f = self.one(springs, x, v, first + k);
+        }
+    }
+
+    /// The forces of springs `first..first + len` (ascending, sorted by `a`, each with a < b),
+    /// taken by `cursor` in order ([`Cursor::take`]); returns the cursor.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn sweep(
+        self,
+        springs: &Springs,
+        x: &[DVec3],
+        v: &[DVec3],
+        first: usize,
+        len: usize,
+        sums: &mut [DVec3],
+        start: usize,
+        cursor: Cursor,
+        done: &mut impl FnMut(usize, DVec3),
+    ) -> Cursor {
+        self.check(springs, x, v, first, len);
+        // SAFETY: just checked.
+        unsafe { self.sweep_checked(springs, x, v, first, len, sums, start, cursor, done) }
+    }
+
+    /// [`Kernel::sweep`] without its check of the springs' ranges.
+    ///
+    /// # Safety
+    /// What [`Kernel::check`] checks holds: springs `first..first + len` exist with their rest
+    /// lengths (and parameters, unless uniform), and every end point indexes `x` and `v`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub(crate) unsafe fn sweep_checked(
+        self,
+        springs: &Springs,
+        x: &[DVec3],
+        v: &[DVec3],
+        first: usize,
+        len: usize,
+        sums: &mut [DVec3],
+        start: usize,
+        mut cursor: Cursor,
+        done: &mut impl FnMut(usize, DVec3),
+    ) -> Cursor {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 was detected at run time; the caller vouched for the ranges.
+            return unsafe {
+                avx::sweep(
+                    springs,
+                    self.uniform,
+                    x,
+                    v,
+                    first,
+                    len,
+                    sums,
+                    start,
+                    cursor,
+                    done,
+                )
+            };
+        }
+        for s in first..first + len {
+            let f = self.one(springs, x, v, s);
+            let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+            cursor.take(a, b, f, sums, start, done);
+        }
+        cursor
+    }
+
+    /// The force of spring `s`, by [`spring_force`].
+    #[inline]
+    fn one(self, springs: &Springs, x: &[DVec3], v: &[DVec3], s: usize) -> DVec3 {
+        let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+        let (ks, kd) = match self.uniform {
+            Some(p) => p,
+            None => (springs.stiffness[s], springs.damping[s]),
+        };
+        spring_force(x[a], x[b], v[a], v[b], springs.rest[s], ks, kd)
+    }
+
+    /// Panics unless springs `first..first + len` exist with all their data and every end point
+    /// indexes `x` and `v`: the vector paths rely on it.
+    #[inline]
+    fn check(self, springs: &Springs, x: &[DVec3], v: &[DVec3], first: usize, len: usize) {
+        let r = first..first + len;
+        let (a, b) = (&springs.a[r.clone()], &springs.b[r.clone()]);
+        let _ = &springs.rest[r.clone()];
+        if self.uniform.is_none() {
+            let _ = (&springs.stiffness[r.clone()], &springs.damping[r]);
+        }
+        let top = a.iter().zip(b).map(|(&a, &b)| a.max(b)).max().unwrap_or(0) as usize;
+        assert!(len == 0 || (top < x.len() && top < v.len()));
     }
 }
 
 /// Springs per rayon task: at least [`SPRING_CHUNK`], and about four tasks per thread on
 /// large models.
-pub(crate) fn spring_chunk(springs: usize) -> usize {
+fn spring_chunk(springs: usize) -> usize {
     let tasks = 4 * rayon::current_num_threads();
     springs
         .div_ceil(tasks)
@@ -140,108 +282,6 @@ fn avx2() -> bool {
     #[cfg(not(target_arch = "x86_64"))]
     {
         false
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn range_avx2(
-    uniform: Option<(f64, f64)>,
-    springs: &Springs,
-    x: &[DVec3],
-    v: &[DVec3],
-    first: usize,
-    out: &mut [DVec3],
-) {
-    match uniform {
-        Some((ks, kd)) => avx::range(springs, Some((ks, kd)), x, v, first, out),
-        None => avx::range(springs, None, x, v, first, out),
-    }
-}
-
-fn range_generic(
-    uniform: Option<(f64, f64)>,
-    springs: &Springs,
-    x: &[DVec3],
-    v: &[DVec3],
-    first: usize,
-    out: &mut [DVec3],
-) {
-    match uniform {
-        Some((ks, kd)) => range_body(springs, |_| (ks, kd), x, v, first, out),
-        None => range_body(
-            springs,
-            |s| (springs.stiffness[s], springs.damping[s]),
-            x,
-            v,
-            first,
-            out,
-        ),
-    }
-}
-
-/// [`spring_force`] for springs `first..first + out.len()`, [`LANES`] at a time: each lane's
-/// operations are those of the scalar function, in the same order.
-#[inline(always)]
-fn range_body(
-    springs: &Springs,
-    params: impl Fn(usize) -> (f64, f64),
-    x: &[DVec3],
-    v: &[DVec3],
-    first: usize,
-    out: &mut [DVec3],
-) {
-    let (sa, sb, rest) = (
-        &springs.a[first..first + out.len()],
-        &springs.b[first..first + out.len()],
-        &springs.rest[first..first + out.len()],
-    );
-    let groups = out.len() / LANES;
-    for g in 0..groups {
-        let o = g * LANES;
-        let mut d = [[0.0; LANES]; 3];
-        let mut w = [[0.0; LANES]; 3];
-        let mut r = [0.0; LANES];
-        let mut ks = [0.0; LANES];
-        let mut kd = [0.0; LANES];
-        for l in 0..LANES {
-            let (a, b) = (sa[o + l] as usize, sb[o + l] as usize);
-            let (dd, ww) = (x[a] - x[b], v[a] - v[b]);
-            (d[0][l], d[1][l], d[2][l]) = (dd.x, dd.y, dd.z);
-            (w[0][l], w[1][l], w[2][l]) = (ww.x, ww.y, ww.z);
-            r[l] = rest[o + l];
-            (ks[l], kd[l]) = params(first + o + l);
-        }
-        let mut len = [0.0; LANES];
-        for l in 0..LANES {
-            len[l] = ((d[0][l] * d[0][l]) + (d[1][l] * d[1][l]) + (d[2][l] * d[2][l])).sqrt();
-        }
-        let mut u = [[0.0; LANES]; 3];
-        for c in 0..3 {
-            for l in 0..LANES {
-                u[c][l] = d[c][l] / len[l];
-            }
-        }
-        let mut mag = [0.0; LANES];
-        for l in 0..LANES {
-            let wu = (w[0][l] * u[0][l]) + (w[1][l] * u[1][l]) + (w[2][l] * u[2][l]);
-            mag[l] = -(ks[l] * (len[l] - r[l]) + kd[l] * wu);
-        }
-        let mut f = [[0.0; LANES]; 3];
-        for c in 0..3 {
-            for l in 0..LANES {
-                // A spring crushed to zero length exerts no force (see `spring_force`).
-                f[c][l] = if len[l] == 0.0 { 0.0 } else { mag[l] * u[c][l] };
-            }
-        }
-        for l in 0..LANES {
-            out[o + l] = DVec3::new(f[0][l], f[1][l], f[2][l]);
-        }
-    }
-    for k in groups * LANES..out.len() {
-        let (a, b) = (sa[k] as usize, sb[k] as usize);
-        let (ks, kd) = params(first + k);
-        out[k] = spring_force(x[a], x[b], v[a], v[b], rest[k], ks, kd);
     }
 }
 
@@ -365,6 +405,7 @@ mod sse {
             let common = runs.iter().map(|r| r.len()).min().unwrap_or(0);
             let zero = unsafe { _mm_setzero_pd() };
             let mut acc = [(zero, zero); WAYS];
+            #[allow(clippy::needless_range_loop, reason = "four runs walked side by side")]
             for j in 0..common {
                 for l in 0..WAYS {
                     add(&mut acc[l], per_spring, runs[l][j]);
@@ -384,7 +425,7 @@ mod sse {
     }
 }
 
-/// The spring pass in 256-bit vectors: four springs per iteration, each lane doing exactly the
+/// The spring pass in 256-bit vectors: four springs per group, each lane doing exactly the
 /// scalar [`spring_force`]'s IEEE operations in its order (`vdivpd`, `vsqrtpd` are correctly
 /// rounded like their scalar forms; nothing is fused).
 #[cfg(target_arch = "x86_64")]
@@ -394,7 +435,7 @@ mod avx {
     use glam::DVec3;
     use softbody_scene::Springs;
 
-    use super::{LANES, spring_force};
+    use super::{Cursor, LANES, spring_force};
 
     /// Loads x, y, z of `p` into lanes 0..3 (lane 3 = 0) without reading past it.
     #[inline]
@@ -424,60 +465,89 @@ mod avx {
         ]
     }
 
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    pub(super) fn range(
-        springs: &Springs,
+    /// The springs of one call: their slices from `first`, and the shared parameters.
+    struct Span<'a> {
+        a: &'a [u32],
+        b: &'a [u32],
+        rest: &'a [f64],
+        ks: &'a [f64],
+        kd: &'a [f64],
         uniform: Option<(f64, f64)>,
-        x: &[DVec3],
-        v: &[DVec3],
-        first: usize,
-        out: &mut [DVec3],
-    ) {
-        let len = out.len();
-        let (sa, sb, rest) = (
-            &springs.a[first..first + len],
-            &springs.b[first..first + len],
-            &springs.rest[first..first + len],
-        );
-        let (ks_all, kd_all) = match uniform {
-            Some(_) => (&[][..], &[][..]),
-            None => (
-                &springs.stiffness[first..first + len],
-                &springs.damping[first..first + len],
-            ),
-        };
-        let groups = len / LANES;
-        let zero = _mm256_setzero_pd();
-        let sign = _mm256_set1_pd(-0.0);
-        for g in 0..groups {
-            let o = g * LANES;
+        x: &'a [DVec3],
+        v: &'a [DVec3],
+    }
+
+    impl<'a> Span<'a> {
+        fn new(
+            springs: &'a Springs,
+            uniform: Option<(f64, f64)>,
+            x: &'a [DVec3],
+            v: &'a [DVec3],
+            first: usize,
+            len: usize,
+        ) -> Span<'a> {
+            let r = first..first + len;
+            let (ks, kd) = match uniform {
+                Some(_) => (&[][..], &[][..]),
+                None => (&springs.stiffness[r.clone()], &springs.damping[r.clone()]),
+            };
+            Span {
+                a: &springs.a[r.clone()],
+                b: &springs.b[r.clone()],
+                rest: &springs.rest[r],
+                ks,
+                kd,
+                uniform,
+                x,
+                v,
+            }
+        }
+
+        /// Forces of springs o..o + 4 of the span as rows (x, y, z, z).
+        ///
+        /// # Safety
+        /// o + 4 ≤ the span's length, and every end point indexes `x` and `v`.
+        #[inline]
+        #[target_feature(enable = "avx2")]
+        unsafe fn group(&self, o: usize) -> [__m256d; 4] {
+            let zero = _mm256_setzero_pd();
             let mut dr = [zero; 4];
             let mut wr = [zero; 4];
             for l in 0..LANES {
-                let (a, b) = (sa[o + l] as usize, sb[o + l] as usize);
-                dr[l] = _mm256_sub_pd(load3(&x[a]), load3(&x[b]));
-                wr[l] = _mm256_sub_pd(load3(&v[a]), load3(&v[b]));
+                // SAFETY: the caller's promises.
+                unsafe {
+                    let (a, b) = (
+                        *self.a.get_unchecked(o + l) as usize,
+                        *self.b.get_unchecked(o + l) as usize,
+                    );
+                    dr[l] = _mm256_sub_pd(
+                        load3(self.x.get_unchecked(a)),
+                        load3(self.x.get_unchecked(b)),
+                    );
+                    wr[l] = _mm256_sub_pd(
+                        load3(self.v.get_unchecked(a)),
+                        load3(self.v.get_unchecked(b)),
+                    );
+                }
             }
             let [dx, dy, dz] = transpose_in(dr);
             let [wx, wy, wz] = transpose_in(wr);
-            // SAFETY (loads below): o + 4 ≤ len, the slices' length.
-            let r = unsafe { _mm256_loadu_pd(rest.as_ptr().add(o)) };
-            let (ks, kd) = match uniform {
+            // SAFETY: o + 4 ≤ the slices' length.
+            let r = unsafe { _mm256_loadu_pd(self.rest.as_ptr().add(o)) };
+            let (ks, kd) = match self.uniform {
                 Some((ks, kd)) => (_mm256_set1_pd(ks), _mm256_set1_pd(kd)),
                 None => unsafe {
                     (
-                        _mm256_loadu_pd(ks_all.as_ptr().add(o)),
-                        _mm256_loadu_pd(kd_all.as_ptr().add(o)),
+                        _mm256_loadu_pd(self.ks.as_ptr().add(o)),
+                        _mm256_loadu_pd(self.kd.as_ptr().add(o)),
                     )
                 },
             };
             // |d| = sqrt((dx² + dy²) + dz²)
-            let l2 = _mm256_add_pd(
+            let n = _mm256_sqrt_pd(_mm256_add_pd(
                 _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
                 _mm256_mul_pd(dz, dz),
-            );
-            let n = _mm256_sqrt_pd(l2);
+            ));
             let (ux, uy, uz) = (
                 _mm256_div_pd(dx, n),
                 _mm256_div_pd(dy, n),
@@ -493,28 +563,69 @@ mod avx {
                     _mm256_mul_pd(ks, _mm256_sub_pd(n, r)),
                     _mm256_mul_pd(kd, wu),
                 ),
-                sign,
+                _mm256_set1_pd(-0.0),
             );
             // Lanes of zero length exert no force.
             let live = _mm256_cmp_pd::<_CMP_NEQ_UQ>(n, zero);
             let fx = _mm256_and_pd(_mm256_mul_pd(mag, ux), live);
             let fy = _mm256_and_pd(_mm256_mul_pd(mag, uy), live);
             let fz = _mm256_and_pd(_mm256_mul_pd(mag, uz), live);
-            // Back to rows (x, y, z, z) and stored in order, each row's fourth lane overwritten
-            // by the next row; the last row stores three lanes.
+            // Back to rows (x, y, z, z).
             let t0 = _mm256_unpacklo_pd(fx, fy);
             let t1 = _mm256_unpackhi_pd(fx, fy);
             let t2 = _mm256_unpacklo_pd(fz, fz);
             let t3 = _mm256_unpackhi_pd(fz, fz);
-            let rows = [
+            [
                 _mm256_permute2f128_pd::<0x20>(t0, t2),
                 _mm256_permute2f128_pd::<0x20>(t1, t3),
                 _mm256_permute2f128_pd::<0x31>(t0, t2),
                 _mm256_permute2f128_pd::<0x31>(t1, t3),
-            ];
+            ]
+        }
+
+        /// The scalar force of spring o of the span.
+        #[inline]
+        fn one(&self, o: usize) -> DVec3 {
+            let (a, b) = (self.a[o] as usize, self.b[o] as usize);
+            let (ks, kd) = match self.uniform {
+                Some(p) => p,
+                None => (self.ks[o], self.kd[o]),
+            };
+            spring_force(
+                self.x[a],
+                self.x[b],
+                self.v[a],
+                self.v[b],
+                self.rest[o],
+                ks,
+                kd,
+            )
+        }
+    }
+
+    /// # Safety
+    /// AVX2 is available; springs `first..first + out.len()` exist with their data, and every
+    /// end point indexes `x` and `v` ([`super::Kernel::check`]).
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn range(
+        springs: &Springs,
+        uniform: Option<(f64, f64)>,
+        x: &[DVec3],
+        v: &[DVec3],
+        first: usize,
+        out: &mut [DVec3],
+    ) {
+        let len = out.len();
+        let span = Span::new(springs, uniform, x, v, first, len);
+        let groups = len / LANES;
+        for g in 0..groups {
+            let o = g * LANES;
+            // SAFETY: o + 4 ≤ len; the caller vouched for the end points.
+            let rows = unsafe { span.group(o) };
             let dst = out[o..o + LANES].as_mut_ptr().cast::<f64>();
             // SAFETY: out[o..o + 4] is 12 contiguous f64; rows 0..2 write 4 of them from
-            // offsets 0, 3, 6 (at most up to 10), the last row 3 from offset 9.
+            // offsets 0, 3, 6 (each row's fourth lane is overwritten by the next row), the
+            // last row 3 from offset 9.
             unsafe {
                 _mm256_storeu_pd(dst, rows[0]);
                 _mm256_storeu_pd(dst.add(3), rows[1]);
@@ -522,13 +633,49 @@ mod avx {
                 _mm256_maskstore_pd(dst.add(9), _mm256_setr_epi64x(-1, -1, -1, 0), rows[3]);
             }
         }
-        for k in groups * LANES..len {
-            let (a, b) = (sa[k] as usize, sb[k] as usize);
-            let (ks, kd) = match uniform {
-                Some(p) => p,
-                None => (ks_all[k], kd_all[k]),
-            };
-            out[k] = spring_force(x[a], x[b], v[a], v[b], rest[k], ks, kd);
+        for (o, f) in out.iter_mut().enumerate().skip(groups * LANES) {
+            *f = span.one(o);
         }
+    }
+
+    /// # Safety
+    /// As for [`range`], for springs `first..first + len`.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn sweep(
+        springs: &Springs,
+        uniform: Option<(f64, f64)>,
+        x: &[DVec3],
+        v: &[DVec3],
+        first: usize,
+        len: usize,
+        sums: &mut [DVec3],
+        start: usize,
+        cursor: Cursor,
+        done: &mut impl FnMut(usize, DVec3),
+    ) -> Cursor {
+        let span = Span::new(springs, uniform, x, v, first, len);
+        // A local copy, so that the running sum stays in registers.
+        let mut c = cursor;
+        let groups = len / LANES;
+        let mut lanes = [[0.0f64; 4]; LANES];
+        for g in 0..groups {
+            let o = g * LANES;
+            // SAFETY: o + 4 ≤ len; the caller vouched for the end points.
+            let rows = unsafe { span.group(o) };
+            for l in 0..LANES {
+                // SAFETY: four f64 into a four-element array.
+                unsafe { _mm256_storeu_pd(lanes[l].as_mut_ptr(), rows[l]) };
+            }
+            for (l, f) in lanes.iter().enumerate() {
+                let (a, b) = (span.a[o + l] as usize, span.b[o + l] as usize);
+                c.take(a, b, DVec3::new(f[0], f[1], f[2]), sums, start, done);
+            }
+        }
+        for o in groups * LANES..len {
+            let (a, b) = (span.a[o] as usize, span.b[o] as usize);
+            c.take(a, b, span.one(o), sums, start, done);
+        }
+        c
     }
 }

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use softbody_scene::Model;
 
 use crate::forces::PARTICLE_CHUNK;
-use crate::spring_forces::{self, gather};
+use crate::spring_forces::{self, gather, gather_block};
 
 const SPRING_CHUNK: usize = 4096;
 
@@ -139,21 +139,37 @@ impl System {
     pub fn apply(&mut self, model: &Model, p: &[DVec3], out: &mut [DVec3]) {
         let springs = &model.springs;
         let (u, beta, gamma) = (&self.u, &self.beta, &self.gamma);
+        assert!(springs.b.len() == springs.len() && u.len() == springs.len());
+        assert!(beta.len() == springs.len() && gamma.len() == springs.len());
         self.per_spring
             .par_chunks_mut(SPRING_CHUNK)
             .enumerate()
             .for_each(|(c, z)| {
-                for (k, z) in z.iter_mut().enumerate() {
-                    let s = c * SPRING_CHUNK + k;
-                    let w = p[springs.a[s] as usize] - p[springs.b[s] as usize];
-                    *z = beta[s] * u[s].dot(w) * u[s] + gamma[s] * w;
+                let r = c * SPRING_CHUNK..c * SPRING_CHUNK + z.len();
+                let ends = springs.a[r.clone()].iter().zip(&springs.b[r.clone()]);
+                let coefficients = u[r.clone()].iter().zip(&beta[r.clone()]).zip(&gamma[r]);
+                for ((z, (&a, &b)), ((u, &beta), &gamma)) in
+                    z.iter_mut().zip(ends).zip(coefficients)
+                {
+                    let w = p[a as usize] - p[b as usize];
+                    *z = beta * u.dot(w) * *u + gamma * w;
                 }
             });
-        let per_spring = &self.per_spring;
+        let per_spring = &self.per_spring[..];
         let md = &self.mass_diag;
-        out.par_iter_mut()
+        const BLOCK: usize = 64;
+        out.par_chunks_mut(PARTICLE_CHUNK)
             .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, o)| *o = md[i] * p[i] + gather(&model.adjacency, per_spring, i));
+            .for_each(|(c, out)| {
+                for (k, out) in out.chunks_mut(BLOCK).enumerate() {
+                    let first = c * PARTICLE_CHUNK + k * BLOCK;
+                    // Σ± z_s per particle, four particles side by side: `gather`'s bits.
+                    gather_block(&model.adjacency, per_spring, first, out);
+                    for (j, o) in out.iter_mut().enumerate() {
+                        let i = first + j;
+                        *o = md[i] * p[i] + *o;
+                    }
+                }
+            });
     }
 }
