@@ -1,0 +1,120 @@
+//! `softbody bench`: time the standard benchmark cube at several sizes.
+
+use std::io::Write;
+
+use clap::Args;
+use softbody::{Backend, Integrator};
+
+use crate::{Failure, bad_input, open_failure, positive, positive_or_fraction, status};
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Solver backend: cpu (f64) or gpu (wgpu compute shaders, f32).
+    #[arg(long, default_value = "cpu")]
+    backend: Backend,
+    /// Integrator: explicit-euler, symplectic-euler, midpoint, rk4 or implicit-euler.
+    #[arg(long, default_value = "symplectic-euler")]
+    integrator: Integrator,
+    /// Cube sizes: n for n³ particles, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "10,22,46,100",
+          value_parser = clap::value_parser!(u32).range(2..=1000))]
+    sizes: Vec<u32>,
+    /// Timed steps per size (default: about 1e7 particle-steps, at most about 20 s per size).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    steps: Option<u64>,
+    /// CPU threads (default: all cores).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..), allow_negative_numbers = true)]
+    threads: Option<u16>,
+    /// Spring stiffness k_s, N/m (default: the standard cube's 2000).
+    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
+    stiffness: Option<f64>,
+    /// Time step, seconds, e.g. 0.001 or 1/60 (default: half the largest stable
+    /// symplectic-Euler step for the size and stiffness).
+    #[arg(long, value_parser = positive_or_fraction, allow_negative_numbers = true)]
+    dt: Option<f64>,
+    /// One JSON object per line and size instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn bench(args: BenchArgs) -> Result<(), Failure> {
+    use softbody::benchmark::{self, BenchError, Options};
+    let options = Options {
+        backend: args.backend,
+        integrator: args.integrator,
+        threads: args.threads.map(usize::from),
+        steps: args.steps,
+        stiffness: args.stiffness.unwrap_or(benchmark::STIFFNESS),
+        dt: args.dt,
+    };
+    let mut out = std::io::stdout().lock();
+    let mut header = false;
+    for &n in &args.sizes {
+        let m = benchmark::measure(n, &options).map_err(|e| match e {
+            BenchError::Invalid { .. } => bad_input(e),
+            BenchError::Open(o) => open_failure(o),
+            BenchError::Step {
+                source: softbody::StepError::Device(_),
+                ..
+            } => Failure {
+                status: status::NO_ADAPTER,
+                error: e.into(),
+            },
+            BenchError::Step { .. } | BenchError::NotFinite { .. } => Failure {
+                status: status::UNSTABLE,
+                error: e.into(),
+            },
+        })?;
+        // One write per size, as it completes, so that a long run shows its progress.
+        let text = if args.json {
+            format!("{}\n", m.to_json(&options))
+        } else {
+            let mut text = String::new();
+            if !header {
+                header = true;
+                text.push_str(&format!(
+                    "{} on {} ({}), k_s = {} N/m\n",
+                    options.integrator, options.backend, m.device, options.stiffness
+                ));
+                text.push_str(&format!(
+                    "{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}\n",
+                    "n",
+                    "particles",
+                    "springs",
+                    "steps",
+                    "dt [s]",
+                    "seconds",
+                    "Mparticle-st/s",
+                    "Mspring-st/s",
+                    "B/particle",
+                    if m.cg_iterations_per_step.is_some() {
+                        "  CG it/step"
+                    } else {
+                        ""
+                    }
+                ));
+            }
+            text.push_str(&format!(
+                "{:>5} {:>10} {:>11} {:>7} {:>10.3e} {:>8.3} {:>14.3} {:>13.2} {:>9}{}\n",
+                m.n,
+                m.particles,
+                m.springs,
+                m.steps,
+                m.dt,
+                m.seconds,
+                m.particle_steps_per_s() / 1e6,
+                m.spring_steps_per_s() / 1e6,
+                m.bytes_per_particle
+                    .map_or("-".to_owned(), |b| format!("{b:.0}")),
+                m.cg_iterations_per_step
+                    .map_or(String::new(), |c| format!(" {c:>11.1}"))
+            ));
+            text
+        };
+        match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+            r => r?,
+        }
+    }
+    Ok(())
+}

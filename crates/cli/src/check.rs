@@ -1,0 +1,115 @@
+//! `softbody check`: validate a scene and describe it.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use softbody::{Integrator, Model};
+
+use crate::{Failure, emit, load};
+
+#[derive(Args)]
+pub struct CheckArgs {
+    /// The scene file (TOML).
+    scene: PathBuf,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn check(args: CheckArgs) -> Result<(), Failure> {
+    let scene = load(&args.scene)?;
+    // Printed in one write at the end, so that a closed pipe (`| head -1`) is one error to
+    // handle instead of a panic in `println!`.
+    let mut out = String::new();
+    macro_rules! line {
+        ($($arg:tt)*) => {{
+            out.push_str(&format!($($arg)*));
+            out.push('\n');
+        }};
+    }
+    let (model, _) = Model::build(&scene);
+    let counts = model.spring_counts;
+    let sim = &scene.simulation;
+    let stable_dt = model.stable_dt();
+    let terrain: Vec<&str> = scene
+        .terrain
+        .iter()
+        .map(|t| terrain_kind(&t.shape))
+        .collect();
+    if args.json {
+        let value = serde_json::json!({
+            "particles": model.len(),
+            "springs": {
+                "structural": counts.structural,
+                "shear": counts.shear,
+                "bending": counts.bending,
+                "total": counts.total(),
+            },
+            "total_mass": scene.total_mass(),
+            "stable_dt": stable_dt,
+            "bodies": model.bodies.iter().map(|b| serde_json::json!({"name": b.name, "first": b.first, "count": b.count})).collect::<Vec<_>>(),
+            "terrain": terrain,
+            "integrator": sim.integrator.name(),
+            "dt": sim.dt,
+            "steps": sim.steps(),
+            "frames": sim.frame_count(),
+        });
+        line!("{value}");
+        return emit(&out);
+    }
+    line!("{}: valid", args.scene.display());
+    line!("  particles   {}", model.len());
+    for b in &model.bodies {
+        line!("    {:<10} {} particles from {}", b.name, b.count, b.first);
+    }
+    line!(
+        "  springs     {} ({} structural, {} shear, {} bending)",
+        counts.total(),
+        counts.structural,
+        counts.shear,
+        counts.bending
+    );
+    line!("  total mass  {} kg", scene.total_mass());
+    line!(
+        "  terrain     {}",
+        if terrain.is_empty() {
+            "none".to_owned()
+        } else {
+            terrain.join(", ")
+        }
+    );
+    line!(
+        "  integrator  {}, dt = {} s, {} steps, {} frames",
+        sim.integrator,
+        sim.dt,
+        sim.steps(),
+        sim.frame_count()
+    );
+    match stable_dt {
+        Some(h) => {
+            line!(
+                "  stable dt   about {h:.3e} s for the explicit integrators (implicit-euler: any)"
+            );
+            if sim.integrator != Integrator::ImplicitEuler && sim.dt > h {
+                line!(
+                    "  warning     dt = {} s is above it: expect this run to become unstable",
+                    sim.dt
+                );
+            }
+        }
+        None => line!("  stable dt   unlimited (no springs)"),
+    }
+    emit(&out)
+}
+
+fn terrain_kind(shape: &softbody::scene::TerrainShape) -> &'static str {
+    use softbody::scene::TerrainShape::*;
+    match shape {
+        Plane { .. } => "plane",
+        Box { .. } => "box",
+        Sphere { .. } => "sphere",
+        Bowl { .. } => "bowl",
+        Heightfield(_) => "heightfield",
+        Mesh(_) => "mesh",
+    }
+}
