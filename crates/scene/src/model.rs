@@ -147,6 +147,10 @@ pub struct Model {
     pub spring_counts: SpringCounts,
     /// Bodies in particle order.
     pub bodies: Vec<BodyRange>,
+    /// The outer surface of the cuboid bodies as triangles of particle indices, wound
+    /// counter-clockwise seen from outside ([`topology::cuboid_surface`]); `particles` bodies
+    /// have no surface and add none.
+    pub surface: Vec<[u32; 3]>,
     /// Terrain shapes.
     pub terrain: Vec<Terrain>,
 }
@@ -164,6 +168,7 @@ impl Model {
         let mut springs = Springs::default();
         let mut bodies = Vec::with_capacity(scene.bodies.len());
         let mut pinned = vec![false; n];
+        let mut surface = Vec::new();
         for body in &scene.bodies {
             let first = state.x.len() as u32;
             match &body.shape {
@@ -184,6 +189,11 @@ impl Model {
                         }
                     });
                     state.x.extend(x);
+                    surface.extend(
+                        topology::cuboid_surface(c.resolution)
+                            .into_iter()
+                            .map(|t| t.map(|p| first + p)),
+                    );
                 }
                 BodyShape::Particles(p) => {
                     state.x.extend(&p.positions);
@@ -226,6 +236,7 @@ impl Model {
             adjacency,
             spring_counts: scene.spring_counts(),
             bodies,
+            surface,
             terrain: scene.terrain.clone(),
         };
         (model, state)

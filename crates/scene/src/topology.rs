@@ -84,6 +84,40 @@ pub fn for_each_cuboid_spring(resolution: [u32; 3], mut f: impl FnMut(u32, u32, 
     }
 }
 
+/// The outer surface of a grid of `resolution` particles: each boundary face's cells split into
+/// two triangles, wound counter-clockwise seen from outside (so (b − a) × (c − a) points
+/// outwards while the body keeps its rest orientation), faces in the order −x, +x, −y, +y, −z, +z.
+pub fn cuboid_surface(resolution: [u32; 3]) -> Vec<[u32; 3]> {
+    let n = resolution.map(|r| r as usize);
+    let index = |c: [usize; 3]| (c[0] + n[0] * (c[1] + n[1] * c[2])) as u32;
+    let mut out = Vec::new();
+    for axis in 0..3 {
+        // (axis, u, w) is a cyclic permutation of (x, y, z), so e_u × e_w = e_axis.
+        let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+        for (layer, outward) in [(0, false), (n[axis] - 1, true)] {
+            for b in 0..n[w] - 1 {
+                for a in 0..n[u] - 1 {
+                    let corner = |da: usize, db: usize| {
+                        let mut c = [0; 3];
+                        c[axis] = layer;
+                        c[u] = a + da;
+                        c[w] = b + db;
+                        index(c)
+                    };
+                    let (p00, p10, p11, p01) =
+                        (corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1));
+                    if outward {
+                        out.extend([[p00, p10, p11], [p00, p11, p01]]);
+                    } else {
+                        out.extend([[p00, p11, p10], [p00, p01, p11]]);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
 /// Springs of each family in a cuboid, by formula (no allocation: validation uses it to refuse
 /// scenes too large for memory). Families a body leaves out count zero.
 pub fn cuboid_spring_counts(c: &Cuboid) -> SpringCounts {
@@ -126,6 +160,39 @@ pub fn grid_spring_counts(resolution: [u32; 3]) -> SpringCounts {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every face of a 3×4×5 grid: 2(2·3 + 3·4 + 2·4)·2 triangles, all outward (the triangle's
+    /// normal points away from the centre), every boundary particle used, closed (each edge
+    /// shared by exactly two triangles, in opposite directions).
+    #[test]
+    fn surface_is_closed_and_outward() {
+        let res = [3u32, 4, 5];
+        let tris = cuboid_surface(res);
+        assert_eq!(tris.len(), 2 * 2 * (2 * 3 + 3 * 4 + 2 * 4));
+        let pos = |p: u32| {
+            let (i, j, k) = (p % 3, (p / 3) % 4, p / 12);
+            DVec3::new(i as f64, j as f64, k as f64)
+        };
+        let centre = DVec3::new(1.0, 1.5, 2.0);
+        let mut edges = std::collections::HashMap::new();
+        for t in &tris {
+            let [a, b, c] = t.map(pos);
+            let normal = (b - a).cross(c - a);
+            assert!(
+                normal.dot((a + b + c) / 3.0 - centre) > 0.0,
+                "{t:?} faces inwards"
+            );
+            for e in 0..3 {
+                *edges.entry((t[e], t[(e + 1) % 3])).or_insert(0) += 1;
+            }
+        }
+        for (&(a, b), &count) in &edges {
+            assert_eq!(count, 1, "edge {a}->{b} used twice");
+            assert_eq!(edges.get(&(b, a)), Some(&1), "edge {a}->{b} has no twin");
+        }
+        let used: std::collections::HashSet<u32> = tris.iter().flatten().copied().collect();
+        assert_eq!(used.len(), 3 * 4 * 5 - 2 * 3); // all but the 1×2×3 interior
+    }
 
     fn enumerate(res: [u32; 3]) -> (SpringCounts, Vec<(u32, u32)>) {
         let mut c = SpringCounts::default();
