@@ -8,6 +8,8 @@
 //! no scene of springs, dampers, drag and terrain can gain that much, so it can only be a
 //! diverging integrator. Either way every frame before it has been written.
 
+use std::path::Path;
+
 use glam::DVec3;
 use softbody_scene::{Energies, Instability, Solver, StepError};
 
@@ -72,16 +74,18 @@ pub fn energy_scale(solver: &mut dyn Solver, e0: &Energies) -> Result<f64, StepE
 }
 
 /// Runs the solver to the end of its scene, writing each frame to `sink`; `progress` hears
-/// (steps done, steps in all) as the run goes.
+/// (steps done, steps in all) as the run goes. `scene` names the file the scene came from in
+/// the frames' header.
 pub fn run(
     solver: &mut dyn Solver,
+    scene: Option<&Path>,
     sink: &mut dyn FrameSink,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<Summary, RunError> {
     let sim = solver.model().simulation;
     let total = sim.steps();
     let frames = sim.frame_count();
-    let header = Header::new(solver, frames);
+    let header = Header::new(solver, frames, scene);
     sink.header(&header)?;
 
     let e0 = solver.energies()?;

@@ -476,7 +476,7 @@ fn explicit_euler_on_the_stiff_cube_is_reported_unstable() {
 
     let mut solver = solver_from(model, state, 1);
     let mut sink = Frames::default();
-    match run::run(&mut solver, &mut sink, &mut |_, _| {}) {
+    match run::run(&mut solver, None, &mut sink, &mut |_, _| {}) {
         Err(RunError::Unstable(i)) => {
             println!("run: {i}; {} frames written", sink.steps.len());
             assert!(i.step >= 1 && i.step <= steps, "{i:?}");

@@ -10,6 +10,7 @@ mod npz;
 
 use std::fmt;
 use std::io::Write;
+use std::path::Path;
 use std::str::FromStr;
 
 use glam::DVec3;
@@ -95,14 +96,27 @@ pub struct Header {
     pub frames: u64,
     /// Steps the run will take if it completes.
     pub steps: u64,
+    /// The scene file the run came from (absolute), when it came from one: readers of the frames
+    /// (`softbody render`) rebuild the terrain and the topology from it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scene: Option<String>,
     /// Springs as (a, b) particle pairs; not serialised in the JSON header.
     #[serde(skip)]
     pub springs: Vec<[u32; 2]>,
+    /// Springs' rest lengths, metres, in the order of `springs`; not serialised in the JSON
+    /// header.
+    #[serde(skip)]
+    pub rest: Vec<f64>,
+    /// The bodies' outer surface ([`softbody_scene::Model::surface`]); not serialised in the
+    /// JSON header.
+    #[serde(skip)]
+    pub surface: Vec<[u32; 3]>,
 }
 
 impl Header {
-    /// The header of a run of `solver` writing `frames` frames.
-    pub fn new(solver: &dyn Solver, frames: u64) -> Header {
+    /// The header of a run of `solver` writing `frames` frames of the scene in file `scene`
+    /// (made absolute when it can be).
+    pub fn new(solver: &dyn Solver, frames: u64, scene: Option<&Path>) -> Header {
         let model = solver.model();
         Header {
             softbody_frames: 1,
@@ -123,6 +137,12 @@ impl Header {
             frame_rate: model.simulation.frame_rate,
             frames,
             steps: model.simulation.steps(),
+            scene: scene.map(|p| {
+                std::path::absolute(p)
+                    .unwrap_or_else(|_| p.to_owned())
+                    .display()
+                    .to_string()
+            }),
             springs: model
                 .springs
                 .a
@@ -130,6 +150,8 @@ impl Header {
                 .zip(&model.springs.b)
                 .map(|(&a, &b)| [a, b])
                 .collect(),
+            rest: model.springs.rest.clone(),
+            surface: model.surface.clone(),
         }
     }
 }

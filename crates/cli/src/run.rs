@@ -119,9 +119,12 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
 
     let bar = progress::bar(scene.simulation.steps(), args.quiet);
     let started = Instant::now();
-    let result = softbody::run::run(solver.as_mut(), sink.as_mut(), &mut |done, _| {
-        bar.set_position(done)
-    });
+    let result = softbody::run::run(
+        solver.as_mut(),
+        Some(&args.scene),
+        sink.as_mut(),
+        &mut |done, _| bar.set_position(done),
+    );
     bar.finish_and_clear();
     sink.finish().context("cannot write frames")?;
     drop(sink);
