@@ -499,3 +499,149 @@ where
     };
     ctx.chunks::<O>(0, k, sums, outputs, &leaf)
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use softbody_scene::{Adjacency, Scene};
+
+    use super::*;
+    use crate::spring_forces::{gather, spring_force};
+
+    /// A 13×11×17 cube (2431 particles, up to 9 chunks) with every particle moved and moving
+    /// differently, and one spring crushed to zero length.
+    fn perturbed() -> (Model, Vec<DVec3>, Vec<DVec3>) {
+        let text = r#"
+            [simulation]
+            integrator = "symplectic-euler"
+            dt = 1e-5
+            duration = 0.0
+            [[body]]
+            name = "b"
+            kind = "cuboid"
+            size = [1.2, 1.0, 1.6]
+            resolution = [13, 11, 17]
+            mass = 2.0
+            structural = { stiffness = 2000.0, damping = 5.0 }
+            shear = { stiffness = 2000.0, damping = 5.0 }
+            bending = { stiffness = 2000.0, damping = 5.0 }
+        "#;
+        let scene = Scene::from_toml(text, Path::new("test.toml")).expect("valid scene");
+        let (model, state) = Model::build(&scene);
+        let wobble = |i: usize, a: f64, b: f64, c: f64| {
+            let t = i as f64;
+            DVec3::new((a * t).sin(), (b * t).cos(), (c * t).sin())
+        };
+        let mut x: Vec<DVec3> = (state.x.iter().enumerate())
+            .map(|(i, &p)| p + 0.01 * wobble(i, 1.3, 0.7, 2.1))
+            .collect();
+        let v: Vec<DVec3> = (0..model.len()).map(|i| wobble(i, 0.9, 0.3, 1.7)).collect();
+        let s = model.springs.len() / 2;
+        x[model.springs.b[s] as usize] = x[model.springs.a[s] as usize];
+        (model, x, v)
+    }
+
+    /// Per-particle sums by the scalar definition: `spring_force` per spring, `gather` per
+    /// particle.
+    fn reference(model: &Model, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
+        let s = &model.springs;
+        let per_spring: Vec<DVec3> = (0..s.len())
+            .map(|k| {
+                let (a, b) = (s.a[k] as usize, s.b[k] as usize);
+                spring_force(
+                    x[a],
+                    x[b],
+                    v[a],
+                    v[b],
+                    s.rest[k],
+                    s.stiffness[k],
+                    s.damping[k],
+                )
+            })
+            .collect();
+        (0..model.len())
+            .map(|i| gather(&model.adjacency, &per_spring, i))
+            .collect()
+    }
+
+    fn bits(v: &[DVec3]) -> Vec<[u64; 3]> {
+        v.iter()
+            .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+            .collect()
+    }
+
+    /// Every spring kernel (uniform or per-spring parameters, vector or scalar path) computes
+    /// the bits of `spring_force`, including no force for the crushed spring.
+    #[test]
+    fn kernels_are_spring_force_bit_for_bit() {
+        let (model, x, v) = perturbed();
+        let s = &model.springs;
+        let expected: Vec<DVec3> = (0..s.len())
+            .map(|k| {
+                let (a, b) = (s.a[k] as usize, s.b[k] as usize);
+                spring_force(
+                    x[a],
+                    x[b],
+                    v[a],
+                    v[b],
+                    s.rest[k],
+                    s.stiffness[k],
+                    s.damping[k],
+                )
+            })
+            .collect();
+        assert_eq!(expected[s.len() / 2], DVec3::ZERO);
+        assert!(expected.iter().filter(|f| **f != DVec3::ZERO).count() == s.len() - 1);
+        for kernel in [Kernel::new(s), Kernel::per_spring()] {
+            let mut out = vec![DVec3::splat(f64::NAN); s.len()];
+            kernel.compute(s, &x, &v, &mut out);
+            assert_eq!(bits(&out), bits(&expected), "{kernel:?}");
+        }
+    }
+
+    /// The fused sweep (forward models) and the plain route (others) hand every particle the
+    /// bits of the scalar gather, for any number of threads and so of chunks.
+    #[test]
+    fn pass_sums_are_the_gather_for_any_thread_count() {
+        let (forward, x, v) = perturbed();
+        // The same springs with every third one reversed: no longer forward.
+        let mut plain = forward.clone();
+        for k in (0..plain.springs.len()).step_by(3) {
+            let s = &mut plain.springs;
+            (s.a[k], s.b[k]) = (s.b[k], s.a[k]);
+        }
+        plain.adjacency = Adjacency::build(plain.len(), &plain.springs);
+        for model in [&forward, &plain] {
+            let expected = bits(&reference(model, &x, &v));
+            for threads in [1, 2, 3, 4, 7] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("thread pool");
+                let got = pool.install(|| {
+                    let mut plan = Plan::new(model);
+                    assert_eq!(plan.forward.is_some(), std::ptr::eq(model, &forward));
+                    let n = model.len();
+                    let (mut sums, mut seen) = (vec![DVec3::NAN; n], vec![DVec3::NAN; n]);
+                    let bad = pass(
+                        &mut plan,
+                        Kernel::new(&model.springs),
+                        model,
+                        &x,
+                        &v,
+                        (&mut sums[..], &mut seen[..]),
+                        |i, f, (sum, at)| {
+                            (*sum, *at) = (f, x[i]);
+                            true
+                        },
+                    );
+                    assert_eq!(bad, None);
+                    assert_eq!(bits(&seen), bits(&x), "every particle updated once");
+                    sums
+                });
+                assert_eq!(bits(&got), expected, "{threads} threads");
+            }
+        }
+    }
+}

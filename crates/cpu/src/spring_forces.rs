@@ -34,8 +34,13 @@ pub fn spring_force(
     if len == 0.0 {
         return DVec3::ZERO;
     }
-    let l = d / len;
-    -(ks * (len - rest) + kd * (va - vb).dot(l)) * l
+    // One division: with u = 1/|d|, l = u·d and (v_a − v_b)·l = u((v_a − v_b)·d), so
+    // f_a = −u[k_s(|d| − r) + k_d·u((v_a − v_b)·d)]·d. Division and square root are the slow
+    // operations of a spring; this keeps one of each.
+    let u = 1.0 / len;
+    let w = va - vb;
+    let wd = (w.x * d.x + w.y * d.y) + w.z * d.z;
+    (-(ks * (len - rest) + kd * (wd * u)) * u) * d
 }
 
 /// Writes the force on `a` of every spring into `out` (per-spring stiffness and damping).
@@ -450,6 +455,23 @@ mod avx {
         }
     }
 
+    /// (x, y, z, 0).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn pack(p: DVec3) -> __m256d {
+        _mm256_setr_pd(p.x, p.y, p.z, 0.0)
+    }
+
+    /// x, y, z of lanes 0..3.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn unpack(r: __m256d) -> DVec3 {
+        let mut out = [0.0; 4];
+        // SAFETY: four f64 into a four-element array.
+        unsafe { _mm256_storeu_pd(out.as_mut_ptr(), r) };
+        DVec3::new(out[0], out[1], out[2])
+    }
+
     /// Rows (x, y, z, ·) of four vectors → (x0..x3), (y0..y3), (z0..z3).
     #[inline]
     #[target_feature(enable = "avx2")]
@@ -548,28 +570,27 @@ mod avx {
                 _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
                 _mm256_mul_pd(dz, dz),
             ));
-            let (ux, uy, uz) = (
-                _mm256_div_pd(dx, n),
-                _mm256_div_pd(dy, n),
-                _mm256_div_pd(dz, n),
+            // As in `spring_force`: u = 1/|d|, s = −(k_s(|d| − r) + k_d((w·d)u))u, f = s·d.
+            let u = _mm256_div_pd(_mm256_set1_pd(1.0), n);
+            let wd = _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(wx, dx), _mm256_mul_pd(wy, dy)),
+                _mm256_mul_pd(wz, dz),
             );
-            // −(k_s(|d| − r) + k_d((wx ux + wy uy) + wz uz))
-            let wu = _mm256_add_pd(
-                _mm256_add_pd(_mm256_mul_pd(wx, ux), _mm256_mul_pd(wy, uy)),
-                _mm256_mul_pd(wz, uz),
-            );
-            let mag = _mm256_xor_pd(
-                _mm256_add_pd(
-                    _mm256_mul_pd(ks, _mm256_sub_pd(n, r)),
-                    _mm256_mul_pd(kd, wu),
+            let s = _mm256_mul_pd(
+                _mm256_xor_pd(
+                    _mm256_add_pd(
+                        _mm256_mul_pd(ks, _mm256_sub_pd(n, r)),
+                        _mm256_mul_pd(kd, _mm256_mul_pd(wd, u)),
+                    ),
+                    _mm256_set1_pd(-0.0),
                 ),
-                _mm256_set1_pd(-0.0),
+                u,
             );
             // Lanes of zero length exert no force.
             let live = _mm256_cmp_pd::<_CMP_NEQ_UQ>(n, zero);
-            let fx = _mm256_and_pd(_mm256_mul_pd(mag, ux), live);
-            let fy = _mm256_and_pd(_mm256_mul_pd(mag, uy), live);
-            let fz = _mm256_and_pd(_mm256_mul_pd(mag, uz), live);
+            let fx = _mm256_and_pd(_mm256_mul_pd(s, dx), live);
+            let fy = _mm256_and_pd(_mm256_mul_pd(s, dy), live);
+            let fz = _mm256_and_pd(_mm256_mul_pd(s, dz), live);
             // Back to rows (x, y, z, z).
             let t0 = _mm256_unpacklo_pd(fx, fy);
             let t1 = _mm256_unpackhi_pd(fx, fy);
@@ -655,23 +676,36 @@ mod avx {
         done: &mut impl FnMut(usize, DVec3),
     ) -> Cursor {
         let span = Span::new(springs, uniform, x, v, first, len);
-        // A local copy, so that the running sum stays in registers.
+        // The running sum lives in a register as (x, y, z, 0) and every force row is added
+        // to it and subtracted from its second end's sum whole: lane by lane the same
+        // additions as `Cursor::take`, so the same bits, in a third of the instructions.
         let mut c = cursor;
+        let mut sum = pack(c.sum);
         let groups = len / LANES;
-        let mut lanes = [[0.0f64; 4]; LANES];
         for g in 0..groups {
             let o = g * LANES;
             // SAFETY: o + 4 ≤ len; the caller vouched for the end points.
             let rows = unsafe { span.group(o) };
-            for l in 0..LANES {
-                // SAFETY: four f64 into a four-element array.
-                unsafe { _mm256_storeu_pd(lanes[l].as_mut_ptr(), rows[l]) };
-            }
-            for (l, f) in lanes.iter().enumerate() {
-                let (a, b) = (span.a[o + l] as usize, span.b[o + l] as usize);
-                c.take(a, b, DVec3::new(f[0], f[1], f[2]), sums, start, done);
+            for (l, &row) in rows.iter().enumerate() {
+                // SAFETY: o + l < len.
+                let (a, b) = unsafe {
+                    (
+                        *span.a.get_unchecked(o + l) as usize,
+                        *span.b.get_unchecked(o + l) as usize,
+                    )
+                };
+                if a != c.p {
+                    c.sum = unpack(sum);
+                    c.advance(a, sums, start, done);
+                    sum = pack(c.sum);
+                }
+                sum = _mm256_add_pd(sum, row);
+                if let Some(t) = sums.get_mut(b.wrapping_sub(start)) {
+                    *t = unpack(_mm256_sub_pd(pack(*t), row));
+                }
             }
         }
+        c.sum = unpack(sum);
         for o in groups * LANES..len {
             let (a, b) = (span.a[o] as usize, span.b[o] as usize);
             c.take(a, b, span.one(o), sums, start, done);
