@@ -235,7 +235,12 @@ pub enum BenchError {
 /// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps, at most
 /// [`MAX_SECONDS`]) with nothing else in the loop, and checks that the final state is finite.
 /// GPU timings end when the queue is done (reading the state back waits for it).
-pub fn measure(n: u32, options: &Options) -> Result<Measurement, BenchError> {
+/// `progress` hears (timed steps done, timed steps in all) about a hundred times.
+pub fn measure(
+    n: u32,
+    options: &Options,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Measurement, BenchError> {
     let dt = options
         .dt
         .unwrap_or_else(|| 0.5 * dt_max_symplectic_with(n, options.stiffness));
@@ -254,13 +259,13 @@ pub fn measure(n: u32, options: &Options) -> Result<Measurement, BenchError> {
                     source,
                 }
             })?;
-            let mut m = time(&mut solver, n, dt, options)?;
+            let mut m = time(&mut solver, n, dt, options, progress)?;
             m.bytes_per_particle = Some(solver.memory_bytes() as f64 / m.particles as f64);
             Ok(m)
         }
         Backend::Gpu => {
             let mut solver = GpuSolver::new(model, state).map_err(OpenError::from)?;
-            time(&mut solver, n, dt, options)
+            time(&mut solver, n, dt, options, progress)
         }
     }
 }
@@ -271,6 +276,7 @@ fn time(
     n: u32,
     dt: f64,
     options: &Options,
+    progress: &mut dyn FnMut(u64, u64),
 ) -> Result<Measurement, BenchError> {
     let model = solver.model();
     let (particles, springs) = (model.len() as u64, model.springs.len() as u64);
@@ -290,7 +296,19 @@ fn time(
         target.min(cap).max(MIN_STEPS)
     });
     let before = solver.statistics();
-    let seconds = run(solver, steps)?;
+    // In about a hundred batches, for the progress report: a batch is at least one step, so the
+    // report costs nothing next to it. (The GPU queues them; the state read waits for all.)
+    let batch = steps.div_ceil(100);
+    let started = Instant::now();
+    let mut done = 0;
+    while done < steps {
+        let k = batch.min(steps - done);
+        solver.advance(k).map_err(step_error)?;
+        done += k;
+        progress(done, steps);
+    }
+    solver.state().map_err(step_error)?;
+    let seconds = started.elapsed().as_secs_f64();
     let after = solver.statistics();
     let state = solver.state().map_err(step_error)?;
     if !state.x.iter().chain(&state.v).all(|p| p.is_finite()) {

@@ -5,7 +5,7 @@ use std::io::Write;
 use clap::Args;
 use softbody::{Backend, Integrator};
 
-use crate::{Failure, bad_input, open_failure, positive, positive_or_fraction, status};
+use crate::{Failure, bad_input, open_failure, positive, positive_or_fraction, progress, status};
 
 #[derive(Args)]
 pub struct BenchArgs {
@@ -35,6 +35,9 @@ pub struct BenchArgs {
     /// One JSON object per line and size instead of a table.
     #[arg(long)]
     json: bool,
+    /// No progress bar and no summary.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
 pub fn bench(args: BenchArgs) -> Result<(), Failure> {
@@ -47,10 +50,18 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
         stiffness: args.stiffness.unwrap_or(benchmark::STIFFNESS),
         dt: args.dt,
     };
+    let started = std::time::Instant::now();
     let mut out = std::io::stdout().lock();
     let mut header = false;
     for &n in &args.sizes {
-        let m = benchmark::measure(n, &options).map_err(|e| match e {
+        let bar = progress::bar(0, args.quiet);
+        bar.set_message(format!("{n}³ cube"));
+        let m = benchmark::measure(n, &options, &mut |done, total| {
+            bar.set_length(total);
+            bar.set_position(done);
+        });
+        bar.finish_and_clear();
+        let m = m.map_err(|e| match e {
             BenchError::Invalid { .. } => bad_input(e),
             BenchError::Open(o) => open_failure(o),
             BenchError::Step {
@@ -115,6 +126,13 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
             Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
             r => r?,
         }
+    }
+    if !args.quiet {
+        eprintln!(
+            "{} sizes timed in {:.1} s (setup and warm-up included)",
+            args.sizes.len(),
+            started.elapsed().as_secs_f64()
+        );
     }
     Ok(())
 }
