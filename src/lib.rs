@@ -108,6 +108,26 @@ pub enum OpenError {
 /// Builds the model of `scene` and opens a solver for it on `backend`; `threads` applies to
 /// the CPU (all cores when `None`); the GPU takes the adapter wgpu picks (`WGPU_BACKEND`,
 /// `WGPU_POWER_PREF` steer it).
+///
+/// The GPU when there is one, else the CPU, behind the same [`Solver`]:
+///
+/// ```
+/// use softbody::{Backend, Scene};
+/// let scene = Scene::from_file("scenes/jelly-on-ground.toml")?;
+/// let mut solver = match softbody::open(&scene, Backend::Gpu, None) {
+///     Ok(gpu) => gpu,
+///     Err(e) => {
+///         eprintln!("{e}; on the CPU instead");
+///         softbody::open(&scene, Backend::Cpu, None)?
+///     }
+/// };
+/// solver.advance(100)?;
+/// assert_eq!(solver.steps_taken(), 100);
+/// let x = &solver.state()?.x; // metres, one per particle
+/// assert_eq!(x.len(), 216);
+/// assert!(x.iter().all(|p| p.is_finite()));
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn open(
     scene: &Scene,
     backend: Backend,

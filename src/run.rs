@@ -76,6 +76,25 @@ pub fn energy_scale(solver: &mut dyn Solver, e0: &Energies) -> Result<f64, StepE
 /// Runs the solver to the end of its scene, writing each frame to `sink`; `progress` hears
 /// (steps done, steps in all) as the run goes. `scene` names the file the scene came from in
 /// the frames' header.
+///
+/// Frames into memory as JSON Lines, first the header, then one line per frame:
+///
+/// ```
+/// use softbody::{Backend, Scene, output::{self, Format}};
+/// let mut scene = Scene::from_file("scenes/jelly-on-ground.toml")?;
+/// scene.simulation.duration = 0.1; // 3 frames after the first at 30 frames/s
+/// let mut solver = softbody::open(&scene, Backend::Cpu, Some(1))?;
+/// let mut bytes = Vec::new();
+/// {
+///     let mut sink = output::sink(Format::Jsonl, Box::new(&mut bytes))?;
+///     let summary = softbody::run::run(solver.as_mut(), None, sink.as_mut(), &mut |_, _| {})?;
+///     assert_eq!(summary.frames, 4);
+///     sink.finish()?;
+/// }
+/// let text = String::from_utf8(bytes)?;
+/// assert_eq!(text.lines().count(), 1 + 4);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn run(
     solver: &mut dyn Solver,
     scene: Option<&Path>,

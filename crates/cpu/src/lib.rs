@@ -203,6 +203,33 @@ pub struct CpuSolver {
 
 impl CpuSolver {
     /// A solver for `model` starting from `state`, on `threads` threads (all cores if `None`).
+    ///
+    /// Stepping by hand, here a free-falling particle (no springs, no terrain), whose symplectic
+    /// Euler recurrence gives y_k = y₀ − g·h²·k(k+1)/2 exactly:
+    ///
+    /// ```
+    /// use softbody_cpu::CpuSolver;
+    /// use softbody_scene::{Model, Scene, Solver};
+    /// let scene = Scene::from_toml(r#"
+    ///     [simulation]
+    ///     integrator = "symplectic-euler"
+    ///     dt = 0.01
+    ///     duration = 1.0
+    ///     gravity = [0.0, -10.0, 0.0]
+    ///     [[body]]
+    ///     kind = "particles"
+    ///     positions = [[0.0, 5.0, 0.0]]
+    ///     masses = [1.0]
+    /// "#, "fall.toml".as_ref())?;
+    /// let (model, state) = Model::build(&scene);
+    /// let mut solver = CpuSolver::new(model, state, Some(1))?;
+    /// solver.advance(10)?;
+    /// let y = solver.state()?.x[0].y;
+    /// assert!((y - (5.0 - 10.0 * 0.01 * 0.01 * 55.0)).abs() < 1e-12);
+    /// let e = solver.energies()?;
+    /// assert!((e.kinetic - 0.5 * (10.0 * 0.1f64).powi(2)).abs() < 1e-9);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn new(
         model: Model,
         state: State,
