@@ -3,10 +3,10 @@
 //! springs, [`crate::contact`]) and ends with [`crate::collision_response`]; implicit Euler
 //! handles contact inside its solve.
 //!
-//! Each explicit stage is one fused [`pipeline::pass`](crate::pipeline::pass): spring forces at
+//! Each explicit stage is one fused `pipeline::pass`: spring forces at
 //! the stage's (x, v), then per particle its acceleration and the stage update, written to other
 //! arrays than the ones read (the workspace double-buffers the state). The last stage also
-//! applies the collision response and checks finiteness ([`finish`]). Updates have no
+//! applies the collision response and checks finiteness (`finish`). Updates have no
 //! reductions, so any split gives the same bits.
 
 pub mod explicit_euler;
