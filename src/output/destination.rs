@@ -414,20 +414,25 @@ mod tests {
     fn a_directory_with_other_files_is_not_replaced() {
         let root = tempfile::tempdir().unwrap();
         let dir = root.path().join("frames");
-        assert!(check_replaceable(&dir).is_ok(), "absent");
+        let check = |dir: &Path, format| check_replaceable(dir, "frames", format);
+        assert!(check(&dir, Format::Ply).is_ok(), "absent");
         fs::create_dir(&dir).unwrap();
-        assert!(check_replaceable(&dir).is_ok(), "empty");
+        assert!(check(&dir, Format::Ply).is_ok(), "empty");
         fs::write(dir.join("frames_000000.ply"), "ply").unwrap();
-        assert!(check_replaceable(&dir).is_ok(), "frames only");
+        assert!(check(&dir, Format::Ply).is_ok(), "frames only");
+        assert!(
+            matches!(check(&dir, Format::Obj), Err(OutputError::Foreign(..))),
+            "frames of another format"
+        );
         fs::write(dir.join("thesis.tex"), "precious").unwrap();
         assert!(matches!(
-            check_replaceable(&dir),
-            Err(OutputError::Foreign(_, p)) if p.ends_with("thesis.tex")
+            check(&dir, Format::Ply),
+            Err(OutputError::Foreign(_, p, _)) if p.ends_with("thesis.tex")
         ));
         let file = root.path().join("file");
         fs::write(&file, "x").unwrap();
         assert!(matches!(
-            check_replaceable(&file),
+            check(&file, Format::Ply),
             Err(OutputError::Foreign(..))
         ));
     }

@@ -734,7 +734,9 @@ fn unstable_run_leaves_series_of_exactly_the_frames_written() {
     let objs: Vec<String> = (0..frames).map(|k| format!("o_{k:06}.obj")).collect();
     assert_eq!(entries(&sb.path().join("o")), objs);
     let last_obj = sb.path().join("o").join(objs.last().unwrap());
-    tobj::load_obj(&last_obj, &tobj::LoadOptions::default()).expect("a valid OBJ");
+    let (models, _) =
+        tobj::load_obj(&last_obj, &tobj::LoadOptions::default()).expect("a valid OBJ");
+    assert_eq!(models.len(), 1);
 }
 
 #[test]
