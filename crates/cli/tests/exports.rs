@@ -237,7 +237,9 @@ fn read_ply(path: &Path) -> Ply {
         Scalar(String),
         List(String, String),
     }
-    let mut elements: Vec<(String, usize, Vec<(String, Prop)>)> = Vec::new();
+    /// (name, count, properties)
+    type Element = (String, usize, Vec<(String, Prop)>);
+    let mut elements: Vec<Element> = Vec::new();
     for line in lines {
         let words: Vec<&str> = line.split_whitespace().collect();
         match words.as_slice() {
