@@ -113,21 +113,22 @@ impl Output {
         io_context(fs::create_dir_all(parent), || {
             format!("cannot create {}", parent.display())
         })?;
-        if !format.is_series() {
-            let temp = temp_file(parent)?;
-            let handle = io_context(temp.reopen(), || {
-                format!("cannot write in {}", parent.display())
-            })?;
-            return Ok(Output {
-                sink: super::sink(format, Box::new(BufWriter::new(handle)))?,
-                staged: Staged::File {
-                    temp,
-                    path: path.to_owned(),
-                },
-            });
-        }
-
-        let (dir, stem) = series_names(format, path)?;
+        let (dir, stem) = match format {
+            Format::Jsonl | Format::Csv | Format::Npz => {
+                let temp = temp_file(parent)?;
+                let handle = io_context(temp.reopen(), || {
+                    format!("cannot write in {}", parent.display())
+                })?;
+                return Ok(Output {
+                    sink: super::sink(format, Box::new(BufWriter::new(handle)))?,
+                    staged: Staged::File {
+                        temp,
+                        path: path.to_owned(),
+                    },
+                });
+            }
+            Format::Vtk | Format::Ply | Format::Obj => series_names(format, path)?,
+        };
         check_replaceable(&dir, &stem, format)?;
         if format == Format::Vtk && path.is_dir() {
             return Err(OutputError::Io {
@@ -155,13 +156,11 @@ impl Output {
                 Box::new(super::PlySink::new(frames.path().to_owned(), stem.clone())),
                 None,
             ),
-            Format::Obj => (
+            // OBJ: the single-file formats returned above.
+            _ => (
                 Box::new(super::ObjSink::new(frames.path().to_owned(), stem.clone())),
                 None,
             ),
-            Format::Jsonl | Format::Csv | Format::Npz => {
-                unreachable!("single-file formats return above")
-            }
         };
         Ok(Output {
             sink,

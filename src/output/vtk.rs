@@ -333,7 +333,7 @@ mod tests {
         assert_eq!(s, [0.25, -0.5]);
     }
 
-    /// A sink over a temporary directory whose `.pvd` lands in `pvd`.
+    /// A writer whose bytes the test reads afterwards (the sink owns its `.pvd` writer).
     struct Shared(std::rc::Rc<std::cell::RefCell<Vec<u8>>>);
     impl Write for Shared {
         fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
