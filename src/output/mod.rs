@@ -1,12 +1,18 @@
-//! Frame writers: JSON Lines, CSV and NPZ.
+//! Frame writers: JSON Lines, CSV and NPZ (one file), and VTK, PLY and OBJ (a file per frame).
 //!
-//! Every writer emits complete records only, so a run stopped by an instability leaves a valid
-//! file holding every frame before it (NPZ, an archive, is written when the sink finishes, from
-//! frames spooled to temporary files).
+//! Every writer emits complete records only, so a run stopped by an instability leaves valid
+//! output holding every frame before it (NPZ, an archive, is written when the sink finishes,
+//! from frames spooled to temporary files; VTK's `.pvd` collection likewise). [`Output`] puts
+//! a writer's files in place only when the run ends: see [`destination`].
 
 mod csv;
+pub mod destination;
 mod jsonl;
 mod npz;
+mod obj;
+mod ply;
+mod series;
+mod vtk;
 
 use std::fmt;
 use std::io::Write;
@@ -18,8 +24,12 @@ use serde::Serialize;
 use softbody_scene::{Energies, Solver};
 
 pub use self::csv::CsvSink;
+pub use self::destination::{Output, OutputError};
 pub use self::jsonl::JsonlSink;
 pub use self::npz::NpzSink;
+pub use self::obj::ObjSink;
+pub use self::ply::PlySink;
+pub use self::vtk::{KIND_SPRING, KIND_SURFACE, VtkSink};
 
 /// Output formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -31,33 +41,89 @@ pub enum Format {
     Csv,
     /// NumPy archive: `time [F]`, `positions [F,N,3]`, `velocities [F,N,3]`, `springs [S,2]`.
     Npz,
+    /// ParaView: a `.pvd` collection and a directory of `.vtu` files, one per frame (particles
+    /// with velocities, springs with strains, the surface).
+    Vtk,
+    /// A directory of binary PLY surface meshes, one per frame.
+    Ply,
+    /// A directory of OBJ surface meshes, one per frame.
+    Obj,
 }
 
 impl Format {
-    /// The file extension.
+    /// Every format, in the order the help lists them.
+    pub const ALL: [Format; 6] = [
+        Format::Jsonl,
+        Format::Csv,
+        Format::Npz,
+        Format::Vtk,
+        Format::Ply,
+        Format::Obj,
+    ];
+
+    /// The format's name, as `--format` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Jsonl => "jsonl",
+            Format::Csv => "csv",
+            Format::Npz => "npz",
+            Format::Vtk => "vtk",
+            Format::Ply => "ply",
+            Format::Obj => "obj",
+        }
+    }
+
+    /// The file extension: the output file's, the `.pvd`'s for VTK, each frame file's for PLY
+    /// and OBJ (whose output is a directory).
     pub fn extension(self) -> &'static str {
         match self {
             Format::Jsonl => "jsonl",
             Format::Csv => "csv",
             Format::Npz => "npz",
+            Format::Vtk => "pvd",
+            Format::Ply => "ply",
+            Format::Obj => "obj",
+        }
+    }
+
+    /// Whether the format writes a file per frame (into a directory) rather than one file.
+    pub fn is_series(self) -> bool {
+        matches!(self, Format::Vtk | Format::Ply | Format::Obj)
+    }
+
+    /// The format an output path implies by its extension (`.csv`, `.npz`, `.pvd`), if any.
+    pub fn from_path(path: &Path) -> Option<Format> {
+        let ext = path.extension()?;
+        [Format::Csv, Format::Npz, Format::Vtk]
+            .into_iter()
+            .find(|f| ext == f.extension())
+    }
+
+    /// The default output path of a scene whose file stem is `stem`:
+    /// `out/<stem>.<extension>`, or the directory `out/<stem>` for PLY and OBJ.
+    pub fn default_path(self, stem: &str) -> std::path::PathBuf {
+        if matches!(self, Format::Ply | Format::Obj) {
+            Path::new("out").join(stem)
+        } else {
+            Path::new("out").join(format!("{stem}.{}", self.extension()))
         }
     }
 }
 
 impl fmt::Display for Format {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.extension())
+        f.write_str(self.name())
     }
 }
 
 impl FromStr for Format {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "jsonl" => Ok(Format::Jsonl),
-            "csv" => Ok(Format::Csv),
-            "npz" => Ok(Format::Npz),
-            _ => Err(format!("unknown format `{s}`; expected jsonl, csv or npz")),
+        match Format::ALL.into_iter().find(|f| f.name() == s) {
+            Some(f) => Ok(f),
+            None => Err(format!(
+                "unknown format `{s}`; expected jsonl, csv, npz, vtk, ply or obj"
+            )),
         }
     }
 }
@@ -183,7 +249,8 @@ pub trait FrameSink {
     fn finish(&mut self) -> std::io::Result<()>;
 }
 
-/// A sink of `format` writing to `out`.
+/// A sink of single-file `format` writing to `out`; the series formats (VTK, PLY, OBJ) write
+/// into a directory and are made by [`Output::create`].
 pub fn sink<'w>(
     format: Format,
     out: Box<dyn Write + 'w>,
@@ -192,5 +259,36 @@ pub fn sink<'w>(
         Format::Jsonl => Box::new(JsonlSink::new(out)),
         Format::Csv => Box::new(CsvSink::new(out)),
         Format::Npz => Box::new(NpzSink::new(out)?),
+        Format::Vtk | Format::Ply | Format::Obj => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("{format} output is a directory of files, not a stream"),
+            ));
+        }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn formats_parse_print_and_follow_the_out_path() {
+        for f in Format::ALL {
+            assert_eq!(f.name().parse::<Format>(), Ok(f));
+            assert_eq!(f.to_string(), f.name());
+        }
+        let e = "vtu".parse::<Format>().unwrap_err();
+        assert_eq!(
+            e,
+            "unknown format `vtu`; expected jsonl, csv, npz, vtk, ply or obj"
+        );
+        assert_eq!(Format::from_path(Path::new("a/b.pvd")), Some(Format::Vtk));
+        assert_eq!(Format::from_path(Path::new("b.npz")), Some(Format::Npz));
+        assert_eq!(Format::from_path(Path::new("b.ply")), None);
+        assert_eq!(Format::from_path(Path::new("b")), None);
+        assert_eq!(Format::Vtk.default_path("s"), Path::new("out/s.pvd"));
+        assert_eq!(Format::Obj.default_path("s"), Path::new("out/s"));
+        assert!(Format::Ply.is_series() && !Format::Csv.is_series());
+    }
 }

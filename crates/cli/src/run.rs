@@ -1,12 +1,10 @@
 //! `softbody run`: run a scene and write its frames.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
 use clap::Args;
-use softbody::output::{self, Format};
+use softbody::output::{Format, Output, OutputError};
 use softbody::run::RunError;
 use softbody::{Backend, Integrator};
 
@@ -28,10 +26,13 @@ pub struct RunArgs {
     /// Frames per simulated second.
     #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     fps: Option<f64>,
-    /// Output file; `-` writes to standard output. Default: out/{scene file stem}.{format}.
+    /// Output file (the .pvd for vtk, a directory for ply and obj); `-` writes to standard
+    /// output (single-file formats). Default: out/{scene file stem}.{extension}, or the
+    /// directory out/{scene file stem} for ply and obj.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Output format; default from the --out extension, else jsonl.
+    /// Output format: jsonl, csv, npz, vtk, ply or obj; default from the --out extension
+    /// (.csv, .npz, .pvd), else jsonl.
     #[arg(long)]
     format: Option<Format>,
     /// CPU threads (default: all cores).
@@ -69,13 +70,10 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         ))
     })?;
 
-    let format =
-        args.format
-            .unwrap_or_else(|| match args.out.as_ref().and_then(|p| p.extension()) {
-                Some(e) if e == "csv" => Format::Csv,
-                Some(e) if e == "npz" => Format::Npz,
-                _ => Format::Jsonl,
-            });
+    let format = args
+        .format
+        .or_else(|| args.out.as_deref().and_then(Format::from_path))
+        .unwrap_or_default();
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
     let out_path = match &args.out {
         Some(p) => p.clone(),
@@ -84,53 +82,35 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
                 .scene
                 .file_stem()
                 .map_or("frames".into(), |s| s.to_string_lossy());
-            PathBuf::from("out").join(format!("{stem}.{}", format.extension()))
+            format.default_path(&stem)
         }
     };
+    // Refused before the run rather than after it.
+    if to_stdout && format.is_series() {
+        return Err(bad_input(OutputError::Stdout(format)));
+    }
 
     let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))
         .map_err(open_failure)?;
 
-    // Frames go to a temporary file beside the destination, renamed into place when the run
-    // ends (completed or stopped by an instability): a failed run leaves nothing half-written.
-    let (mut temp, writer): (Option<tempfile::NamedTempFile>, Box<dyn Write>) = if to_stdout {
-        (None, Box::new(std::io::stdout().lock()))
-    } else {
-        let dir = out_path
-            .parent()
-            .filter(|d| !d.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        // An ordinary file once renamed into place: 0666 less the umask, not a temporary
-        // file's 0600.
-        let mut builder = tempfile::Builder::new();
-        builder.prefix(".softbody-").suffix(".part");
-        #[cfg(unix)]
-        builder.permissions(
-            <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o666),
-        );
-        let file = builder
-            .tempfile_in(dir)
-            .with_context(|| format!("cannot write in {}", dir.display()))?;
-        let handle = file.reopen()?;
-        (Some(file), Box::new(std::io::BufWriter::new(handle)))
-    };
-    let mut sink = output::sink(format, writer)?;
+    // The library stages the frames beside the destination and puts them in place at commit
+    // (see `softbody::output::destination`).
+    let mut output = Output::create(format, (!to_stdout).then_some(out_path.as_path()))
+        .map_err(output_failure)?;
 
     let bar = progress::bar(scene.simulation.steps(), args.quiet);
     let started = Instant::now();
     let result = softbody::run::run(
         solver.as_mut(),
         Some(&args.scene),
-        sink.as_mut(),
+        output.sink(),
         &mut |done, _| bar.set_position(done),
     );
     bar.finish_and_clear();
-    sink.finish().context("cannot write frames")?;
-    drop(sink);
-    if let Some(file) = temp.take() {
-        file.persist(&out_path)
-            .with_context(|| format!("cannot write {}", out_path.display()))?;
+    // Frames that failed to write are discarded (the output is dropped, its staging removed);
+    // a run stopped by an instability or a device failure keeps the frames before it.
+    if !matches!(result, Err(RunError::Io(_))) {
+        output.commit().map_err(output_failure)?;
     }
     let where_ = if to_stdout {
         "standard output".to_owned()
@@ -164,5 +144,14 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             error: anyhow::anyhow!("device failure: {d}\nthe frames before it are in {where_}"),
         }),
         Err(e) => Err(e.into()),
+    }
+}
+
+/// An output that cannot be made: a request that cannot be met (2), else the file system (1).
+fn output_failure(e: OutputError) -> Failure {
+    if e.is_bad_input() {
+        bad_input(e)
+    } else {
+        e.into()
     }
 }

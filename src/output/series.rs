@@ -1,0 +1,160 @@
+//! What the per-frame formats (VTK, PLY, OBJ) share: frame file names, whole-file writes, the
+//! surface mesh.
+
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+
+use super::Header;
+
+/// The name of frame `index`'s file: `<stem>_<index, 6 digits or more>.<ext>`, so that the
+/// files of a series sort in frame order.
+pub(crate) fn frame_file_name(stem: &str, index: u64, ext: &str) -> String {
+    format!("{stem}_{index:06}.{ext}")
+}
+
+/// Writes one file of `dir` whole: `body` fills a buffer, which is then flushed; an error
+/// leaves a file the staging directory discards.
+pub(crate) fn write_file(
+    dir: &Path,
+    name: &str,
+    body: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
+) -> io::Result<()> {
+    let mut out = BufWriter::new(File::create(dir.join(name))?);
+    body(&mut out)?;
+    out.flush()
+}
+
+/// An error for a header that does not describe its own particles.
+pub(crate) fn bad_header(what: String) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidData, what)
+}
+
+/// Checks that every index of `items` names one of `n` particles.
+pub(crate) fn check_indices<const K: usize>(
+    items: &[[u32; K]],
+    n: usize,
+    what: &str,
+) -> io::Result<()> {
+    match items.iter().flatten().find(|&&i| i as usize >= n) {
+        Some(i) => Err(bad_header(format!(
+            "a {what} names particle {i} of only {n}"
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// The mesh the PLY and OBJ writers export: the surface triangles over the particles they
+/// use, plus every particle of a body without a surface (a particle set) as a lone vertex, so
+/// that such bodies are not lost. Vertices are in ascending particle order, the same every
+/// frame, which is what mesh-sequence importers need.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct SurfaceMesh {
+    /// The particle of each vertex, ascending.
+    pub particles: Vec<u32>,
+    /// Triangles over vertex numbers (0-based), outward counter-clockwise.
+    pub faces: Vec<[u32; 3]>,
+}
+
+impl SurfaceMesh {
+    pub fn new(header: &Header) -> io::Result<SurfaceMesh> {
+        let n = header.particles;
+        check_indices(&header.surface, n, "surface triangle")?;
+        let mut used = vec![false; n];
+        for &i in header.surface.iter().flatten() {
+            used[i as usize] = true;
+        }
+        for body in &header.bodies {
+            let range = body.first as usize..(body.first as usize + body.count as usize).min(n);
+            if !used[range.clone()].contains(&true) {
+                used[range].fill(true);
+            }
+        }
+        let mut vertex = vec![u32::MAX; n];
+        let mut particles = Vec::new();
+        for (i, _) in used.iter().enumerate().filter(|(_, u)| **u) {
+            vertex[i] = particles.len() as u32;
+            particles.push(i as u32);
+        }
+        let faces = header
+            .surface
+            .iter()
+            .map(|t| t.map(|i| vertex[i as usize]))
+            .collect();
+        Ok(SurfaceMesh { particles, faces })
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::output::HeaderBody;
+
+    /// A header of `particles` particles in `bodies` (name, first, count) with `surface`.
+    pub(crate) fn header(
+        particles: usize,
+        bodies: &[(&str, u32, u32)],
+        springs: Vec<[u32; 2]>,
+        rest: Vec<f64>,
+        surface: Vec<[u32; 3]>,
+    ) -> Header {
+        Header {
+            softbody_frames: 1,
+            particles,
+            bodies: bodies
+                .iter()
+                .map(|&(name, first, count)| HeaderBody {
+                    name: name.to_owned(),
+                    first,
+                    count,
+                })
+                .collect(),
+            integrator: "rk4".to_owned(),
+            backend: "cpu",
+            device: "test".to_owned(),
+            dt: 0.001,
+            frame_rate: 100.0,
+            frames: 2,
+            steps: 10,
+            scene: None,
+            springs,
+            rest,
+            surface,
+        }
+    }
+
+    #[test]
+    fn mesh_keeps_surface_particles_and_surfaceless_bodies() {
+        // A tetrahedron body (particles 0..5, particle 4 inside) and a particle set (5..7).
+        let h = header(
+            7,
+            &[("tet", 0, 5), ("dots", 5, 2)],
+            vec![],
+            vec![],
+            vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]],
+        );
+        let mesh = SurfaceMesh::new(&h).unwrap();
+        assert_eq!(mesh.particles, [0, 1, 2, 3, 5, 6]);
+        assert_eq!(mesh.faces, [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]);
+
+        // Renumbering skips the interior particle.
+        let h = header(4, &[("b", 0, 4)], vec![], vec![], vec![[1, 2, 3]]);
+        let mesh = SurfaceMesh::new(&h).unwrap();
+        assert_eq!(mesh.particles, [1, 2, 3]);
+        assert_eq!(mesh.faces, [[0, 1, 2]]);
+    }
+
+    #[test]
+    fn mesh_refuses_out_of_range_triangles() {
+        let h = header(3, &[("b", 0, 3)], vec![], vec![], vec![[0, 1, 3]]);
+        let e = SurfaceMesh::new(&h).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::InvalidData);
+        assert!(e.to_string().contains("particle 3 of only 3"), "{e}");
+    }
+
+    #[test]
+    fn frame_files_sort_in_frame_order() {
+        assert_eq!(frame_file_name("run", 7, "vtu"), "run_000007.vtu");
+        assert_eq!(frame_file_name("run", 1234567, "ply"), "run_1234567.ply");
+    }
+}
