@@ -2,7 +2,7 @@
 //!
 //! The crate ties the pieces together for programs that embed it and for the `softbody` CLI:
 //! load a [`Scene`], open a [`Solver`] on a [`Backend`], and [`run`](run::run) it frame by
-//! frame into a [`FrameSink`](output::FrameSink) (JSON Lines, CSV or NPZ).
+//! frame into a [`FrameSink`](output::FrameSink) (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series).
 //!
 //! ```
 //! use softbody::{Backend, Scene, Solver};
