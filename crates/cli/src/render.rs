@@ -49,7 +49,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = softbody_render::camera::DEFAULT_FOV_Y_DEGREES, value_parser = fov)]
     fov: f64,
     /// Also draw every spring, coloured by its strain (length − rest)/rest: blue at −S
-    /// (compressed), near-white at 0, red at +S (stretched), under a see-through surface;
+    /// (compressed), grey at 0, red at +S (stretched), under a see-through surface;
     /// a colour bar in the bottom-left corner shows the scale (ticks at −S, 0, +S).
     #[arg(long)]
     springs: bool,
@@ -62,6 +62,13 @@ pub struct RenderArgs {
     /// Frames per simulated second (scene input only).
     #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     fps: Option<f64>,
+    /// Do not draw the bodies' shadows on the terrain.
+    #[arg(long)]
+    no_shadows: bool,
+    /// Move the camera with the bodies: it keeps its offset from their centroid (the mean
+    /// particle position), and by default frames about three times the bodies' first-frame size.
+    #[arg(long)]
+    follow: bool,
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
@@ -410,6 +417,9 @@ struct Drawer<'m> {
     camera_to: Option<DVec3>,
     fov: f64,
     renderer: Option<Renderer>,
+    /// With --follow: the camera's eye minus its target, and its target minus the bodies'
+    /// centroid, fixed at the first frame.
+    follow: Option<Option<(DVec3, DVec3)>>,
     /// Frames waiting for the automatic camera (index, positions).
     pending: Vec<(u64, Vec<DVec3>)>,
     bodies: Bounds,
@@ -434,6 +444,7 @@ impl<'m> Drawer<'m> {
             camera: None,
             springs: args.springs,
             strain_range: args.strain_range,
+            shadows: !args.no_shadows,
         };
         if let (Some(from), Some(to)) = (args.camera_from, args.camera_to) {
             let camera = Camera {
@@ -463,6 +474,7 @@ impl<'m> Drawer<'m> {
             camera_from: args.camera_from,
             camera_to: args.camera_to,
             fov: args.fov,
+            follow: args.follow.then_some(None),
             renderer: None,
             pending: Vec::new(),
             bodies: Bounds::default(),
@@ -501,6 +513,9 @@ impl<'m> Drawer<'m> {
     }
 
     fn frame(&mut self, index: u64, positions: Vec<DVec3>) -> anyhow::Result<()> {
+        if let Some(follow) = self.follow {
+            return self.follow_frame(follow, index, &positions);
+        }
         if self.renderer.is_none() && self.camera_from.is_some() && self.camera_to.is_some() {
             // The camera is known: the first frame sizes the ground planes.
             self.bodies.add(&positions);
@@ -515,6 +530,59 @@ impl<'m> Drawer<'m> {
                 Ok(())
             }
         }
+    }
+
+    /// Draws a frame with the camera moved along with the bodies' centroid.
+    fn follow_frame(
+        &mut self,
+        follow: Option<(DVec3, DVec3)>,
+        index: u64,
+        positions: &[DVec3],
+    ) -> anyhow::Result<()> {
+        let finite: Vec<DVec3> = positions
+            .iter()
+            .copied()
+            .filter(|p| p.is_finite())
+            .collect();
+        let centroid = finite.iter().sum::<DVec3>() / finite.len().max(1) as f64;
+        let (offset, shift) = match follow {
+            Some(f) => f,
+            None => {
+                // The first frame: the camera given, or one framing a box three times the
+                // bodies' size around them.
+                let b = Bounds::of(&finite);
+                let r = if b.is_empty() {
+                    0.5
+                } else {
+                    (0.5 * (b.hi - b.lo).length()).max(0.1)
+                };
+                let auto = Camera::framing(
+                    centroid - DVec3::splat(3.0 * r),
+                    centroid + DVec3::splat(3.0 * r),
+                    self.options.width,
+                    self.options.height,
+                );
+                let to = self.camera_to.unwrap_or(auto.to);
+                let from = self.camera_from.unwrap_or(auto.from);
+                let f = (from - to, to - centroid);
+                self.follow = Some(Some(f));
+                f
+            }
+        };
+        let to = centroid + shift;
+        let camera = Camera {
+            fov_y_degrees: self.fov,
+            ..Camera::look_at(to + offset, to)
+        };
+        let options = RenderOptions {
+            camera: Some(camera),
+            ..self.options
+        };
+        self.renderer = Some(
+            Renderer::new(self.model, Bounds::of(positions), options)
+                .map_err(|e| anyhow!("cannot draw with this camera: {e}"))?,
+        );
+        self.draw(index, positions)
     }
 
     fn draw(&mut self, index: u64, positions: &[DVec3]) -> anyhow::Result<()> {

@@ -231,8 +231,22 @@ fn bad_input_is_refused_with_status_2() {
         &["render", "cube.toml", "--height", "8193"],
         &["render", "cube.toml", "--camera-from", "1,2"],
         &["render", "cube.toml", "--camera-from", "1,2,x"],
-        &["render", "cube.toml", "--camera-from", "0,1,0", "--camera-to", "0,1,0"],
-        &["render", "cube.toml", "--camera-from", "0,5,0", "--camera-to", "0,1,0"],
+        &[
+            "render",
+            "cube.toml",
+            "--camera-from",
+            "0,1,0",
+            "--camera-to",
+            "0,1,0",
+        ],
+        &[
+            "render",
+            "cube.toml",
+            "--camera-from",
+            "0,5,0",
+            "--camera-to",
+            "0,1,0",
+        ],
         &["render", "cube.toml", "--strain-range", "0"],
     ];
     for args in cases {

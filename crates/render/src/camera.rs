@@ -151,6 +151,11 @@ impl View {
         DVec3::new(d.dot(self.right), d.dot(self.up), d.dot(self.forward))
     }
 
+    /// The world point of camera coordinates `c`.
+    pub fn to_world(&self, c: DVec3) -> DVec3 {
+        self.eye + c.x * self.right + c.y * self.up + c.z * self.forward
+    }
+
     /// The pixel position of camera coordinates `c` with `c.z > 0`.
     pub fn to_screen(&self, c: DVec3) -> DVec2 {
         DVec2::new(

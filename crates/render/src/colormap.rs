@@ -1,4 +1,4 @@
-//! The strain colormap: a diverging blue–white–red ramp.
+//! The strain colormap: a diverging blue–grey–red ramp.
 //!
 //! A spring's strain is ε = (|x_a − x_b| − r)/r (r: rest length). Its colour is the linear
 //! interpolation in RGB from [`COMPRESSED`] at ε = −s through [`NEUTRAL`] at ε = 0 to
@@ -7,8 +7,9 @@
 
 /// The colour of a spring compressed by the whole strain range or more (blue).
 pub const COMPRESSED: [u8; 3] = [40, 70, 210];
-/// The colour of a spring at its rest length (light grey, close to white).
-pub const NEUTRAL: [u8; 3] = [235, 235, 235];
+/// The colour of a spring at its rest length: a mid grey, which reads on light ground and sky
+/// alike (a white middle, usual on white paper, vanishes against them).
+pub const NEUTRAL: [u8; 3] = [120, 120, 120];
 /// The colour of a spring stretched by the whole strain range or more (red).
 pub const STRETCHED: [u8; 3] = [210, 30, 35];
 
@@ -45,7 +46,7 @@ mod tests {
         assert_eq!(strain_color(f64::INFINITY, 0.1), STRETCHED);
         assert_eq!(strain_color(f64::NAN, 0.1), STRETCHED);
         // Halfway to stretched: the mean of neutral and red, rounded.
-        assert_eq!(strain_color(0.05, 0.1), [223, 133, 135]);
+        assert_eq!(strain_color(0.05, 0.1), [165, 75, 78]);
         // Compression is blue-dominated, stretching red-dominated.
         let [r, _, b] = strain_color(-0.03, 0.1);
         assert!(b > r);

@@ -9,8 +9,9 @@
 //! - flat Lambert shading with ambient light: c = c₀ (k_a + k_d max(0, n·l)) for a fixed light
 //!   direction l ([`LIGHT`]) and the triangle's normal n turned towards the eye (two-sided, so
 //!   inverted or open surfaces still read);
+//! - the bodies' shadows on the terrain from that light ([`RenderOptions::shadows`]);
 //! - with [`RenderOptions::springs`], every spring as a line coloured by its strain
-//!   (|x_a − x_b| − r)/r on a blue–white–red ramp ([`colormap`]) under a see-through surface,
+//!   (|x_a − x_b| − r)/r on a blue–grey–red ramp ([`colormap`]) under a see-through surface,
 //!   and the ramp as a legend in the bottom-left corner.
 //!
 //! Everything is computed in one thread in a fixed order from the inputs alone: the same
@@ -62,8 +63,10 @@ use raster::Buffer;
 /// The largest picture side, pixels.
 pub const MAX_SIZE: u32 = 8192;
 
-/// The direction towards the light (unnormalised): above, in front, to the right.
-pub const LIGHT: DVec3 = DVec3::new(0.35, 1.0, 0.55);
+/// The direction towards the light (unnormalised): above, in front, to the left, so that the
+/// automatic camera (in front, to the right) sees lit, half-lit and shaded faces and the
+/// shadows falling to the right and back.
+pub const LIGHT: DVec3 = DVec3::new(-0.45, 1.0, 0.35);
 /// The ambient share k_a of a surface's colour.
 pub const AMBIENT: f64 = 0.4;
 /// The diffuse share k_d of a surface's colour.
@@ -79,6 +82,10 @@ pub const BODY_COLORS: [[u8; 3]; 4] = [
 ];
 /// How much of the surface colour covers what is behind it when springs are drawn.
 pub const SURFACE_OPACITY_WITH_SPRINGS: f64 = 0.3;
+/// The shadow map's side, cells.
+pub const SHADOW_MAP: usize = 256;
+/// What a shadow leaves of a terrain pixel's colour (about its ambient share).
+pub const SHADOW: f64 = 0.6;
 /// The default strain range ±s of the colormap: ±10 %.
 pub const DEFAULT_STRAIN_RANGE: f64 = 0.1;
 
@@ -96,6 +103,8 @@ pub struct RenderOptions {
     pub springs: bool,
     /// The strain s drawn in the colormap's end colours (blue at −s, red at +s); > 0.
     pub strain_range: f64,
+    /// Darken the terrain where the bodies' surface hides it from the light.
+    pub shadows: bool,
 }
 
 impl Default for RenderOptions {
@@ -106,6 +115,7 @@ impl Default for RenderOptions {
             camera: None,
             springs: false,
             strain_range: DEFAULT_STRAIN_RANGE,
+            shadows: true,
         }
     }
 }
@@ -325,6 +335,9 @@ impl Renderer {
             });
         }
         let mut scene = self.base.clone();
+        if self.options.shadows {
+            self.shadow(&mut scene, positions);
+        }
         let mut body = Buffer::new(scene.width, scene.height, [0; 3]);
         for (t, &color) in self.surface.iter().zip(&self.surface_color) {
             let corners = t.map(|p| positions[p as usize]);
@@ -369,6 +382,82 @@ impl Renderer {
             self.options.height,
             scene.color.iter().flatten().copied().collect(),
         ))
+    }
+
+    /// Darkens the terrain pixels of `scene` that the bodies' surface hides from the light.
+    ///
+    /// A shadow map: the surface is rasterized orthographically along the light direction l
+    /// into a [`SHADOW_MAP`]² grid over its extent across l, keeping the largest height p·l
+    /// (the point nearest the light). A terrain pixel's world point q (rebuilt from its pixel
+    /// position and depth) is in shadow when the map holds a height above q·l + bias there; the
+    /// bias (1 % of the bodies' size) keeps a resting face from shadowing the ground it touches.
+    fn shadow(&self, scene: &mut Buffer, positions: &[DVec3]) {
+        let l = LIGHT.normalize();
+        let u = l.any_orthonormal_vector();
+        let v = l.cross(u);
+        let mut lo = glam::DVec2::INFINITY;
+        let mut hi = glam::DVec2::NEG_INFINITY;
+        let mut seen = Bounds::default();
+        for t in &self.surface {
+            for &p in t {
+                let x = positions[p as usize];
+                if x.is_finite() {
+                    let q = glam::DVec2::new(x.dot(u), x.dot(v));
+                    lo = lo.min(q);
+                    hi = hi.max(q);
+                    seen.add(&[x]);
+                }
+            }
+        }
+        if seen.is_empty() {
+            return;
+        }
+        let size = (hi - lo).max_element().max(1e-6);
+        let scale = (SHADOW_MAP - 2) as f64 / size;
+        // One cell of margin on each side.
+        let origin = lo - glam::DVec2::splat(1.0 / scale);
+        let to_map = |x: DVec3| {
+            let q = (glam::DVec2::new(x.dot(u), x.dot(v)) - origin) * scale;
+            raster::ScreenVertex {
+                x: q.x,
+                y: q.y,
+                w: x.dot(l),
+            }
+        };
+        let mut map = Buffer::new(SHADOW_MAP, SHADOW_MAP, [0; 3]);
+        map.depth.fill(f64::NEG_INFINITY);
+        for t in &self.surface {
+            let c = t.map(|p| positions[p as usize]);
+            if c.iter().all(|x| x.is_finite()) {
+                raster::screen_triangle(&mut map, c.map(to_map), [0; 3]);
+            }
+        }
+        let bias = 0.01 * (seen.hi - seen.lo).length();
+        let (f, cx, cy) = (self.view.focal(), self.view.cx(), self.view.cy());
+        for j in 0..scene.height {
+            for i in 0..scene.width {
+                let at = j * scene.width + i;
+                let w = scene.depth[at];
+                if w <= 0.0 {
+                    continue;
+                }
+                let z = 1.0 / w;
+                let c = DVec3::new(
+                    (i as f64 + 0.5 - cx) * z / f,
+                    -(j as f64 + 0.5 - cy) * z / f,
+                    z,
+                );
+                let m = to_map(self.view.to_world(c));
+                let (mi, mj) = (m.x.floor(), m.y.floor());
+                if mi < 0.0 || mj < 0.0 || mi >= SHADOW_MAP as f64 || mj >= SHADOW_MAP as f64 {
+                    continue;
+                }
+                if map.depth[mj as usize * SHADOW_MAP + mi as usize] > m.w + bias {
+                    scene.color[at] =
+                        scene.color[at].map(|ch| (f64::from(ch) * SHADOW).round() as u8);
+                }
+            }
+        }
     }
 
     /// A 3 × 3 pixel dot at `p`, depth-tested.
@@ -540,6 +629,36 @@ mod tests {
                 got: 26
             })
         );
+    }
+
+    #[test]
+    fn the_body_shadows_the_ground_along_the_light() {
+        let (model, x) = model(false);
+        // The cube's centre (0, 0.5, 0) casts its shadow along −l onto y = 0 at q.
+        let c = DVec3::new(0.0, 0.5, 0.0);
+        let q = c - (c.y / LIGHT.y) * LIGHT;
+        let camera = Camera::look_at(q + DVec3::new(0.0, 3.0, 3.0), q);
+        let draw = |shadows| {
+            let options = RenderOptions {
+                width: 64,
+                height: 64,
+                camera: Some(camera),
+                shadows,
+                ..RenderOptions::default()
+            };
+            Renderer::new(&model, Bounds::of(&x), options)
+                .unwrap()
+                .render_frame(&x)
+                .unwrap()
+        };
+        let (lit, shaded) = (draw(false), draw(true));
+        // q is seen at the centre: darkened by SHADOW there, and the sky is untouched.
+        let expect = lit
+            .pixel(32, 32)
+            .map(|ch| (f64::from(ch) * SHADOW).round() as u8);
+        assert_eq!(shaded.pixel(32, 32), expect);
+        assert_eq!(shaded.pixel(0, 0), lit.pixel(0, 0));
+        assert_ne!(lit, shaded);
     }
 
     #[test]
