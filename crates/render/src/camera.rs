@@ -12,7 +12,7 @@
 use glam::{DVec2, DVec3};
 
 /// Points nearer to the eye than this (metres along the view direction) are clipped away.
-pub(crate) const NEAR: f64 = 1e-3;
+pub const NEAR: f64 = 1e-3;
 
 /// A perspective camera looking from `from` at `to`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,8 +48,8 @@ impl Camera {
 
     /// The automatic camera for content inside the box [`lo`, `hi`] and a picture of
     /// `width` × `height` pixels: it looks at the box's centre from
-    /// [`DEFAULT_VIEW_DIRECTION`], far enough that the box's bounding sphere (radius at least
-    /// 0.25 m) fits in both the vertical and the horizontal field of view.
+    /// [`DEFAULT_VIEW_DIRECTION`], from just far enough that all eight corners of the box
+    /// (each side widened to at least 0.5 m) are in view, plus 8 %.
     pub fn framing(lo: DVec3, hi: DVec3, width: u32, height: u32) -> Camera {
         let (lo, hi) = if lo.is_finite() && hi.is_finite() && lo.cmple(hi).all() {
             (lo, hi)
@@ -57,16 +57,30 @@ impl Camera {
             (DVec3::splat(-0.5), DVec3::splat(0.5))
         };
         let centre = 0.5 * (lo + hi);
-        let radius = (0.5 * (hi - lo).length()).max(0.25);
+        // At least a 0.5 m box, so that a single point still gets a view.
+        let half = (0.5 * (hi - lo)).max(DVec3::splat(0.25));
         let half_y = (0.5 * DEFAULT_FOV_Y_DEGREES).to_radians();
         let aspect = f64::from(width.max(1)) / f64::from(height.max(1));
-        let half_x = (half_y.tan() * aspect).atan();
-        // The sphere of radius ρ at distance d fills a half-angle asin(ρ/d); 5 % spare.
-        let distance = 1.05 * radius / half_y.min(half_x).sin();
-        Camera::look_at(
-            centre + distance * DEFAULT_VIEW_DIRECTION.normalize(),
-            centre,
-        )
+        let (tan_y, tan_x) = (half_y.tan(), half_y.tan() * aspect);
+        let back = DEFAULT_VIEW_DIRECTION.normalize();
+        let view = View::new(&Camera::look_at(centre + back, centre), width, height);
+        // Corner o (from the centre) at eye distance d: camera coordinates (o·r, o·u, d + o·f);
+        // it is in view when |o·r| ≤ (d + o·f) tan(fov_x/2) and |o·u| ≤ (d + o·f) tan(fov_y/2).
+        let mut distance: f64 = 0.0;
+        for i in 0..8 {
+            let o = DVec3::new(
+                if i & 1 == 0 { -half.x } else { half.x },
+                if i & 2 == 0 { -half.y } else { half.y },
+                if i & 4 == 0 { -half.z } else { half.z },
+            );
+            let c = view.to_camera(centre + o) - DVec3::new(0.0, 0.0, 1.0);
+            distance = distance
+                .max(c.x.abs() / tan_x - c.z)
+                .max(c.y.abs() / tan_y - c.z)
+                .max(half.length() + NEAR);
+        }
+        // 8 % spare around the box.
+        Camera::look_at(centre + 1.08 * distance * back, centre)
     }
 
     /// Checks that the camera defines a view: finite, `from` ≠ `to`, the view not along `up`,
@@ -146,18 +160,18 @@ impl View {
     }
 
     /// Camera coordinates (x right, y up, z along the view).
-    pub fn to_camera(&self, p: DVec3) -> DVec3 {
+    pub fn to_camera(self, p: DVec3) -> DVec3 {
         let d = p - self.eye;
         DVec3::new(d.dot(self.right), d.dot(self.up), d.dot(self.forward))
     }
 
     /// The world point of camera coordinates `c`.
-    pub fn to_world(&self, c: DVec3) -> DVec3 {
+    pub fn to_world(self, c: DVec3) -> DVec3 {
         self.eye + c.x * self.right + c.y * self.up + c.z * self.forward
     }
 
     /// The pixel position of camera coordinates `c` with `c.z > 0`.
-    pub fn to_screen(&self, c: DVec3) -> DVec2 {
+    pub fn to_screen(self, c: DVec3) -> DVec2 {
         DVec2::new(
             self.cx + self.focal * c.x / c.z,
             self.cy - self.focal * c.y / c.z,

@@ -48,7 +48,7 @@
 pub mod camera;
 pub mod colormap;
 mod encode;
-mod raster;
+pub mod raster;
 pub mod terrain;
 
 use glam::DVec3;

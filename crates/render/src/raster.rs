@@ -15,11 +15,11 @@ use glam::{DVec2, DVec3};
 use crate::camera::{NEAR, View};
 
 /// Sub-pixel steps per pixel of the snapped vertex positions.
-pub(crate) const SUBPIXEL: i64 = 256;
+pub const SUBPIXEL: i64 = 256;
 
 /// Pixels beyond each side of the picture to which primitives are clipped (so that snapped
 /// coordinates stay small and exact).
-pub(crate) const GUARD: f64 = 16.0;
+pub const GUARD: f64 = 16.0;
 
 /// A colour buffer with a depth buffer.
 #[derive(Debug, Clone, PartialEq)]

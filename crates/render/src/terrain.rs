@@ -285,7 +285,7 @@ mod tests {
             half_extents: DVec3::new(0.5, 1.0, 2.0),
             rotation: DVec3::new(10.0, 20.0, 30.0),
         });
-        let tris = triangulate(&[b.clone()], DVec3::ZERO, 1.0);
+        let tris = triangulate(std::slice::from_ref(&b), DVec3::ZERO, 1.0);
         assert_eq!(tris.len(), 12);
         let total: f64 = tris.iter().map(area).sum();
         // 2(1·2 + 1·4 + 2·4) = 28 m².
@@ -344,7 +344,7 @@ mod tests {
             cell_size: [0.5, 2.0],
             origin: DVec3::new(1.0, 0.0, 0.0),
         }));
-        let tris = triangulate(&[h.clone()], DVec3::ZERO, 1.0);
+        let tris = triangulate(std::slice::from_ref(&h), DVec3::ZERO, 1.0);
         assert_eq!(tris.len(), 4);
         assert_eq!(
             bounds(&[h]),
@@ -358,7 +358,7 @@ mod tests {
             point: DVec3::ZERO,
             normal: DVec3::Y,
         });
-        let tris = triangulate(&[p.clone()], DVec3::new(3.0, 1.0, 0.0), 0.5);
+        let tris = triangulate(std::slice::from_ref(&p), DVec3::new(3.0, 1.0, 0.0), 0.5);
         // Half side max(3·0.5, 2) = 2 m, tiles of 0.2 m: 20 × 20 tiles.
         assert_eq!(tris.len(), 2 * 20 * 20);
         assert!(tris.iter().flat_map(|t| t.corners).all(|c| c.y == 0.0));
