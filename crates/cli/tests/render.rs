@@ -297,3 +297,37 @@ fn an_unwritable_destination_is_status_1() {
         assert!(o.stderr.contains("error"), "{out}: {}", o.stderr);
     }
 }
+
+#[test]
+fn follow_keeps_the_body_in_the_middle() {
+    let sb = Sandbox::new();
+    let moving = Cube {
+        velocity: [3.0, 0.0, 0.0],
+        duration: 0.3,
+        frame_rate: 20.0,
+        ..Cube::default()
+    };
+    sb.write("moving.toml", &moving.toml());
+    sb.run(&[
+        "render",
+        "moving.toml",
+        "--out",
+        "p",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--follow",
+        "-q",
+    ])
+    .expect_status(EXIT_OK);
+    let names = pngs(&sb.path().join("p"));
+    assert_eq!(names.len(), frame_schedule(0.001, 0.3, 20.0).len());
+    // The camera looks at the centroid in every frame: the centre pixel is the orange body
+    // in the first frame and in the last, 0.9 m further along x.
+    for name in [names.first().unwrap(), names.last().unwrap()] {
+        let (w, _, rgb) = read_png(&sb.path().join("p").join(name));
+        let at = 3 * (24 * w + 32) as usize;
+        assert!(rgb[at] > rgb[at + 2] + 60, "{name}: {:?}", &rgb[at..at + 3]);
+    }
+}
