@@ -10,6 +10,7 @@
 mod bench;
 mod check;
 mod progress;
+mod render;
 mod run;
 
 use std::io::Write;
@@ -46,6 +47,8 @@ enum Command {
     Check(check::CheckArgs),
     /// Time the standard benchmark cube (the peers' jelly cube) at several sizes.
     Bench(bench::BenchArgs),
+    /// Draw a scene's frames (simulated, or read from a run's .jsonl) as PNG files or a GIF.
+    Render(render::RenderArgs),
 }
 
 fn positive_or_fraction(s: &str) -> Result<f64, String> {
@@ -100,6 +103,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run::run(args),
         Command::Check(args) => check::check(args),
         Command::Bench(args) => bench::bench(args),
+        Command::Render(args) => render::render(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
