@@ -344,14 +344,14 @@ impl Implicit {
                 .iter()
                 .map(|&(binding, buffer)| (binding, buffer.as_entire_binding()))
                 .collect();
-            for c in 1..chunks.len() {
-                let at = c as u32 - 1;
+            let extra = shared.per_spring.iter().zip(&blocks).skip(1);
+            for (at, (per_spring, block)) in (0u32..).zip(extra) {
                 list.push((
                     PER_SPRING_CHUNK_BINDING + at,
-                    shared.per_spring[c].as_entire_binding(),
+                    per_spring.as_entire_binding(),
                 ));
                 if with_blocks {
-                    list.push((BLOCK_CHUNK_BINDING + at, blocks[c].as_entire_binding()));
+                    list.push((BLOCK_CHUNK_BINDING + at, block.as_entire_binding()));
                 }
             }
             list.sort_by_key(|&(binding, _)| binding);

@@ -23,7 +23,7 @@
 //! Per-spring arrays (the springs, the per-spring vectors, implicit Euler's blocks) grow with
 //! the springs, about 13 per particle: a 100³ cube's 15.7 M springs need 314 MB of spring
 //! records, more than one storage binding holds on many adapters (`max_storage_buffer_binding_size`
-//! is 128 MiB on Mesa and a common default). So each is kept as [`SpringChunks`]: K buffers of
+//! is 128 MiB on Mesa and a common default). So each is kept as `SpringChunks`: K buffers of
 //! 2^k springs (the last one shorter), with 2^k the largest power of two whose widest per-spring
 //! element (20 bytes, 32 with implicit Euler's blocks) fits one binding and one buffer
 //! (`min(max_storage_buffer_binding_size, max_buffer_size)`); a scene that fits has one chunk.
@@ -34,8 +34,9 @@
 //! same order, so a chunked run is bit-identical to an unchunked one. K is bounded by the
 //! storage buffers one kernel may bind (`max_storage_buffers_per_shader_stage`: the force
 //! kernel binds 7 + K, implicit Euler's assembly 5 + 2K) and [`MAX_SPRING_CHUNKS`]; past that,
-//! and for per-particle arrays (whole: 8.4 M particles per 128 MiB of `vec4`), the scene is
-//! refused with the limit and the figures.
+//! for the per-particle arrays (whole: 8.4 M particles per 128 MiB of `vec4`) and for the CSR
+//! adjacency (whole: n + 1 + 2m words, 16.7 M springs per 128 MiB), the scene is refused with
+//! the limit and the figures.
 //!
 //! # Instability
 //!
