@@ -10,19 +10,22 @@
 // one fixed order, so a run repeats bit for bit on one adapter.
 //
 // The inputs are whichever state the bind group holds: (x, v) or a stage state of midpoint/RK4.
+// Dispatched once per spring chunk (common.wgsl, `SpringChunk`): `springs` and `per_spring` are
+// the chunk's, indexed from 0.
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> springs: array<Spring>;
 @group(0) @binding(4) var<storage, read_write> per_spring: array<vec4<f32>>;
+@group(0) @binding(5) var<uniform> chunk: SpringChunk;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn spring_forces(id: Invocation) {
-    let s = thread_of(id);
-    if s >= params.n_springs {
+    let j = thread_of(id);
+    if j >= chunk.count {
         return;
     }
-    let spring = springs[s];
+    let spring = springs[j];
     let f = spring_force(spring, x[spring.a].xyz, x[spring.b].xyz, v[spring.a].xyz, v[spring.b].xyz);
-    per_spring[s] = vec4<f32>(f, 0.0);
+    per_spring[j] = vec4<f32>(f, 0.0);
 }

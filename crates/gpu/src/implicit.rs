@@ -21,17 +21,22 @@
 //! active set's `changed` word) when it takes no more iterations than the last one (plus 2), one
 //! more per 16 iterations beyond, and a step at least one.
 //!
+//! The per-spring kernels (`assemble_springs`, `apply_springs`) run once per spring chunk
+//! (`crate::solver`, "Spring chunks"), each with its chunk's springs, blocks and per-spring
+//! vectors bound; the indirect ones all read the largest chunk's grid from the `SPRINGS` slot.
+//! The gathers (`assemble_particles`, `apply_particles`) bind every chunk.
+//!
 //! The CG stopping rule is the CPU's (relative preconditioned residual, round-off growth, cap),
 //! with the tolerance [`CG_TOLERANCE_F32`]: the CPU's 1e-8 is below what f32 resolves.
 
 use softbody_cpu::integrators::implicit_euler::cg::Constraint;
 use softbody_cpu::integrators::implicit_euler::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
-use softbody_scene::{Model, Statistics};
+use softbody_scene::Statistics;
 use wgpu::util::DeviceExt;
 
 use crate::layout::{CG_DISPATCH_WORDS, CandidateGpu, CgScalars, SpringBlockGpu, dispatch_slot};
-use crate::shaders::{Access, Stage};
-use crate::solver::Grid;
+use crate::shaders::{Access, BLOCK_CHUNK_BINDING, PER_SPRING_CHUNK_BINDING, Stage};
+use crate::solver::{Grid, SpringChunks};
 
 /// CG's relative tolerance on the GPU (preconditioned residual norm, as the CPU's
 /// `CG_TOLERANCE`, which is 1e-8): f32 resolves about 6e-8 relative per operation, and the
@@ -58,17 +63,20 @@ pub(crate) struct Shared<'a> {
     pub x: &'a wgpu::Buffer,
     pub v: &'a wgpu::Buffer,
     pub mass: &'a wgpu::Buffer,
-    pub springs: &'a wgpu::Buffer,
+    /// One buffer per spring chunk.
+    pub springs: &'a [wgpu::Buffer],
     pub adjacency: &'a wgpu::Buffer,
-    pub per_spring: &'a wgpu::Buffer,
+    /// One buffer per spring chunk.
+    pub per_spring: &'a [wgpu::Buffer],
     pub terrain_layout: &'a wgpu::BindGroupLayout,
     pub terrain: &'a wgpu::BindGroup,
+    pub chunks: &'a SpringChunks,
 }
 
-/// A pipeline with its bind group.
+/// A pipeline with its bind groups: one, or for a per-spring kernel one per spring chunk.
 struct Bound {
     pipeline: wgpu::ComputePipeline,
-    group: wgpu::BindGroup,
+    groups: Vec<wgpu::BindGroup>,
 }
 
 /// How a kernel is dispatched.
@@ -119,7 +127,8 @@ pub(crate) struct Implicit {
     terrain: wgpu::BindGroup,
     kernels: Kernels,
     particle_grid: Grid,
-    spring_grid: Grid,
+    /// Each spring chunk's grid.
+    spring_grids: Vec<Grid>,
     /// Iterations of the last solve.
     last_iterations: u32,
     /// Counters over the run.
@@ -183,14 +192,13 @@ impl Implicit {
     /// Buffers and kernels for `model`, sharing the solver's state and model buffers.
     pub fn new(
         device: &wgpu::Device,
-        model: &Model,
         shared: &Shared<'_>,
+        n: u64,
         has_terrain: bool,
         particle_grid: Grid,
-        spring_grid: Grid,
     ) -> Implicit {
-        let n = model.len() as u64;
-        let m = model.springs.len() as u64;
+        let chunks = shared.chunks;
+        let chunking = chunks.chunking;
         let storage = wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_DST
             | wgpu::BufferUsages::COPY_SRC;
@@ -219,7 +227,16 @@ impl Implicit {
         let c = empty("c", vectors);
         let diag = empty("diag", 2 * vectors);
         let constraints = empty("constraints", vectors);
-        let blocks = empty("blocks", m * std::mem::size_of::<SpringBlockGpu>() as u64);
+        let blocks: Vec<wgpu::Buffer> = chunks
+            .ranges
+            .iter()
+            .map(|&(_, count)| {
+                empty(
+                    "blocks",
+                    count * std::mem::size_of::<SpringBlockGpu>() as u64,
+                )
+            })
+            .collect();
         // Zeroed: no particle was touching before the first step.
         let candidates = empty("candidates", n * std::mem::size_of::<CandidateGpu>() as u64);
         let partials = empty("cg partials", particle_grid.groups().max(1) * 8);
@@ -228,7 +245,7 @@ impl Implicit {
             max_iterations: CG_MAX_ITERATIONS,
             n_partials: particle_grid.groups() as u32,
             particle_grid: [particle_grid.x, particle_grid.y],
-            spring_grid: [spring_grid.x, spring_grid.y],
+            spring_grid: [chunks.largest_grid().x, chunks.largest_grid().y],
             ..CgScalars::default()
         };
         let scalars = init("cg scalars", bytemuck::bytes_of(&settings), storage);
@@ -239,9 +256,15 @@ impl Implicit {
         );
         let changed = empty("changed", 4);
 
-        let kernel = |stage: Stage, entry: &str, buffers: &[(u32, &wgpu::Buffer)]| -> Bound {
+        // A kernel with one bind group per list of (binding, resource) besides params.
+        let (s_springs, s_per_spring) = (shared.springs, shared.per_spring);
+        let kernel_groups = |stage: Stage,
+                             entry: &str,
+                             lists: Vec<Vec<(u32, wgpu::BindingResource)>>|
+         -> Bound {
             let k = stage.kernel(entry);
-            let table = stage.kernel_bindings(&k);
+            let mut table = stage.kernel_bindings(&k);
+            table.extend(stage.chunk_bindings(entry, chunking));
             let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some(k.entry),
                 entries: &layout_entries(&table),
@@ -258,7 +281,7 @@ impl Implicit {
             // One module per kernel keeps the code simple; the drivers cache the compilation.
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(stage.file()),
-                source: wgpu::ShaderSource::Wgsl(stage.source().into()),
+                source: wgpu::ShaderSource::Wgsl(stage.source_chunked(chunking).into()),
             });
             let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(k.entry),
@@ -268,42 +291,87 @@ impl Implicit {
                 compilation_options: Default::default(),
                 cache: None,
             });
-            let entries: Vec<wgpu::BindGroupEntry> = std::iter::once((0, shared.params))
-                .chain(buffers.iter().copied())
-                .map(|(binding, buffer)| wgpu::BindGroupEntry {
-                    binding,
-                    resource: buffer.as_entire_binding(),
+            let groups = lists
+                .into_iter()
+                .map(|list| {
+                    let entries: Vec<wgpu::BindGroupEntry> =
+                        std::iter::once((0, shared.params.as_entire_binding()))
+                            .chain(list)
+                            .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
+                            .collect();
+                    device.create_bind_group(&wgpu::BindGroupDescriptor {
+                        label: Some(k.entry),
+                        layout: &layout,
+                        entries: &entries,
+                    })
                 })
                 .collect();
-            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some(k.entry),
-                layout: &layout,
-                entries: &entries,
-            });
-            Bound { pipeline, group }
+            Bound { pipeline, groups }
+        };
+        let kernel = |stage: Stage, entry: &str, buffers: &[(u32, &wgpu::Buffer)]| -> Bound {
+            let list = buffers
+                .iter()
+                .map(|&(binding, buffer)| (binding, buffer.as_entire_binding()))
+                .collect();
+            kernel_groups(stage, entry, vec![list])
+        };
+        // A per-spring kernel (system.wgsl): `buffers` lists the bindings shared by all chunks;
+        // each chunk's group has its springs (6), blocks (7), per-spring vectors (8) and
+        // `SpringChunk` uniform (13).
+        let spring_kernel = |entry: &str, buffers: &[(u32, &wgpu::Buffer)]| -> Bound {
+            let lists = (0..chunks.len())
+                .map(|c| {
+                    let mut list: Vec<(u32, wgpu::BindingResource)> = buffers
+                        .iter()
+                        .map(|&(binding, buffer)| (binding, buffer.as_entire_binding()))
+                        .collect();
+                    list.extend([
+                        (6, s_springs[c].as_entire_binding()),
+                        (7, blocks[c].as_entire_binding()),
+                        (8, s_per_spring[c].as_entire_binding()),
+                        (13, chunks.uniform(c)),
+                    ]);
+                    list.sort_by_key(|&(binding, _)| binding);
+                    list
+                })
+                .collect();
+            kernel_groups(Stage::System, entry, lists)
+        };
+        // A gathering kernel: the per-spring vectors' (and with `blocks`, the blocks') chunks
+        // past the first at their extra bindings.
+        let gather_kernel = |entry: &str, buffers: &[(u32, &wgpu::Buffer)], with_blocks: bool| {
+            let mut list: Vec<(u32, wgpu::BindingResource)> = buffers
+                .iter()
+                .map(|&(binding, buffer)| (binding, buffer.as_entire_binding()))
+                .collect();
+            let extra = shared.per_spring.iter().zip(&blocks).skip(1);
+            for (at, (per_spring, block)) in (0u32..).zip(extra) {
+                list.push((
+                    PER_SPRING_CHUNK_BINDING + at,
+                    per_spring.as_entire_binding(),
+                ));
+                if with_blocks {
+                    list.push((BLOCK_CHUNK_BINDING + at, block.as_entire_binding()));
+                }
+            }
+            list.sort_by_key(|&(binding, _)| binding);
+            kernel_groups(Stage::System, entry, vec![list])
         };
         let s = shared;
-        let sys = Stage::System;
         let cg = Stage::Cg;
         let ie = Stage::ImplicitEuler;
-        let apply_springs = |p: &wgpu::Buffer| {
-            kernel(
-                sys,
-                "apply_springs",
-                &[(6, s.springs), (7, &blocks), (8, s.per_spring), (9, p)],
-            )
-        };
+        let apply_springs = |p: &wgpu::Buffer| spring_kernel("apply_springs", &[(9, p)]);
         let apply_particles = |p: &wgpu::Buffer| {
-            kernel(
-                sys,
+            gather_kernel(
                 "apply_particles",
                 &[
-                    (3, s.per_spring),
+                    (3, &s.per_spring[0]),
                     (4, s.adjacency),
                     (9, p),
                     (10, &q),
                     (12, &diag),
                 ],
+                false,
             )
         };
         let scalar = |entry: &str| {
@@ -314,29 +382,19 @@ impl Implicit {
             )
         };
         let kernels = Kernels {
-            assemble_springs: kernel(
-                sys,
-                "assemble_springs",
-                &[
-                    (1, s.x),
-                    (2, s.v),
-                    (6, s.springs),
-                    (7, &blocks),
-                    (8, s.per_spring),
-                ],
-            ),
-            assemble_particles: kernel(
-                sys,
+            assemble_springs: spring_kernel("assemble_springs", &[(1, s.x), (2, s.v)]),
+            assemble_particles: gather_kernel(
                 "assemble_particles",
                 &[
                     (2, s.v),
-                    (3, s.per_spring),
+                    (3, &s.per_spring[0]),
                     (4, s.adjacency),
                     (5, s.mass),
-                    (7, &blocks),
+                    (7, &blocks[0]),
                     (11, &b),
                     (12, &diag),
                 ],
+                true,
             ),
             apply_springs_dv: apply_springs(&dv),
             apply_particles_dv: apply_particles(&dv),
@@ -436,20 +494,41 @@ impl Implicit {
             terrain: shared.terrain.clone(),
             kernels,
             particle_grid,
-            spring_grid,
+            spring_grids: chunks.grids.clone(),
             last_iterations: ITERATIONS_PER_BATCH,
             statistics: Statistics::default(),
         }
     }
 
+    /// Dispatches a one-group kernel.
     fn run(&self, pass: &mut wgpu::ComputePass<'_>, k: &Bound, how: Run, terrain: bool) {
+        self.run_group(pass, &k.pipeline, &k.groups[0], how, terrain);
+    }
+
+    /// Dispatches a per-spring kernel once per chunk: directly on each chunk's grid, or
+    /// indirectly from the slot at byte `slot` of the dispatch buffer.
+    fn run_springs(&self, pass: &mut wgpu::ComputePass<'_>, k: &Bound, slot: Option<u64>) {
+        for (group, &grid) in k.groups.iter().zip(&self.spring_grids) {
+            let how = slot.map_or(Run::Direct(grid), Run::Indirect);
+            self.run_group(pass, &k.pipeline, group, how, false);
+        }
+    }
+
+    fn run_group(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        pipeline: &wgpu::ComputePipeline,
+        group: &wgpu::BindGroup,
+        how: Run,
+        terrain: bool,
+    ) {
         if let Run::Direct(grid) = how
             && grid.groups() == 0
         {
             return;
         }
-        pass.set_pipeline(&k.pipeline);
-        pass.set_bind_group(0, &k.group, &[]);
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, group, &[]);
         if terrain {
             pass.set_bind_group(1, &self.terrain, &[]);
         }
@@ -463,11 +542,8 @@ impl Implicit {
     /// terrain, the contact candidates.
     pub fn encode_assemble(&self, pass: &mut wgpu::ComputePass<'_>) {
         let k = &self.kernels;
-        let (p, s) = (
-            Run::Direct(self.particle_grid),
-            Run::Direct(self.spring_grid),
-        );
-        self.run(pass, &k.assemble_springs, s, false);
+        let p = Run::Direct(self.particle_grid);
+        self.run_springs(pass, &k.assemble_springs, None);
         self.run(pass, &k.assemble_particles, p, false);
         if self.has_terrain {
             self.run(pass, &k.candidates, p, true);
@@ -478,15 +554,12 @@ impl Implicit {
     /// false: the tests write them), the warm start, the residual and the scalars.
     pub fn encode_round(&self, pass: &mut wgpu::ComputePass<'_>, constrain: bool) {
         let k = &self.kernels;
-        let (p, s) = (
-            Run::Direct(self.particle_grid),
-            Run::Direct(self.spring_grid),
-        );
+        let p = Run::Direct(self.particle_grid);
         if constrain {
             self.run(pass, &k.constrain, p, false);
         }
         self.run(pass, &k.cg_start, p, false);
-        self.run(pass, &k.apply_springs_dv, s, false);
+        self.run_springs(pass, &k.apply_springs_dv, None);
         self.run(pass, &k.apply_particles_dv, p, false);
         self.run(pass, &k.cg_residual, p, false);
         self.run(pass, &k.cg_begin, Run::Direct(Grid { x: 1, y: 1 }), false);
@@ -506,11 +579,11 @@ impl Implicit {
     pub fn encode_batch(&self, pass: &mut wgpu::ComputePass<'_>, iterations: u32) {
         let k = &self.kernels;
         let particles = Run::Indirect(dispatch_slot::PARTICLES);
-        let springs = Run::Indirect(dispatch_slot::SPRINGS);
+        let springs = Some(dispatch_slot::SPRINGS);
         // Direct: they write the indirect arguments (and return at once when done).
         let scalar = Run::Direct(Grid { x: 1, y: 1 });
         for _ in 0..iterations {
-            self.run(pass, &k.apply_springs_c, springs, false);
+            self.run_springs(pass, &k.apply_springs_c, springs);
             self.run(pass, &k.apply_particles_c, particles, false);
             self.run(pass, &k.cg_curvature, particles, false);
             self.run(pass, &k.cg_alpha, scalar, false);
@@ -520,8 +593,8 @@ impl Implicit {
         }
         if self.has_terrain {
             let particles = Run::Indirect(dispatch_slot::FINISHED_PARTICLES);
-            let springs = Run::Indirect(dispatch_slot::FINISHED_SPRINGS);
-            self.run(pass, &k.apply_springs_dv, springs, false);
+            let springs = Some(dispatch_slot::FINISHED_SPRINGS);
+            self.run_springs(pass, &k.apply_springs_dv, springs);
             self.run(pass, &k.apply_particles_dv, particles, false);
             self.run(pass, &k.active_set, particles, false);
         }
@@ -540,12 +613,7 @@ impl Implicit {
     /// A Δv into q (for the system twin test, with Δv uploaded as p).
     pub fn encode_apply_dv(&self, pass: &mut wgpu::ComputePass<'_>) {
         let k = &self.kernels;
-        self.run(
-            pass,
-            &k.apply_springs_dv,
-            Run::Direct(self.spring_grid),
-            false,
-        );
+        self.run_springs(pass, &k.apply_springs_dv, None);
         self.run(
             pass,
             &k.apply_particles_dv,

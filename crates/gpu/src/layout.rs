@@ -77,6 +77,22 @@ impl SpringGpu {
     }
 }
 
+/// The springs of one per-spring dispatch: twin of `SpringChunk` in `shaders/common.wgsl`, a
+/// uniform bound per chunk (one slot per chunk of a constant table, at the uniform offset
+/// alignment).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct SpringChunk {
+    /// The chunk's first spring.
+    pub base: u32,
+    /// Springs in the chunk.
+    pub count: u32,
+    /// `base / WORKGROUP_SIZE`: the slot of the chunk's first energy partial sum.
+    pub first_group: u32,
+    /// Padding to WGSL's 16-byte uniform size.
+    pub _pad: u32,
+}
+
 /// "No particle / no step": the initial value of the atomicMin targets.
 pub const NONE: u32 = u32::MAX;
 

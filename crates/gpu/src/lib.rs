@@ -27,7 +27,7 @@ pub mod solver;
 pub mod terrain;
 
 pub use implicit::CG_TOLERANCE_F32;
-pub use solver::{GpuSolver, Grid, STEPS_PER_SUBMISSION};
+pub use solver::{GpuOptions, GpuSolver, Grid, STEPS_PER_SUBMISSION};
 
 /// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`).
 pub const WORKGROUP_SIZE: u64 = 256;
@@ -50,8 +50,7 @@ pub enum GpuError {
     /// The scene exceeds one of the adapter's limits.
     #[error(
         "the scene exceeds the GPU's {limit}: {what} needs {needed}, {adapter} allows \
-         {available}; splitting buffers across bindings is not implemented yet, so use a smaller \
-         scene or --backend cpu"
+         {available}; use a smaller scene or --backend cpu"
     )]
     Limit {
         /// The adapter.

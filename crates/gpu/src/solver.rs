@@ -18,6 +18,26 @@
 //! cannot know its CG iterations and active-set rounds in advance: it synchronises at least once
 //! per step on a 68-byte read-back, and reads the status after [`STEPS_PER_SUBMISSION`] steps.
 //!
+//! # Spring chunks
+//!
+//! Per-spring arrays (the springs, the per-spring vectors, implicit Euler's blocks) grow with
+//! the springs, about 13 per particle: a 100³ cube's 15.7 M springs need 314 MB of spring
+//! records, more than one storage binding holds on many adapters (`max_storage_buffer_binding_size`
+//! is 128 MiB on Mesa and a common default). So each is kept as `SpringChunks`: K buffers of
+//! 2^k springs (the last one shorter), with 2^k the largest power of two whose widest per-spring
+//! element (20 bytes, 32 with implicit Euler's blocks) fits one binding and one buffer
+//! (`min(max_storage_buffer_binding_size, max_buffer_size)`); a scene that fits has one chunk.
+//! Every per-spring kernel is dispatched once per chunk, with a bind group of that chunk's
+//! buffers and its [`SpringChunk`] uniform (first spring, count, first energy partial). The
+//! per-particle gathers bind all K chunks of what they gather and pick spring s's chunk as
+//! `s >> k` (accessors generated per K, see [`crate::shaders::Chunking`]): the same reads in the
+//! same order, so a chunked run is bit-identical to an unchunked one. K is bounded by the
+//! storage buffers one kernel may bind (`max_storage_buffers_per_shader_stage`: the force
+//! kernel binds 7 + K, implicit Euler's assembly 5 + 2K) and [`MAX_SPRING_CHUNKS`]; past that,
+//! for the per-particle arrays (whole: 8.4 M particles per 128 MiB of `vec4`) and for the CSR
+//! adjacency (whole: n + 1 + 2m words, 16.7 M springs per 128 MiB), the scene is refused with
+//! the limit and the figures.
+//!
 //! # Instability
 //!
 //! `check_finite` records, on the device, the first step of the submission with a non-finite
@@ -47,8 +67,13 @@ use wgpu::util::DeviceExt;
 
 use crate::device::Gpu;
 use crate::implicit::{self, Implicit, Progress};
-use crate::layout::{CandidateGpu, NONE, Params, SpringBlockGpu, SpringGpu, Status, StepIndex};
-use crate::shaders::{Access, Stage, TERRAIN_BINDINGS};
+use crate::layout::{
+    CandidateGpu, NONE, Params, SpringBlockGpu, SpringChunk, SpringGpu, Status, StepIndex,
+};
+use crate::shaders::{
+    Access, BLOCK_CHUNK_BINDING, Chunking, MAX_SPRING_CHUNKS, PER_SPRING_CHUNK_BINDING, Stage,
+    TERRAIN_BINDINGS,
+};
 use crate::terrain;
 use crate::{GpuError, WORKGROUP_SIZE};
 
@@ -99,6 +124,73 @@ impl Grid {
     }
 }
 
+/// Settings for tests: narrower dispatch grids and smaller storage bindings than the adapter's,
+/// so that small scenes take the paths of very large ones.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GpuOptions {
+    /// Dispatch grids at most this many workgroups wide (instead of the per-dimension limit).
+    pub grid_width: Option<u32>,
+    /// Storage bindings of at most this many bytes (instead of the adapter's
+    /// `max_storage_buffer_binding_size`, if lower): per-spring arrays are split accordingly.
+    pub max_binding_size: Option<u64>,
+}
+
+/// How the per-spring arrays are split into chunks (see the module documentation).
+pub(crate) struct SpringChunks {
+    /// The count and the springs per chunk.
+    pub chunking: Chunking,
+    /// (first spring, springs) of each chunk; one empty chunk when there are no springs.
+    pub ranges: Vec<(u64, u64)>,
+    /// Each chunk's dispatch grid.
+    pub grids: Vec<Grid>,
+    /// [`SpringChunk`] of chunk c at byte `c · stride`.
+    pub table: wgpu::Buffer,
+    /// The uniform offset alignment (at least the record's size).
+    pub stride: u64,
+}
+
+impl SpringChunks {
+    /// Chunk `c`'s uniform, for its bind groups.
+    pub fn uniform(&self, c: usize) -> wgpu::BindingResource<'_> {
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &self.table,
+            offset: c as u64 * self.stride,
+            size: std::num::NonZeroU64::new(std::mem::size_of::<SpringChunk>() as u64),
+        })
+    }
+
+    /// The grid of the largest chunk (the first), which the indirect dispatches of every chunk
+    /// use: the threads of a shorter chunk past its count return at once.
+    pub fn largest_grid(&self) -> Grid {
+        self.grids[0]
+    }
+
+    /// Chunks.
+    pub fn len(&self) -> usize {
+        self.ranges.len()
+    }
+}
+
+/// The chunking of `springs` springs whose widest per-spring element has `stride` bytes, in
+/// bindings of at most `cap` bytes: one chunk if they fit, else chunks of the largest power of
+/// two of springs that fits (at least a workgroup, so that the energy partial sums of a chunk
+/// start at a whole workgroup); `None` if not even a workgroup's springs fit.
+pub(crate) fn plan_chunks(springs: u64, stride: u64, cap: u64) -> Option<Chunking> {
+    if springs.saturating_mul(stride) <= cap {
+        return Some(Chunking::ONE);
+    }
+    let per = cap / stride;
+    if per < WORKGROUP_SIZE {
+        return None;
+    }
+    let shift = per.ilog2().min(31);
+    Some(Chunking {
+        count: u32::try_from(springs.div_ceil(1 << shift)).unwrap_or(u32::MAX),
+        shift,
+    })
+}
+
 /// Which state a force evaluation reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Input {
@@ -113,8 +205,10 @@ struct Buffers {
     x: wgpu::Buffer,
     v: wgpu::Buffer,
     a: wgpu::Buffer,
-    per_spring: wgpu::Buffer,
-    springs: wgpu::Buffer,
+    /// Per-spring vectors, one buffer per chunk.
+    per_spring: Vec<wgpu::Buffer>,
+    /// Spring records, one buffer per chunk.
+    springs: Vec<wgpu::Buffer>,
     adjacency: wgpu::Buffer,
     mass: wgpu::Buffer,
     stage_x: Option<wgpu::Buffer>,
@@ -144,13 +238,15 @@ struct Pipelines {
 }
 
 struct BindGroups {
-    spring_forces: [Option<wgpu::BindGroup>; 2],
+    /// Per input, one group per spring chunk.
+    spring_forces: [Vec<wgpu::BindGroup>; 2],
     forces: [Option<wgpu::BindGroup>; 2],
     terrain: wgpu::BindGroup,
     update: Option<wgpu::BindGroup>,
     collision_response: wgpu::BindGroup,
     check_finite: wgpu::BindGroup,
-    energy: wgpu::BindGroup,
+    /// One per spring chunk (the particle energies use the first).
+    energy: Vec<wgpu::BindGroup>,
 }
 
 /// The GPU backend: the model in device buffers, stepped by compute shaders in f32.
@@ -163,7 +259,7 @@ pub struct GpuSolver {
     /// Implicit Euler's buffers and kernels.
     implicit: Option<Implicit>,
     particle_grid: Grid,
-    spring_grid: Grid,
+    chunks: SpringChunks,
     n_surfaces: u32,
     /// Bytes between consecutive [`StepIndex`] slots (the uniform offset alignment).
     step_stride: u64,
@@ -248,8 +344,9 @@ fn check_limits(
         (
             "max_bindings_per_bind_group",
             u64::from(limits.max_bindings_per_bind_group),
-            8,
-            "bindings in one group",
+            // The limit bounds binding numbers, not counts: system.wgsl numbers up to 13.
+            14,
+            "binding numbers in one group (0 to 13)",
         ),
     ];
     for (limit, available, needed, unit) in fixed {
@@ -313,6 +410,91 @@ fn check_limits(
     Ok(())
 }
 
+/// The bytes one per-spring chunk may have: the smaller of the binding and buffer limits, and
+/// which limit that is.
+fn chunk_cap(limits: &wgpu::Limits) -> (&'static str, u64) {
+    let binding = limits.max_storage_buffer_binding_size;
+    if binding <= limits.max_buffer_size {
+        ("max_storage_buffer_binding_size", binding)
+    } else {
+        ("max_buffer_size", limits.max_buffer_size)
+    }
+}
+
+/// How to split `springs` springs whose widest per-spring element has `stride` bytes (20, or
+/// 32 with implicit Euler's blocks, `implicit`), or why they cannot be split on this adapter,
+/// naming the limit and the figures.
+fn check_chunks(
+    limits: &wgpu::Limits,
+    adapter: &str,
+    springs: u64,
+    stride: u64,
+    implicit: bool,
+) -> Result<Chunking, GpuError> {
+    let (cap_limit, cap) = chunk_cap(limits);
+    let Some(chunking) = plan_chunks(springs, stride, cap) else {
+        return Err(limit_error(
+            adapter,
+            cap_limit,
+            format!("a chunk of {WORKGROUP_SIZE} springs ({stride} bytes each)"),
+            format!("{} bytes", WORKGROUP_SIZE * stride),
+            format!("{cap} bytes"),
+        ));
+    };
+    if chunking.count == 1 {
+        return Ok(chunking);
+    }
+    let k = chunking.count;
+    let what = || {
+        format!(
+            "{springs} springs ({stride} bytes each) in {k} chunks of {} (one per {cap}-byte              binding, the {cap_limit})",
+            1u64 << chunking.shift
+        )
+    };
+    if k > MAX_SPRING_CHUNKS {
+        return Err(limit_error(
+            adapter,
+            cap_limit,
+            what(),
+            format!("{k} chunks"),
+            format!("{cap} bytes per binding, for at most {MAX_SPRING_CHUNKS} chunks"),
+        ));
+    }
+    // The force gather binds x, v, adjacency, mass, a, two terrain buffers and every chunk of
+    // the per-spring vectors; implicit Euler's assembly v, adjacency, mass, b, diag and every
+    // chunk of the vectors and of the blocks.
+    let storage = if implicit {
+        (7 + k).max(5 + 2 * k)
+    } else {
+        7 + k
+    };
+    if storage > limits.max_storage_buffers_per_shader_stage {
+        return Err(limit_error(
+            adapter,
+            "max_storage_buffers_per_shader_stage",
+            what(),
+            format!("{storage} storage buffers in one kernel (the per-particle gather)"),
+            format!("{}", limits.max_storage_buffers_per_shader_stage),
+        ));
+    }
+    let first = if implicit {
+        BLOCK_CHUNK_BINDING
+    } else {
+        PER_SPRING_CHUNK_BINDING
+    };
+    let bindings = first + k - 1;
+    if bindings > limits.max_bindings_per_bind_group {
+        return Err(limit_error(
+            adapter,
+            "max_bindings_per_bind_group",
+            what(),
+            format!("binding numbers up to {}", bindings - 1),
+            format!("{}", limits.max_bindings_per_bind_group),
+        ));
+    }
+    Ok(chunking)
+}
+
 fn vec4s(v: &[DVec3]) -> Vec<[f32; 4]> {
     v.iter()
         .map(|p| {
@@ -339,7 +521,7 @@ impl GpuSolver {
     /// adapter without indirect dispatch (`DownlevelFlags::INDIRECT_EXECUTION`), and
     /// [`GpuError::Device`] when the device or the pipelines cannot be created.
     pub fn new(model: Model, state: State) -> Result<GpuSolver, GpuError> {
-        Self::with_grid_width(model, state, None)
+        Self::with_options(model, state, GpuOptions::default())
     }
 
     /// [`GpuSolver::new`], with dispatch grids at most `width` workgroups wide (instead of the
@@ -348,12 +530,35 @@ impl GpuSolver {
     #[doc(hidden)]
     pub fn with_grid_width(
         model: Model,
-        mut state: State,
+        state: State,
         width: Option<u32>,
+    ) -> Result<GpuSolver, GpuError> {
+        Self::with_options(
+            model,
+            state,
+            GpuOptions {
+                grid_width: width,
+                ..GpuOptions::default()
+            },
+        )
+    }
+
+    /// [`GpuSolver::new`] with test settings (see [`GpuOptions`]).
+    #[doc(hidden)]
+    pub fn with_options(
+        model: Model,
+        mut state: State,
+        options: GpuOptions,
     ) -> Result<GpuSolver, GpuError> {
         let integrator = model.simulation.integrator;
         let implicit = integrator == Integrator::ImplicitEuler;
-        let gpu = Gpu::open()?;
+        let mut gpu = Gpu::open()?;
+        if let Some(cap) = options.max_binding_size {
+            // As if the adapter allowed no more: the device itself keeps its limits.
+            let limit = &mut gpu.limits.max_storage_buffer_binding_size;
+            *limit = (*limit).min(cap);
+        }
+        let width = options.grid_width;
         let adapter = gpu.name();
         if implicit
             && !gpu
@@ -384,8 +589,8 @@ impl GpuSolver {
             need("velocities", n, VEC4),
             need("accelerations", n, VEC4),
             need("masses", n, 8),
-            need("springs", m, std::mem::size_of::<SpringGpu>() as u64),
-            need("per-spring forces", m, VEC4),
+            // The per-spring arrays are chunked (check_chunks); the adjacency, a gather's
+            // index, stays whole: 2 words per spring, 16.7 M springs per 128 MiB.
             need("adjacency", n + 1 + 2 * m, 4),
             need(
                 "terrain surfaces",
@@ -405,11 +610,6 @@ impl GpuSolver {
         if implicit {
             needs.push(need("preconditioner blocks", 2 * n, VEC4));
             needs.push(need(
-                "spring blocks",
-                m,
-                std::mem::size_of::<SpringBlockGpu>() as u64,
-            ));
-            needs.push(need(
                 "contact candidates",
                 n,
                 std::mem::size_of::<CandidateGpu>() as u64,
@@ -419,13 +619,28 @@ impl GpuSolver {
             &gpu.limits,
             &adapter,
             &needs,
-            (2 * n * VEC4).max(m * VEC4),
+            2 * n * VEC4,
             &[("particle", n), ("spring", m)],
         )?;
-        let (particle_grid, spring_grid) = match (
-            Grid::with_width(n, width, max_dim),
-            Grid::with_width(m, width, max_dim),
-        ) {
+        let spring_stride = if implicit {
+            std::mem::size_of::<SpringBlockGpu>()
+        } else {
+            std::mem::size_of::<SpringGpu>()
+        } as u64;
+        let chunking = check_chunks(&gpu.limits, &adapter, m, spring_stride, implicit)?;
+        let ranges: Vec<(u64, u64)> = if chunking.count == 1 {
+            vec![(0, m)]
+        } else {
+            let per = 1u64 << chunking.shift;
+            (0..u64::from(chunking.count))
+                .map(|c| (c * per, per.min(m - c * per)))
+                .collect()
+        };
+        let grids: Option<Vec<Grid>> = ranges
+            .iter()
+            .map(|&(_, count)| Grid::with_width(count, width, max_dim))
+            .collect();
+        let (particle_grid, spring_grids) = match (Grid::with_width(n, width, max_dim), grids) {
             (Some(p), Some(s)) => (p, s),
             // Only with a narrow test width: check_limits checked the adapter's.
             _ => {
@@ -435,18 +650,17 @@ impl GpuSolver {
             }
         };
         let particle_partials = particle_grid.groups().max(1) * 8;
-        let spring_partials = spring_grid.groups().max(1) * 4;
-        // Holds x and v (state), the energy partials, or (for the stage tests) per-spring forces;
-        // for implicit Euler the CG progress, or (for its stage tests) four vectors per particle
-        // or the spring blocks.
+        // One per workgroup of springs: chunks are whole workgroups long (but the last), and
+        // the idle workgroups of a 2-D grid write none.
+        let spring_partials = m.div_ceil(WORKGROUP_SIZE).max(1) * 4;
+        // Holds x and v (state) or the energy partials; for implicit Euler the CG progress, or
+        // (for its stage tests) four vectors per particle. The stage tests' per-spring
+        // read-backs enlarge it on demand (`submit_and_read`).
         let mut readback_bytes = (2 * n * VEC4)
-            .max(m * VEC4)
             .max(particle_partials + spring_partials)
             .max(std::mem::size_of::<Status>() as u64);
         if implicit {
-            readback_bytes = readback_bytes
-                .max(4 * n * VEC4 + Progress::BYTES)
-                .max(m * std::mem::size_of::<SpringBlockGpu>() as u64);
+            readback_bytes = readback_bytes.max(4 * n * VEC4 + Progress::BYTES);
         }
 
         let device = &gpu.device;
@@ -456,6 +670,33 @@ impl GpuSolver {
         let n_surfaces = packed.surfaces.len() as u32;
         let step_stride = u64::from(gpu.limits.min_uniform_buffer_offset_alignment)
             .max(std::mem::size_of::<StepIndex>() as u64);
+        let chunk_stride = u64::from(gpu.limits.min_uniform_buffer_offset_alignment)
+            .max(std::mem::size_of::<SpringChunk>() as u64);
+        let mut table = vec![0u8; (ranges.len() as u64 * chunk_stride) as usize];
+        for (c, &(base, count)) in ranges.iter().enumerate() {
+            let at = c * chunk_stride as usize;
+            let record = SpringChunk {
+                base: base as u32,
+                count: count as u32,
+                first_group: (base / WORKGROUP_SIZE) as u32,
+                _pad: 0,
+            };
+            table[at..at + std::mem::size_of::<SpringChunk>()]
+                .copy_from_slice(bytemuck::bytes_of(&record));
+        }
+        let chunks = SpringChunks {
+            chunking,
+            ranges,
+            grids: spring_grids,
+            table: gpu
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("spring chunks"),
+                    contents: &table,
+                    usage: wgpu::BufferUsages::UNIFORM,
+                }),
+            stride: chunk_stride,
+        };
         let built = Self::build(
             step_stride,
             &gpu,
@@ -466,7 +707,8 @@ impl GpuSolver {
             particle_partials,
             spring_partials,
             readback_bytes,
-            (particle_grid, spring_grid),
+            particle_grid,
+            &chunks,
         );
         // Scopes pop in reverse order.
         let errors = [
@@ -493,7 +735,7 @@ impl GpuSolver {
             groups,
             implicit,
             particle_grid,
-            spring_grid,
+            chunks,
             n_surfaces,
             step_stride,
             state,
@@ -514,7 +756,8 @@ impl GpuSolver {
         particle_partials: u64,
         spring_partials: u64,
         readback_bytes: u64,
-        (particle_grid, spring_grid): (Grid, Grid),
+        particle_grid: Grid,
+        chunks: &SpringChunks,
     ) -> (Buffers, Pipelines, BindGroups, Option<Implicit>) {
         let device = &gpu.device;
         let integrator = model.simulation.integrator;
@@ -550,6 +793,24 @@ impl GpuSolver {
             .map(|(&m, &w)| [m as f32, w as f32])
             .collect();
         let springs = SpringGpu::pack(&model.springs);
+        let spring_size = std::mem::size_of::<SpringGpu>();
+        let spring_chunks: Vec<wgpu::Buffer> = chunks
+            .ranges
+            .iter()
+            .map(|&(base, count)| {
+                let (base, count) = (base as usize, count as usize);
+                init(
+                    "springs",
+                    bytemuck::cast_slice(&springs[base..base + count]),
+                    spring_size,
+                )
+            })
+            .collect();
+        let per_spring_chunks: Vec<wgpu::Buffer> = chunks
+            .ranges
+            .iter()
+            .map(|&(_, count)| empty("per_spring", count * VEC4))
+            .collect();
         let params = Params::new(model, n_surfaces);
         let mut step_indices = vec![0u8; (STEPS_PER_SUBMISSION * step_stride) as usize];
         for k in 0..STEPS_PER_SUBMISSION {
@@ -570,12 +831,8 @@ impl GpuSolver {
             x: init("x", bytemuck::cast_slice(&x), 16),
             v: init("v", bytemuck::cast_slice(&v), 16),
             a: empty("a", n * VEC4),
-            per_spring: empty("per_spring", model.springs.len() as u64 * VEC4),
-            springs: init(
-                "springs",
-                bytemuck::cast_slice(&springs),
-                std::mem::size_of::<SpringGpu>(),
-            ),
+            per_spring: per_spring_chunks,
+            springs: spring_chunks,
             adjacency: init("adjacency", bytemuck::cast_slice(&adjacency), 4),
             mass: init("mass", bytemuck::cast_slice(&mass), 8),
             stage_x: multi_stage.then(|| empty("stage_x", n * VEC4)),
@@ -612,8 +869,15 @@ impl GpuSolver {
         };
         let terrain_layout = layout_of("terrain", TERRAIN_BINDINGS);
         // One module per stage, one pipeline per entry point; returns the group-0 layout.
+        let chunking = chunks.chunking;
         let stage = |stage: Stage| -> (wgpu::BindGroupLayout, Vec<wgpu::ComputePipeline>) {
-            let layout = layout_of(stage.file(), stage.bindings());
+            // The module's bindings and, for the force gather, the per-spring chunks past the
+            // first.
+            let mut table = stage.bindings().to_vec();
+            for entry in stage.entry_points() {
+                table.extend(stage.chunk_bindings(entry, chunking));
+            }
+            let layout = layout_of(stage.file(), &table);
             let mut layouts = vec![Some(&layout)];
             if stage.uses_terrain() {
                 layouts.push(Some(&terrain_layout));
@@ -625,7 +889,7 @@ impl GpuSolver {
             });
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(stage.file()),
-                source: wgpu::ShaderSource::Wgsl(stage.source().into()),
+                source: wgpu::ShaderSource::Wgsl(stage.source_chunked(chunking).into()),
             });
             let pipelines = stage
                 .entry_points()
@@ -688,6 +952,61 @@ impl GpuSolver {
                 entries: &entries,
             })
         };
+        let group_at =
+            |label: &str, layout: &wgpu::BindGroupLayout, list: &[(u32, wgpu::BindingResource)]| {
+                let entries: Vec<wgpu::BindGroupEntry> = list
+                    .iter()
+                    .map(|(binding, resource)| wgpu::BindGroupEntry {
+                        binding: *binding,
+                        resource: resource.clone(),
+                    })
+                    .collect();
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some(label),
+                    layout,
+                    entries: &entries,
+                })
+            };
+        // The per-spring vectors' chunks past the first, at their gather bindings.
+        let extra_per_spring = |first: u32| -> Vec<(u32, wgpu::BindingResource)> {
+            b.per_spring
+                .iter()
+                .enumerate()
+                .skip(1)
+                .map(|(c, buffer)| (first + c as u32 - 1, buffer.as_entire_binding()))
+                .collect()
+        };
+        let spring_forces_groups = |label: &str, x: &wgpu::Buffer, v: &wgpu::Buffer| {
+            (0..chunks.len())
+                .map(|c| {
+                    group_at(
+                        label,
+                        &spring_layout,
+                        &[
+                            (0, b.params.as_entire_binding()),
+                            (1, x.as_entire_binding()),
+                            (2, v.as_entire_binding()),
+                            (3, b.springs[c].as_entire_binding()),
+                            (4, b.per_spring[c].as_entire_binding()),
+                            (5, chunks.uniform(c)),
+                        ],
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        let forces_group = |label: &str, x: &wgpu::Buffer, v: &wgpu::Buffer| {
+            let mut list = vec![
+                (0, b.params.as_entire_binding()),
+                (1, x.as_entire_binding()),
+                (2, v.as_entire_binding()),
+                (3, b.per_spring[0].as_entire_binding()),
+                (4, b.adjacency.as_entire_binding()),
+                (5, b.mass.as_entire_binding()),
+                (6, b.a.as_entire_binding()),
+            ];
+            list.extend(extra_per_spring(PER_SPRING_CHUNK_BINDING));
+            group_at(label, &forces_layout, &list)
+        };
         let stage_xv = b.stage_x.as_ref().zip(b.stage_v.as_ref());
         let update_group = update_layout.as_ref().map(|update_layout| {
             match (
@@ -710,48 +1029,14 @@ impl GpuSolver {
         });
         let groups = BindGroups {
             spring_forces: [
-                Some(group(
-                    "spring_forces(x, v)",
-                    &spring_layout,
-                    &[&b.params, &b.x, &b.v, &b.springs, &b.per_spring],
-                )),
-                stage_xv.map(|(sx, sv)| {
-                    group(
-                        "spring_forces(stage)",
-                        &spring_layout,
-                        &[&b.params, sx, sv, &b.springs, &b.per_spring],
-                    )
-                }),
+                spring_forces_groups("spring_forces(x, v)", &b.x, &b.v),
+                stage_xv
+                    .map(|(sx, sv)| spring_forces_groups("spring_forces(stage)", sx, sv))
+                    .unwrap_or_default(),
             ],
             forces: [
-                Some(group(
-                    "accelerations(x, v)",
-                    &forces_layout,
-                    &[
-                        &b.params,
-                        &b.x,
-                        &b.v,
-                        &b.per_spring,
-                        &b.adjacency,
-                        &b.mass,
-                        &b.a,
-                    ],
-                )),
-                stage_xv.map(|(sx, sv)| {
-                    group(
-                        "accelerations(stage)",
-                        &forces_layout,
-                        &[
-                            &b.params,
-                            sx,
-                            sv,
-                            &b.per_spring,
-                            &b.adjacency,
-                            &b.mass,
-                            &b.a,
-                        ],
-                    )
-                }),
+                Some(forces_group("accelerations(x, v)", &b.x, &b.v)),
+                stage_xv.map(|(sx, sv)| forces_group("accelerations(stage)", sx, sv)),
             ],
             terrain: group("terrain", &terrain_layout, &[&b.surfaces, &b.terrain_data]),
             update: update_group,
@@ -794,19 +1079,24 @@ impl GpuSolver {
                         },
                     ],
                 }),
-            energy: group(
-                "energy",
-                &energy_layout,
-                &[
-                    &b.params,
-                    &b.x,
-                    &b.v,
-                    &b.mass,
-                    &b.springs,
-                    &b.particle_partials,
-                    &b.spring_partials,
-                ],
-            ),
+            energy: (0..chunks.len())
+                .map(|c| {
+                    group_at(
+                        "energy",
+                        &energy_layout,
+                        &[
+                            (0, b.params.as_entire_binding()),
+                            (1, b.x.as_entire_binding()),
+                            (2, b.v.as_entire_binding()),
+                            (3, b.mass.as_entire_binding()),
+                            (4, b.springs[c].as_entire_binding()),
+                            (5, b.particle_partials.as_entire_binding()),
+                            (6, b.spring_partials.as_entire_binding()),
+                            (7, chunks.uniform(c)),
+                        ],
+                    )
+                })
+                .collect(),
         };
         let implicit = (integrator == Integrator::ImplicitEuler).then(|| {
             let shared = implicit::Shared {
@@ -819,15 +1109,9 @@ impl GpuSolver {
                 per_spring: &b.per_spring,
                 terrain_layout: &terrain_layout,
                 terrain: &groups.terrain,
+                chunks,
             };
-            Implicit::new(
-                device,
-                model,
-                &shared,
-                n_surfaces > 0,
-                particle_grid,
-                spring_grid,
-            )
+            Implicit::new(device, &shared, n, n_surfaces > 0, particle_grid)
         });
         (buffers, pipelines, groups, implicit)
     }
@@ -837,9 +1121,15 @@ impl GpuSolver {
         self.gpu.name()
     }
 
-    /// The limits the device runs under.
+    /// The limits the device runs under (with [`GpuOptions::max_binding_size`] applied).
     pub fn limits(&self) -> &wgpu::Limits {
         &self.gpu.limits
+    }
+
+    /// (first spring, springs) of each chunk the per-spring arrays are split into: one unless
+    /// they exceed a storage binding (see the module documentation).
+    pub fn spring_chunks(&self) -> &[(u64, u64)] {
+        &self.chunks.ranges
     }
 
     /// Replaces the state (uploads it); the step count stays.
@@ -911,13 +1201,20 @@ impl GpuSolver {
     /// Spring forces, then accelerations, of the chosen state.
     fn encode_accelerations(&self, pass: &mut wgpu::ComputePass<'_>, input: Input) {
         let i = input as usize;
-        let (Some(springs), Some(forces)) = (&self.groups.spring_forces[i], &self.groups.forces[i])
-        else {
+        let Some(forces) = &self.groups.forces[i] else {
             unreachable!("stage bind groups exist for the multi-stage integrators")
         };
         let p = &self.pipelines;
-        self.dispatch(pass, &p.spring_forces, springs, false, self.spring_grid);
+        self.encode_spring_forces(pass, input);
         self.dispatch(pass, &p.accelerations, forces, true, self.particle_grid);
+    }
+
+    /// Spring forces of the chosen state, chunk by chunk.
+    fn encode_spring_forces(&self, pass: &mut wgpu::ComputePass<'_>, input: Input) {
+        let groups = &self.groups.spring_forces[input as usize];
+        for (group, &grid) in groups.iter().zip(&self.chunks.grids) {
+            self.dispatch(pass, &self.pipelines.spring_forces, group, false, grid);
+        }
     }
 
     /// Step `k` (0-based) of a submission.
@@ -1066,6 +1363,16 @@ impl GpuSolver {
         mut encoder: wgpu::CommandEncoder,
         sources: &[(&wgpu::Buffer, u64)],
     ) -> Result<Vec<u8>, StepError> {
+        let total: u64 = sources.iter().map(|&(_, bytes)| bytes).sum();
+        if total > self.buffers.readback.size() {
+            // Only the stage tests read more than the state (per-spring vectors).
+            self.buffers.readback = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size: total.next_multiple_of(8),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+        }
         let mut offset = 0;
         for &(buffer, bytes) in sources {
             if bytes > 0 {
@@ -1140,19 +1447,14 @@ impl GpuSolver {
     #[doc(hidden)]
     pub fn debug_spring_forces(&mut self) -> Result<Vec<Vec3>, StepError> {
         let per_spring = self.buffers.per_spring.clone();
-        let m = self.model.springs.len() as u64;
+        let sources: Vec<(&wgpu::Buffer, u64)> = per_spring
+            .iter()
+            .zip(&self.chunks.ranges)
+            .map(|(buffer, &(_, count))| (buffer, count * VEC4))
+            .collect();
         let bytes = self.run_and_read(
-            |s, pass| {
-                let group = s.groups.spring_forces[0].as_ref().expect("always built");
-                s.dispatch(
-                    pass,
-                    &s.pipelines.spring_forces,
-                    group,
-                    false,
-                    s.spring_grid,
-                );
-            },
-            &[(&per_spring, m * VEC4)],
+            |s, pass| s.encode_spring_forces(pass, Input::Main),
+            &sources,
         )?;
         Ok(to_vec3(&bytes))
     }
@@ -1361,13 +1663,15 @@ impl Solver for GpuSolver {
             self.buffers.spring_partials.clone(),
         );
         let particle_bytes = self.particle_grid.groups() * 8;
-        let spring_bytes = self.spring_grid.groups() * 4;
+        let spring_bytes = (self.model.springs.len() as u64).div_ceil(WORKGROUP_SIZE) * 4;
         let bytes = self.run_and_read(
             |s, pass| {
                 let p = &s.pipelines;
                 let g = &s.groups.energy;
-                s.dispatch(pass, &p.energy_particles, g, false, s.particle_grid);
-                s.dispatch(pass, &p.energy_springs, g, false, s.spring_grid);
+                s.dispatch(pass, &p.energy_particles, &g[0], false, s.particle_grid);
+                for (group, &grid) in g.iter().zip(&s.chunks.grids) {
+                    s.dispatch(pass, &p.energy_springs, group, false, grid);
+                }
             },
             &[(&pp, particle_bytes), (&sp, spring_bytes)],
         )?;
@@ -1474,5 +1778,81 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("max_buffer_size"), "{e}");
+    }
+
+    #[test]
+    fn springs_are_chunked_by_powers_of_two_that_fit_a_binding() {
+        let mib = 1u64 << 20;
+        // Fits: one chunk of any length.
+        assert_eq!(plan_chunks(6_220, 20, 6_220 * 20), Some(Chunking::ONE));
+        assert_eq!(plan_chunks(0, 32, 0), Some(Chunking::ONE));
+        // A 100³ cube's 15.7 M springs under Mesa's 128 MiB bindings: 4 M springs per chunk
+        // (20-byte records, or 32-byte implicit blocks: 4 M × 32 B = 128 MiB exactly).
+        let cube = 15_700_000;
+        let explicit = plan_chunks(cube, 20, 128 * mib).unwrap();
+        assert_eq!((explicit.count, explicit.shift), (4, 22));
+        let implicit = plan_chunks(cube, 32, 128 * mib).unwrap();
+        assert_eq!((implicit.count, implicit.shift), (4, 22));
+        // The test cap: 64 KiB bindings split 6,220 springs into 4 chunks of 2,048.
+        let small = plan_chunks(6_220, 20, 64 * 1024).unwrap();
+        assert_eq!((small.count, small.shift), (4, 11));
+        // Not even a workgroup's springs fit.
+        assert_eq!(plan_chunks(10_000, 20, 255 * 20), None);
+        assert!(plan_chunks(10_000, 20, 256 * 20).is_some());
+    }
+
+    #[test]
+    fn chunks_past_what_a_kernel_can_bind_are_refused_with_the_figures() {
+        let limits = wgpu::Limits {
+            max_storage_buffer_binding_size: 1 << 27,
+            max_buffer_size: 1 << 30,
+            max_storage_buffers_per_shader_stage: 16,
+            ..wgpu::Limits::default()
+        };
+        // 4 chunks: the force gather binds 11, implicit Euler's assembly 13 storage buffers.
+        let ok = check_chunks(&limits, "a", 15_700_000, 20, false).unwrap();
+        assert_eq!(ok.count, 4);
+        assert_eq!(
+            check_chunks(&limits, "a", 15_700_000, 32, true)
+                .unwrap()
+                .count,
+            4
+        );
+        // 6 chunks: 13 for the force gather, but 17 for the implicit assembly.
+        let m = 6 * (1 << 22) - 1;
+        assert_eq!(check_chunks(&limits, "a", m, 20, false).unwrap().count, 6);
+        let e = check_chunks(&limits, "GL adapter", m, 32, true)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");
+        assert!(
+            e.contains("25165823 springs (32 bytes each) in 6 chunks of 4194304"),
+            "{e}"
+        );
+        assert!(e.contains("needs 17 storage buffers"), "{e}");
+        assert!(e.contains("GL adapter allows 16"), "{e}");
+        // More chunks than the gathers have bindings for.
+        let wide = wgpu::Limits {
+            max_storage_buffers_per_shader_stage: 64,
+            ..limits.clone()
+        };
+        let e = check_chunks(&wide, "a", 17 << 22, 20, false)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_storage_buffer_binding_size"), "{e}");
+        assert!(e.contains("needs 17 chunks"), "{e}");
+        // The smaller of the binding and buffer limits is named.
+        let small_buffers = wgpu::Limits {
+            max_buffer_size: 1000,
+            ..limits
+        };
+        let e = check_chunks(&small_buffers, "a", 1_000_000, 20, false)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_buffer_size"), "{e}");
+        assert!(
+            e.contains("a chunk of 256 springs (20 bytes each) needs 5120 bytes"),
+            "{e}"
+        );
     }
 }

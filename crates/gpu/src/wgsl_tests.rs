@@ -7,10 +7,10 @@ use std::mem::{offset_of, size_of};
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 
 use crate::layout::{
-    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, Params, SpringBlockGpu, SpringGpu, Status,
-    StepIndex, dispatch_slot,
+    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, Params, SpringBlockGpu, SpringChunk, SpringGpu,
+    Status, StepIndex, dispatch_slot,
 };
-use crate::shaders::{Access, Stage, TERRAIN_BINDINGS};
+use crate::shaders::{Access, Chunking, MAX_SPRING_CHUNKS, Stage, TERRAIN_BINDINGS};
 use crate::terrain::SurfaceGpu;
 
 fn parse(stage: Stage) -> naga::Module {
@@ -255,6 +255,97 @@ fn step_index_layout_matches() {
 }
 
 #[test]
+fn spring_chunk_layout_matches() {
+    for stage in [Stage::SpringForces, Stage::Energy, Stage::System] {
+        check_layout(
+            stage,
+            "SpringChunk",
+            size_of::<SpringChunk>(),
+            &[
+                ("base", offset_of!(SpringChunk, base)),
+                ("count", offset_of!(SpringChunk, count)),
+                ("first_group", offset_of!(SpringChunk, first_group)),
+                ("_pad", offset_of!(SpringChunk, _pad)),
+            ],
+        );
+    }
+}
+
+/// The gathering modules composed for several spring chunks validate, and each gathering entry
+/// point uses exactly its kernel's bindings plus [`Stage::chunk_bindings`] (every chunk bound is
+/// read, none read unbound); the other entry points are unchanged.
+#[test]
+fn chunked_gathers_validate_and_read_every_chunk() {
+    let chunkings = [
+        Chunking::ONE,
+        Chunking { count: 2, shift: 8 },
+        Chunking {
+            count: 4,
+            shift: 11,
+        },
+        Chunking {
+            count: MAX_SPRING_CHUNKS,
+            shift: 22,
+        },
+    ];
+    for chunking in chunkings {
+        for stage in [Stage::Forces, Stage::System] {
+            let source = stage.source_chunked(chunking);
+            let module = naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| {
+                panic!(
+                    "{} ({chunking:?}) does not parse:\n{}",
+                    stage.file(),
+                    e.emit_to_string(&source)
+                )
+            });
+            let info = Validator::new(ValidationFlags::all(), Capabilities::default())
+                .validate(&module)
+                .unwrap_or_else(|e| {
+                    panic!(
+                        "{} ({chunking:?}) does not validate:\n{}",
+                        stage.file(),
+                        e.emit_to_string(&source)
+                    )
+                });
+            for (index, ep) in module.entry_points.iter().enumerate() {
+                let uses = info.get_entry_point(index);
+                let mut used: Vec<u32> = module
+                    .global_variables
+                    .iter()
+                    .filter(|&(handle, _)| !uses[handle].is_empty())
+                    .filter_map(|(_, var)| var.binding.as_ref())
+                    .filter(|b| b.group == 0 && b.binding != 0)
+                    .map(|b| b.binding)
+                    .collect();
+                used.sort();
+                let kernel = stage.kernel(&ep.name);
+                let extra = stage.chunk_bindings(&ep.name, chunking);
+                assert_eq!(extra.len() % (chunking.count as usize - 1).max(1), 0);
+                let mut expected: Vec<u32> = kernel
+                    .bindings
+                    .iter()
+                    .copied()
+                    .chain(extra.iter().map(|&(b, _)| b))
+                    .filter(|&b| b != 0)
+                    .collect();
+                expected.sort();
+                let name = format!("{} in {} ({chunking:?})", ep.name, stage.file());
+                if stage.per_entry_layouts() {
+                    assert_eq!(used, expected, "bindings of {name}");
+                } else {
+                    for b in &used {
+                        assert!(expected.contains(b), "{name} uses {b} outside its layout");
+                    }
+                    for &(b, _) in &extra {
+                        assert!(used.contains(&b), "{name} does not read chunk binding {b}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn surface_size_matches_its_array_stride() {
     // The host uploads `SurfaceGpu`s back to back: the WGSL array stride must be the Rust size.
     // (The terrain module's own test checks the members.)
@@ -269,6 +360,10 @@ fn locate_maps_composed_lines_back_to_files() {
         let pieces = stage.pieces();
         let mut headers = 0;
         for (k, line) in source.lines().enumerate() {
+            // The generated chunk accessors come after every piece.
+            if line.starts_with("// ---- generated") {
+                break;
+            }
             match stage.locate(k + 1) {
                 Some((file, l)) => {
                     let text = pieces.iter().find(|(f, _)| *f == file).unwrap().1;
