@@ -9,6 +9,7 @@
 
 mod bench;
 mod check;
+mod compare;
 mod progress;
 mod run;
 
@@ -46,6 +47,8 @@ enum Command {
     Check(check::CheckArgs),
     /// Time the standard benchmark cube (the peers' jelly cube) at several sizes.
     Bench(bench::BenchArgs),
+    /// Run a scene with several integrators and time steps against a converged rk4 reference.
+    Compare(compare::CompareArgs),
 }
 
 fn positive_or_fraction(s: &str) -> Result<f64, String> {
@@ -100,6 +103,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run::run(args),
         Command::Check(args) => check::check(args),
         Command::Bench(args) => bench::bench(args),
+        Command::Compare(args) => compare::compare(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
