@@ -32,7 +32,7 @@
 //!   out);
 //! - whether it became unstable, and at which step and time: a non-finite state
 //!   ([`StepError::Unstable`]) or the energy guard of [`run`](crate::run::run) (total energy more
-//!   than [`ENERGY_GROWTH_BOUND`](crate::run::ENERGY_GROWTH_BOUND) energy scales above the
+//!   than [`ENERGY_GROWTH_BOUND`] energy scales above the
 //!   start). An unstable run is a result: its figures cover the frames before it;
 //! - the largest position error, max over frames and particles of |x − x_ref|, and its time;
 //! - the energy drift max |E − E₀| / E_s over the frames, with E_s the energy scale of the

@@ -204,6 +204,9 @@ mod plot {
         let mut encoder = png::Encoder::new(BufWriter::new(file), WIDTH, HEIGHT);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
+        // Flat colours and thin lines compress well: about 100 KB instead of 500 KB.
+        encoder.set_compression(png::Compression::Best);
+        encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
         encoder
             .write_header()
             .and_then(|mut w| w.write_image_data(&buffer))
@@ -211,12 +214,138 @@ mod plot {
         Ok(())
     }
 
-    fn label(r: &softbody::compare::RunReport) -> String {
-        let mut s = format!("{}, dt {:.3e} s", r.integrator, r.dt);
-        if let Some(i) = &r.instability {
-            s.push_str(&format!(" (unstable at {:.3} s)", i.time));
+    /// Width of the legend column, pixels.
+    const LEGEND_WIDTH: u32 = 330;
+
+    /// How one run is drawn: its integrator's colour, and a dash pattern for its dt (solid for
+    /// the smallest, then longer and shorter dashes as dt grows).
+    struct Look {
+        colour: RGBColor,
+        /// (dash, gap) in pixels; None: solid.
+        dash: Option<(u32, u32)>,
+    }
+
+    fn looks(report: &Report) -> Vec<Look> {
+        let mut integrators = Vec::new();
+        let mut dts: Vec<f64> = Vec::new();
+        for r in &report.runs {
+            if !integrators.contains(&r.integrator) {
+                integrators.push(r.integrator);
+            }
+            if !dts.contains(&r.dt) {
+                dts.push(r.dt);
+            }
         }
-        s
+        dts.sort_by(f64::total_cmp);
+        const DASHES: [Option<(u32, u32)>; 4] = [None, Some((10, 6)), Some((3, 4)), Some((16, 5))];
+        report
+            .runs
+            .iter()
+            .map(|r| {
+                let i = integrators
+                    .iter()
+                    .position(|&x| x == r.integrator)
+                    .unwrap_or(0);
+                let d = dts.iter().position(|&x| x == r.dt).unwrap_or(0);
+                Look {
+                    colour: COLOURS[i % COLOURS.len()],
+                    dash: DASHES[d % DASHES.len()],
+                }
+            })
+            .collect()
+    }
+
+    /// Draws `points` in a chart with `look`.
+    fn series<DB: DrawingBackend, X, Y>(
+        chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
+        points: Vec<(X::ValueType, Y::ValueType)>,
+        look: &Look,
+    ) -> Result<(), Box<dyn std::error::Error>>
+    where
+        X: Ranged,
+        Y: Ranged,
+        X::ValueType: Clone + 'static,
+        Y::ValueType: Clone + 'static,
+        DB::ErrorType: 'static,
+    {
+        let style = look.colour.stroke_width(2);
+        match look.dash {
+            None => {
+                chart.draw_series(LineSeries::new(points, style))?;
+            }
+            Some((dash, gap)) => {
+                chart.draw_series(DashedLineSeries::new(points, dash, gap, style))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The legend column: one entry per run, a line sample and its integrator and dt, and where
+    /// it became unstable.
+    fn legend<DB: DrawingBackend>(
+        area: &DrawingArea<DB, plotters::coord::Shift>,
+        report: &Report,
+        looks: &[Look],
+    ) -> Result<(), Box<dyn std::error::Error>>
+    where
+        DB::ErrorType: 'static,
+    {
+        let font = ("sans-serif", 15).into_font().color(&BLACK);
+        let small = ("sans-serif", 13).into_font().color(&RGBColor(90, 90, 90));
+        let mut y = 60;
+        area.draw(&Text::new(
+            "runs",
+            (10, y - 30),
+            ("sans-serif", 17).into_font(),
+        ))?;
+        for (r, look) in report.runs.iter().zip(looks) {
+            let style = look.colour.stroke_width(3);
+            match look.dash {
+                None => area.draw(&PathElement::new(vec![(10, y), (44, y)], style))?,
+                Some((dash, gap)) => {
+                    let mut x = 10;
+                    while x < 44 {
+                        let end = (x + dash as i32).min(44);
+                        area.draw(&PathElement::new(vec![(x, y), (end, y)], style))?;
+                        x = end + gap as i32;
+                    }
+                }
+            }
+            area.draw(&Text::new(
+                format!("{}, dt {:.3e} s", r.integrator, r.dt),
+                (52, y - 8),
+                font.clone(),
+            ))?;
+            y += 21;
+            if let Some(i) = &r.instability {
+                area.draw(&Text::new(
+                    format!("unstable at step {} (t = {:.3} s)", i.step, i.time),
+                    (52, y - 9),
+                    small.clone(),
+                ))?;
+                y += 17;
+            }
+        }
+        area.draw(&Text::new(
+            "colour: integrator; dashes: dt",
+            (10, y + 8),
+            small.clone(),
+        ))?;
+        Ok(())
+    }
+
+    /// A tick label of the drift axis spanning `span`: as many decimals as the ticks' spacing
+    /// (about span/10) needs, scientific for very small or large spans, and 0 for the round-off
+    /// that a tick at zero carries.
+    fn drift_label(v: f64, span: f64) -> String {
+        if v.abs() < span * 1e-9 {
+            "0".to_owned()
+        } else if (1e-3..1e4).contains(&span) {
+            let decimals = (-(span / 10.0).log10().floor()).max(0.0) as usize;
+            format!("{v:.decimals$}")
+        } else {
+            format!("{v:.2e}")
+        }
     }
 
     fn render(
@@ -239,7 +368,10 @@ mod plot {
             ),
             ("sans-serif", 26),
         )?;
-        let (upper, lower) = root.split_vertically(HEIGHT / 2 - 20);
+        let (plots, side) = root.split_horizontally(WIDTH - LEGEND_WIDTH);
+        let looks = looks(report);
+        legend(&side, report, &looks)?;
+        let (upper, lower) = plots.split_vertically(HEIGHT / 2 - 20);
         let t_end = report
             .runs
             .iter()
@@ -277,30 +409,20 @@ mod plot {
             .x_desc("time [s]")
             .y_desc("max |x - x_ref| [m]")
             .y_label_formatter(&|v| format!("{v:.0e}"))
+            // Major grid lines only: the fine ones cost legibility and PNG size.
+            .light_line_style(WHITE)
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 17))
             .draw()?;
-        for (i, r) in report.runs.iter().enumerate() {
-            let colour = COLOURS[i % COLOURS.len()];
+        for (r, look) in report.runs.iter().zip(&looks) {
             let points = r
                 .samples
                 .iter()
                 .filter(|s| s.time > 0.0)
-                .map(|s| (s.time, s.error.clamp(lo, hi)));
-            chart
-                .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
-                .label(label(r))
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(3))
-                });
+                .map(|s| (s.time, s.error.clamp(lo, hi)))
+                .collect();
+            series(&mut chart, points, look)?;
         }
-        chart
-            .configure_series_labels()
-            .label_font(("sans-serif", 15))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()?;
 
         // Energy panel: the range of the stable runs (a diverging run would flatten the others
         // to a line), unstable runs clipped to it.
@@ -334,31 +456,20 @@ mod plot {
             .configure_mesh()
             .x_desc("time [s]")
             .y_desc("(E - E0) / E_s")
-            .y_label_formatter(&|v| format!("{v:.2e}"))
+            .y_label_formatter(&|v| drift_label(*v, d_hi - d_lo))
+            .light_line_style(WHITE)
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 17))
             .draw()?;
-        for (i, r) in report.runs.iter().enumerate() {
-            let colour = COLOURS[i % COLOURS.len()];
+        for (r, look) in report.runs.iter().zip(&looks) {
             let points = r
                 .samples
                 .iter()
                 .filter(|s| s.drift.is_finite())
-                .map(|s| (s.time, s.drift.clamp(d_lo, d_hi)));
-            chart
-                .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
-                .label(label(r))
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(3))
-                });
+                .map(|s| (s.time, s.drift.clamp(d_lo, d_hi)))
+                .collect();
+            series(&mut chart, points, look)?;
         }
-        chart
-            .configure_series_labels()
-            .label_font(("sans-serif", 15))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::LowerLeft)
-            .draw()?;
         root.present()?;
         Ok(())
     }

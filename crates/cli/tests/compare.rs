@@ -181,7 +181,10 @@ fn bad_input_exits_2() {
             "unknown integrator",
         ),
         (vec!["compare", scene, "--dt", "0"], "greater than zero"),
-        (vec!["compare", scene, "--dt", "-1e-3"], "greater than zero"),
+        (
+            vec!["compare", scene, "--dt", "-0.001"],
+            "greater than zero",
+        ),
         (vec!["compare", scene, "--dt", "1e-3,abc"], "abc"),
         // 50 frames/s needs dt ≤ 0.02 s: the scene is invalid with this dt.
         (vec!["compare", scene, "--dt", "0.05"], "frame_rate"),
