@@ -516,10 +516,11 @@ fn reference_states(
         // Two snapshot calls may shift `recent`: take the lower one's index after both.
         snapshot(lower, solver.as_mut(), &mut recent)?;
         let hi = snapshot(lower + 1, solver.as_mut(), &mut recent)?;
-        let lo = recent
-            .iter()
-            .position(|r| r.0 == lower)
-            .expect("kept: only two snapshots are ever needed at once");
+        // Always kept (the times ascend, so only these two are ever needed at once); an error
+        // rather than a panic if that ever stopped being true.
+        let lo = recent.iter().position(|r| r.0 == lower).ok_or_else(|| {
+            StudyError::Device(format!("internal: reference step {lower} no longer kept"))
+        })?;
         states.push(hermite(&recent[lo], &recent[hi], theta, dt));
     }
     Ok((
