@@ -482,12 +482,22 @@ fn reference_states(
         // The energy guard of `run::run`, at the states the comparison uses.
         let e = solver.energies().map_err(step_error)?;
         if e.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
+            // Named by its fastest particle, as `run::run` does.
+            let (fastest, speed) = solver
+                .state()
+                .map_err(step_error)?
+                .v
+                .iter()
+                .enumerate()
+                .map(|(i, v)| (i, v.length()))
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap_or((0, 0.0));
             return Err(unstable(Instability {
                 step,
                 time: step as f64 * dt,
-                particle: 0,
+                particle: fastest as u32,
                 what: format!(
-                    "is one of many: the total energy reached {:.3e} J, more than \
+                    "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, more than \
                      {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above its initial {:.3e} J",
                     e.total(),
                     e0.total()

@@ -218,3 +218,75 @@ fn unwritable_plot_exits_1() {
         out.stderr
     );
 }
+
+/// Two particles on a very stiff spring (k = 10⁶ N/m, ω₀ = 1414 rad/s), no gravity.
+const STIFF: &str = r#"
+[simulation]
+integrator = "rk4"
+dt = 0.001
+duration = 1.0
+frame_rate = 2.0
+gravity = [0.0, 0.0, 0.0]
+[[body]]
+kind = "particles"
+positions = [[0.0, 0.0, 0.0], [1.1, 0.0, 0.0]]
+masses = [1.0, 1.0]
+springs = [{ a = 0, b = 1, stiffness = 1e6, damping = 0.0, rest = 1.0 }]
+"#;
+
+/// Runs that diverge are results: exit 0, and `unstable` names the step and time.
+#[test]
+fn unstable_runs_exit_0_and_are_reported() {
+    let sandbox = Sandbox::new();
+    let scene = sandbox.write("stiff.toml", STIFF);
+    let out = sandbox.run(&[
+        "compare",
+        scene.to_str().unwrap(),
+        "--integrators",
+        "explicit-euler,implicit-euler",
+        "--dt",
+        "0.01,0.001",
+        "--json",
+        "--quiet",
+    ]);
+    out.expect_status(EXIT_OK);
+    let v: Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    let runs = v["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 4);
+    // ω₀h = 14 and 1.4: explicit Euler diverges at both; implicit Euler at neither.
+    for run in runs {
+        let unstable = &run["unstable"];
+        if run["integrator"] == "explicit-euler" {
+            let step = unstable["step"].as_u64().expect("an unstable step");
+            let dt = run["dt"].as_f64().unwrap();
+            assert_eq!(unstable["time"].as_f64(), Some(step as f64 * dt));
+            assert_eq!(run["steps"].as_u64(), Some(step));
+            assert!(run["at_rest"].is_null());
+        } else {
+            assert!(unstable.is_null(), "{run}");
+        }
+    }
+}
+
+/// A reference that diverges leaves nothing to measure against: exit 3, saying so.
+#[test]
+fn unstable_reference_exits_3() {
+    let sandbox = Sandbox::new();
+    let scene = sandbox.write("stiff.toml", STIFF);
+    let out = sandbox.run(&[
+        "compare",
+        scene.to_str().unwrap(),
+        "--dt",
+        "0.5",
+        "--refinement",
+        "2",
+        "--quiet",
+    ]);
+    out.expect_status(EXIT_UNSTABLE);
+    assert!(
+        out.stderr
+            .contains("the reference (rk4 at dt = 2.5e-1 s) became unstable"),
+        "{}",
+        out.stderr
+    );
+}
