@@ -2,7 +2,8 @@
 //!
 //! The crate ties the pieces together for programs that embed it and for the `softbody` CLI:
 //! load a [`Scene`], open a [`Solver`] on a [`Backend`], and [`run`](run::run) it frame by
-//! frame into a [`FrameSink`](output::FrameSink) (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series).
+//! frame into a [`FrameSink`](output::FrameSink) (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series),
+//! or measure the integrators against a converged reference with a [`compare::Study`].
 //!
 //! ```
 //! use softbody::{Backend, Scene, Solver};
@@ -31,6 +32,7 @@
 #![warn(missing_docs)]
 
 pub mod benchmark;
+pub mod compare;
 pub mod output;
 pub mod run;
 

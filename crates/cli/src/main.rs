@@ -9,6 +9,7 @@
 
 mod bench;
 mod check;
+mod compare;
 mod progress;
 mod render;
 mod run;
@@ -49,6 +50,8 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Draw a scene's frames (simulated, or read from a run's .jsonl) as PNG files or a GIF.
     Render(render::RenderArgs),
+    /// Run a scene with several integrators and time steps against a converged rk4 reference.
+    Compare(compare::CompareArgs),
 }
 
 fn positive_or_fraction(s: &str) -> Result<f64, String> {
@@ -104,6 +107,7 @@ fn main() -> ExitCode {
         Command::Check(args) => check::check(args),
         Command::Bench(args) => bench::bench(args),
         Command::Render(args) => render::render(args),
+        Command::Compare(args) => compare::compare(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
