@@ -34,8 +34,10 @@ pub(crate) fn finish(
     x: &mut DVec3,
     v: &mut DVec3,
 ) -> bool {
-    if !surfaces.is_empty() && model.inv_mass[i] != 0.0 {
-        respond_one(surfaces, model.simulation.contact_distance, x, v);
+    let eps = model.simulation.contact_distance;
+    // Clear of every surface (and with none): the response would change nothing.
+    if !surfaces.iter().all(|s| s.clear_of(*x, eps)) && model.inv_mass[i] != 0.0 {
+        respond_one(surfaces, eps, x, v);
     }
     x.is_finite() && v.is_finite()
 }
