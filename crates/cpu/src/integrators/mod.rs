@@ -68,6 +68,8 @@ pub(crate) fn euler_step(
         x,
         v,
         (&mut ws.next_x[..], &mut ws.next_v[..]),
+        // Inlined into the pass's block loop: a call per particle costs more than the update.
+        #[inline(always)]
         |i, springs, (xn, vn)| {
             let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
             (*xn, *vn) = update(x[i], v[i], a, h);
