@@ -435,6 +435,7 @@ where
     // Phase B: one sweep per chunk.
     let leaf = |c: usize, sums: &mut [Sum], mut out: O::Chunk| {
         let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
+        assert_eq!(sums.len(), end - start);
         sums.fill(Sum::ZERO);
         // Earlier chunks' tail springs ending here, in ascending order.
         for e in 0..c {
@@ -468,7 +469,9 @@ where
             let computed = s0..s1.min(tail_first);
             if !computed.is_empty() {
                 // SAFETY: the plan checked that every spring has a < b < n, and the pass
-                // that x, v, rest (and parameters) have their lengths.
+                // that x, v, rest (and parameters) have their lengths. These springs start
+                // before the chunk's tail, so none reaches beyond the chunk (`tails`): every
+                // b lies in start..end, the particles of `sums`.
                 cursor = unsafe {
                     kernel.sweep_checked(
                         springs,

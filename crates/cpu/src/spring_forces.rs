@@ -197,8 +197,9 @@ impl Kernel {
         }
     }
 
-    /// The forces of springs `first..first + len` (ascending, sorted by `a`, each with a < b),
-    /// taken by `cursor` in order ([`Cursor::take`]); returns the cursor.
+    /// The forces of springs `first..first + len` (ascending, sorted by `a`, each with a < b
+    /// and b among the particles of `sums`, `start..start + sums.len()`), taken by `cursor` in
+    /// order ([`Cursor::take`]); returns the cursor.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     pub fn sweep(
@@ -214,15 +215,18 @@ impl Kernel {
         done: &mut impl FnMut(usize, DVec3),
     ) -> Cursor {
         self.check(springs, x, v, first, len);
+        let inside = |&b: &u32| (b as usize).wrapping_sub(start) < sums.len();
+        assert!(springs.b[first..first + len].iter().all(inside));
         // SAFETY: just checked.
         unsafe { self.sweep_checked(springs, x, v, first, len, sums, start, cursor, done) }
     }
 
-    /// [`Kernel::sweep`] without its check of the springs' ranges.
+    /// [`Kernel::sweep`] without its checks of the springs' ranges.
     ///
     /// # Safety
     /// What [`Kernel::check`] checks holds: springs `first..first + len` exist with their rest
-    /// lengths (and parameters, unless uniform), and every end point indexes `x` and `v`.
+    /// lengths (and parameters, unless uniform), and every end point indexes `x` and `v`; and
+    /// every second end b of these springs lies in `start..start + sums.len()`.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     pub(crate) unsafe fn sweep_checked(
@@ -740,7 +744,8 @@ mod avx {
     }
 
     /// # Safety
-    /// As for [`range`], for springs `first..first + len`.
+    /// As for [`range`], for springs `first..first + len`; and each of their second ends b
+    /// lies in `start..start + sums.len()`.
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn sweep(
@@ -804,9 +809,9 @@ mod avx {
                     }
                 }
                 sum = _mm256_add_pd(sum, rows[l]);
-                if let Some(t) = sums.get_mut(b[l].wrapping_sub(start)) {
-                    store(t, _mm256_sub_pd(load(t), rows[l]));
-                }
+                // SAFETY: b lies in start..start + sums.len() (the caller's promise).
+                let t = unsafe { sums.get_unchecked_mut(b[l] - start) };
+                store(t, _mm256_sub_pd(load(t), rows[l]));
             }
         }
         let mut c = Cursor {
