@@ -527,6 +527,20 @@ mod avx {
         unsafe { _mm256_store_pd((s as *mut Sum).cast::<f64>(), r) }
     }
 
+    /// Adds the force `row` of a spring to the running sum `sum` of its first end and
+    /// subtracts it from `sums[k]`, its second end's; returns the new running sum.
+    ///
+    /// # Safety
+    /// k < sums.len().
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn take(sum: __m256d, row: __m256d, sums: &mut [Sum], k: usize) -> __m256d {
+        // SAFETY: the caller's promise.
+        let t = unsafe { sums.get_unchecked_mut(k) };
+        store(t, _mm256_sub_pd(load(t), row));
+        _mm256_add_pd(sum, row)
+    }
+
     /// The springs of one call: their slices from `first`, and their parameters.
     struct Span<'a> {
         a: &'a [u32],
@@ -798,9 +812,17 @@ mod avx {
                 let (a, b) = span.ends(o);
                 (a, b, span.group::<UNIFORM>(o, a, b))
             };
+            // The springs come sorted by a, from p on: when the last lane starts at p, so do
+            // all four, and no particle completes within the group (the common case).
+            if a[LANES - 1] == p {
+                for l in 0..LANES {
+                    // SAFETY: b lies in start..start + sums.len() (the caller's promise).
+                    sum = unsafe { take(sum, rows[l], sums, b[l] - start) };
+                }
+                continue;
+            }
             for l in 0..LANES {
-                // The springs come sorted by a: particles before a[l] are complete
-                // (`Cursor::advance`).
+                // Particles before a[l] are complete (`Cursor::advance`).
                 while p < a[l] {
                     done(p, unpack(sum));
                     p += 1;
@@ -808,10 +830,8 @@ mod avx {
                         sum = load(s);
                     }
                 }
-                sum = _mm256_add_pd(sum, rows[l]);
-                // SAFETY: b lies in start..start + sums.len() (the caller's promise).
-                let t = unsafe { sums.get_unchecked_mut(b[l] - start) };
-                store(t, _mm256_sub_pd(load(t), rows[l]));
+                // SAFETY: as above.
+                sum = unsafe { take(sum, rows[l], sums, b[l] - start) };
             }
         }
         let mut c = Cursor {
