@@ -526,15 +526,15 @@ mod avx {
     }
 
     /// Adds the force `row` of a spring to the running sum `sum` of its first end and
-    /// subtracts it from `sums[k]`, its second end's; returns the new running sum.
+    /// subtracts it from `*t`, its second end's; returns the new running sum.
     ///
     /// # Safety
-    /// k < sums.len().
+    /// `t` points to a `Sum` that nothing else accesses meanwhile.
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn take(sum: __m256d, row: __m256d, sums: &mut [Sum], k: usize) -> __m256d {
+    unsafe fn take(sum: __m256d, row: __m256d, t: *mut Sum) -> __m256d {
         // SAFETY: the caller's promise.
-        let t = unsafe { sums.get_unchecked_mut(k) };
+        let t = unsafe { &mut *t };
         store(t, _mm256_sub_pd(load(t), row));
         _mm256_add_pd(sum, row)
     }
@@ -811,6 +811,9 @@ mod avx {
         // the instructions.
         let Cursor { mut p, sum } = cursor;
         let mut sum = pack(sum);
+        // Where particle 0's sum would be: particle b's is at `at + b` (wrapping arithmetic;
+        // only sums of the chunk are dereferenced), one subtraction less per spring.
+        let at = sums.as_mut_ptr().wrapping_sub(start);
         let len = span.a.len();
         let groups = len / LANES;
         for g in 0..groups {
@@ -824,8 +827,9 @@ mod avx {
             // all four, and no particle completes within the group (the common case).
             if a[LANES - 1] == p {
                 for l in 0..LANES {
-                    // SAFETY: b lies in start..start + sums.len() (the caller's promise).
-                    sum = unsafe { take(sum, rows[l], sums, b[l] - start) };
+                    // SAFETY: b lies in start..start + sums.len() (the caller's promise), and
+                    // no reference to `sums` is alive.
+                    sum = unsafe { take(sum, rows[l], at.wrapping_add(b[l])) };
                 }
                 continue;
             }
@@ -839,7 +843,7 @@ mod avx {
                     }
                 }
                 // SAFETY: as above.
-                sum = unsafe { take(sum, rows[l], sums, b[l] - start) };
+                sum = unsafe { take(sum, rows[l], at.wrapping_add(b[l])) };
             }
         }
         let mut c = Cursor {
