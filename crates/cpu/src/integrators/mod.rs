@@ -45,6 +45,7 @@ pub(crate) fn finish(
 /// `x.is_finite() && v.is_finite()` in a few instructions: c − c is +0 for a finite c and NaN
 /// for an infinite or NaN one, so the six differences sum to 0 exactly when all are finite.
 #[inline(always)]
+#[allow(clippy::eq_op, reason = "c − c is the test")]
 fn all_finite(x: DVec3, v: DVec3) -> bool {
     let d = (x - x) + (v - v);
     d.x + d.y + d.z == 0.0
