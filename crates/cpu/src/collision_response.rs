@@ -28,7 +28,10 @@ pub fn respond(model: &Model, surfaces: &[Surface], x: &mut [DVec3], v: &mut [DV
 }
 
 /// The response of one particle.
-#[inline(always)]
+///
+/// Out of line: the explicit passes call it only for particles that are not clear of every
+/// surface (`Surface::clear_of`), and their per-particle update stays small.
+#[inline(never)]
 pub fn respond_one(surfaces: &[Surface], eps: f64, x: &mut DVec3, v: &mut DVec3) {
     for s in surfaces {
         let Some(c) = s.query(*x, eps) else { continue };

@@ -22,7 +22,10 @@ use crate::terrain::Surface;
 
 /// The contact and friction force on one particle (mass m, position x, velocity v, applied
 /// force f) for step size h.
-#[inline(always)]
+///
+/// Out of line: the explicit passes call it only for particles that are not clear of every
+/// surface (`Surface::clear_of`), and their per-particle update stays small.
+#[inline(never)]
 pub fn contact_force(
     surfaces: &[Surface],
     eps: f64,

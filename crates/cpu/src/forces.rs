@@ -66,7 +66,13 @@ pub fn acceleration_with(
     let sim = &model.simulation;
     let m = model.mass[i];
     let f = m * sim.gravity - sim.drag * m * v + springs;
-    let fc = contact_force(surfaces, sim.contact_distance, sim.dt, m, x, v, f);
+    let eps = sim.contact_distance;
+    // Clear of every surface: no contact, contact_force's zero without its queries.
+    let fc = if surfaces.iter().all(|s| s.clear_of(x, eps)) {
+        DVec3::ZERO
+    } else {
+        contact_force(surfaces, eps, sim.dt, m, x, v, f)
+    };
     (f + fc) * w
 }
 

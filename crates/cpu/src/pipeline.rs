@@ -44,7 +44,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{Model, Springs};
 
-use crate::spring_forces::{Cursor, Kernel, LANES, gather_block};
+use crate::spring_forces::{Cursor, Kernel, LANES, Sum, gather_block};
 
 /// Particles gathered, or updated, together.
 const BLOCK: usize = 64;
@@ -78,7 +78,7 @@ struct Forward {
     /// Forces of the tail springs, chunk after chunk.
     tail_forces: Vec<DVec3>,
     /// Each particle's running sum of spring forces.
-    sums: Vec<DVec3>,
+    sums: Vec<Sum>,
 }
 
 impl Plan {
@@ -124,7 +124,7 @@ impl Plan {
                     tail,
                     tail_offset,
                     tail_reach,
-                    sums: vec![DVec3::ZERO; n],
+                    sums: vec![Sum::ZERO; n],
                 };
                 (bounds, Some(forward))
             }
@@ -327,9 +327,9 @@ impl Chunks<'_> {
         &self,
         c0: usize,
         c1: usize,
-        sums: &mut [DVec3],
+        sums: &mut [Sum],
         outputs: O::Chunk,
-        leaf: &(impl Fn(usize, &mut [DVec3], O::Chunk) -> Option<usize> + Sync),
+        leaf: &(impl Fn(usize, &mut [Sum], O::Chunk) -> Option<usize> + Sync),
     ) -> Option<usize> {
         if c1 - c0 == 1 {
             return leaf(c0, sums, outputs);
@@ -378,7 +378,7 @@ where
         let per_spring = &mut plan.per_spring[..];
         kernel.compute(springs, x, v, per_spring);
         let per_spring = &*per_spring;
-        let leaf = |c: usize, _: &mut [DVec3], mut out: O::Chunk| {
+        let leaf = |c: usize, _: &mut [Sum], mut out: O::Chunk| {
             let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
             let mut bad = None;
             let mut sums = [DVec3::ZERO; BLOCK];
@@ -433,9 +433,10 @@ where
     }
     let tail_forces = &tail_forces[..];
     // Phase B: one sweep per chunk.
-    let leaf = |c: usize, sums: &mut [DVec3], mut out: O::Chunk| {
+    let leaf = |c: usize, sums: &mut [Sum], mut out: O::Chunk| {
         let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
-        sums.fill(DVec3::ZERO);
+        assert_eq!(sums.len(), end - start);
+        sums.fill(Sum::ZERO);
         // Earlier chunks' tail springs ending here, in ascending order.
         for e in 0..c {
             if tail_reach[e] < start {
@@ -446,14 +447,14 @@ where
             for (&b, f) in springs.b[r].iter().zip(forces) {
                 let b = b as usize;
                 if (start..end).contains(&b) {
-                    sums[b - start] -= *f;
+                    sums[b - start].f -= *f;
                 }
             }
         }
         let mut bad = None;
         let mut cursor = Cursor {
             p: start,
-            sum: sums.first().copied().unwrap_or(DVec3::ZERO),
+            sum: sums.first().map_or(DVec3::ZERO, |s| s.f),
         };
         // The chunk's springs before its tail are computed here; its tail's come from
         // phase A.
@@ -468,7 +469,9 @@ where
             let computed = s0..s1.min(tail_first);
             if !computed.is_empty() {
                 // SAFETY: the plan checked that every spring has a < b < n, and the pass
-                // that x, v, rest (and parameters) have their lengths.
+                // that x, v, rest (and parameters) have their lengths. These springs start
+                // before the chunk's tail, so none reaches beyond the chunk (`tails`): every
+                // b lies in start..end, the particles of `sums`.
                 cursor = unsafe {
                     kernel.sweep_checked(
                         springs,

@@ -48,6 +48,26 @@ pub fn compute(springs: &Springs, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
     Kernel::per_spring().compute(springs, x, v, out);
 }
 
+/// A particle's running sum of spring forces during a sweep ([`Kernel::sweep`]), padded to 32
+/// bytes and aligned to them, so that the vector path reads, subtracts and writes it whole
+/// with one instruction each (the fourth lane is scratch: it receives z again).
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(32))]
+pub struct Sum {
+    /// The sum.
+    pub f: DVec3,
+    /// Scratch lane.
+    pad: f64,
+}
+
+impl Sum {
+    /// +0.
+    pub const ZERO: Sum = Sum {
+        f: DVec3::ZERO,
+        pad: 0.0,
+    };
+}
+
 /// Where a sweep stands ([`Kernel::sweep`]): the particle whose springs it is taking, and that
 /// particle's running sum.
 #[derive(Debug, Clone, Copy)]
@@ -69,7 +89,7 @@ impl Cursor {
         a: usize,
         b: usize,
         f: DVec3,
-        sums: &mut [DVec3],
+        sums: &mut [Sum],
         start: usize,
         done: &mut impl FnMut(usize, DVec3),
     ) {
@@ -78,7 +98,7 @@ impl Cursor {
         }
         self.sum += f;
         if let Some(t) = sums.get_mut(b.wrapping_sub(start)) {
-            *t -= f;
+            t.f -= f;
         }
     }
 
@@ -87,15 +107,15 @@ impl Cursor {
     pub fn advance(
         &mut self,
         until: usize,
-        sums: &[DVec3],
+        sums: &[Sum],
         start: usize,
         done: &mut impl FnMut(usize, DVec3),
     ) {
         while self.p < until {
             done(self.p, self.sum);
             self.p += 1;
-            if let Some(&s) = sums.get(self.p - start) {
-                self.sum = s;
+            if let Some(s) = sums.get(self.p - start) {
+                self.sum = s.f;
             }
         }
     }
@@ -177,8 +197,9 @@ impl Kernel {
         }
     }
 
-    /// The forces of springs `first..first + len` (ascending, sorted by `a`, each with a < b),
-    /// taken by `cursor` in order ([`Cursor::take`]); returns the cursor.
+    /// The forces of springs `first..first + len` (ascending, sorted by `a`, each with a < b
+    /// and b among the particles of `sums`, `start..start + sums.len()`), taken by `cursor` in
+    /// order ([`Cursor::take`]); returns the cursor.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     pub fn sweep(
@@ -188,21 +209,24 @@ impl Kernel {
         v: &[DVec3],
         first: usize,
         len: usize,
-        sums: &mut [DVec3],
+        sums: &mut [Sum],
         start: usize,
         cursor: Cursor,
         done: &mut impl FnMut(usize, DVec3),
     ) -> Cursor {
         self.check(springs, x, v, first, len);
+        let inside = |&b: &u32| (b as usize).wrapping_sub(start) < sums.len();
+        assert!(springs.b[first..first + len].iter().all(inside));
         // SAFETY: just checked.
         unsafe { self.sweep_checked(springs, x, v, first, len, sums, start, cursor, done) }
     }
 
-    /// [`Kernel::sweep`] without its check of the springs' ranges.
+    /// [`Kernel::sweep`] without its checks of the springs' ranges.
     ///
     /// # Safety
     /// What [`Kernel::check`] checks holds: springs `first..first + len` exist with their rest
-    /// lengths (and parameters, unless uniform), and every end point indexes `x` and `v`.
+    /// lengths (and parameters, unless uniform), and every end point indexes `x` and `v`; and
+    /// every second end b of these springs lies in `start..start + sums.len()`.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     pub(crate) unsafe fn sweep_checked(
@@ -212,7 +236,7 @@ impl Kernel {
         v: &[DVec3],
         first: usize,
         len: usize,
-        sums: &mut [DVec3],
+        sums: &mut [Sum],
         start: usize,
         mut cursor: Cursor,
         done: &mut impl FnMut(usize, DVec3),
@@ -440,19 +464,17 @@ mod avx {
     use glam::DVec3;
     use softbody_scene::Springs;
 
-    use super::{Cursor, LANES, spring_force};
+    use super::{Cursor, LANES, Sum, spring_force};
 
-    /// Loads x, y, z of `p` into lanes 0..3 (lane 3 = 0) without reading past it.
+    /// Loads the three f64 at `p` into lanes 0..3 (lane 3 = 0) without reading past them.
+    ///
+    /// # Safety
+    /// `p` points to three readable f64.
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn load3(p: &DVec3) -> __m256d {
-        // SAFETY: DVec3 is three contiguous f64 (`#[repr(C)]`); the mask reads only those.
-        unsafe {
-            _mm256_maskload_pd(
-                (p as *const DVec3).cast::<f64>(),
-                _mm256_setr_epi64x(-1, -1, -1, 0),
-            )
-        }
+    unsafe fn load3(p: *const f64) -> __m256d {
+        // SAFETY: the mask reads only the three promised f64.
+        unsafe { _mm256_maskload_pd(p, _mm256_setr_epi64x(-1, -1, -1, 0)) }
     }
 
     /// (x, y, z, 0).
@@ -487,7 +509,37 @@ mod avx {
         ]
     }
 
-    /// The springs of one call: their slices from `first`, and the shared parameters.
+    /// A running sum as (x, y, z, ·).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn load(s: &Sum) -> __m256d {
+        // SAFETY: a `Sum` is four f64 (`#[repr(C)]`), aligned to 32 bytes.
+        unsafe { _mm256_load_pd((s as *const Sum).cast::<f64>()) }
+    }
+
+    /// Writes all four lanes of `r` into `s`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn store(s: &mut Sum, r: __m256d) {
+        // SAFETY: as for `load`; every lane is a field.
+        unsafe { _mm256_store_pd((s as *mut Sum).cast::<f64>(), r) }
+    }
+
+    /// Adds the force `row` of a spring to the running sum `sum` of its first end and
+    /// subtracts it from `*t`, its second end's; returns the new running sum.
+    ///
+    /// # Safety
+    /// `t` points to a `Sum` that nothing else accesses meanwhile.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn take(sum: __m256d, row: __m256d, t: *mut Sum) -> __m256d {
+        // SAFETY: the caller's promise.
+        let t = unsafe { &mut *t };
+        store(t, _mm256_sub_pd(load(t), row));
+        _mm256_add_pd(sum, row)
+    }
+
+    /// The springs of one call: their slices from `first`, and their parameters.
     struct Span<'a> {
         a: &'a [u32],
         b: &'a [u32],
@@ -495,11 +547,15 @@ mod avx {
         ks: &'a [f64],
         kd: &'a [f64],
         uniform: Option<(f64, f64)>,
+        /// k_s and k_d in every lane (uniform parameters; zero otherwise).
+        ks4: __m256d,
+        kd4: __m256d,
         x: &'a [DVec3],
         v: &'a [DVec3],
     }
 
     impl<'a> Span<'a> {
+        #[target_feature(enable = "avx2")]
         fn new(
             springs: &'a Springs,
             uniform: Option<(f64, f64)>,
@@ -513,6 +569,7 @@ mod avx {
                 Some(_) => (&[][..], &[][..]),
                 None => (&springs.stiffness[r.clone()], &springs.damping[r.clone()]),
             };
+            let (ks4, kd4) = uniform.unwrap_or_default();
             Span {
                 a: &springs.a[r.clone()],
                 b: &springs.b[r.clone()],
@@ -520,50 +577,82 @@ mod avx {
                 ks,
                 kd,
                 uniform,
+                ks4: _mm256_set1_pd(ks4),
+                kd4: _mm256_set1_pd(kd4),
                 x,
                 v,
             }
         }
 
-        /// Forces of springs o..o + 4 of the span as rows (x, y, z, z).
+        /// The end points of springs o..o + 4 of the span.
         ///
         /// # Safety
-        /// o + 4 ≤ the span's length, and every end point indexes `x` and `v`.
+        /// o + 4 ≤ the span's length.
+        #[inline]
+        unsafe fn ends(&self, o: usize) -> ([usize; LANES], [usize; LANES]) {
+            // SAFETY: the caller's promise.
+            unsafe {
+                (
+                    std::array::from_fn(|l| *self.a.get_unchecked(o + l) as usize),
+                    std::array::from_fn(|l| *self.b.get_unchecked(o + l) as usize),
+                )
+            }
+        }
+
+        /// Forces of springs o..o + 4 of the span, from `a[l]` to `b[l]` ([`Span::ends`]), as
+        /// rows (x, y, z, z). `UNIFORM`: the parameters are uniform (else read per spring).
+        ///
+        /// # Safety
+        /// o + 4 ≤ the span's length, every end point indexes `x` and `v`, and `UNIFORM` is
+        /// whether the span was made with uniform parameters.
         #[inline]
         #[target_feature(enable = "avx2")]
-        unsafe fn group(&self, o: usize) -> [__m256d; 4] {
+        unsafe fn group<const UNIFORM: bool>(
+            &self,
+            o: usize,
+            a: [usize; LANES],
+            b: [usize; LANES],
+        ) -> [__m256d; 4] {
             let zero = _mm256_setzero_pd();
             let mut dr = [zero; 4];
             let mut wr = [zero; 4];
+            // Particle p's x and v start at f64 number 3p of their arrays. Computing 3p with
+            // one `lea` and letting both loads scale it by 8 takes one instruction per end
+            // point; left alone, LLVM folds the two multiplications into 24p and spends two.
+            // The empty `asm!` hides 3p's origin from it.
+            let (x, v) = (self.x.as_ptr().cast::<f64>(), self.v.as_ptr().cast::<f64>());
             for l in 0..LANES {
-                // SAFETY: the caller's promises.
+                let (mut a, mut b) = (3 * a[l], 3 * b[l]);
+                // SAFETY: the template is only a comment naming the registers: no instruction,
+                // no memory or stack access; a and b stay in their registers, unchanged.
                 unsafe {
-                    let (a, b) = (
-                        *self.a.get_unchecked(o + l) as usize,
-                        *self.b.get_unchecked(o + l) as usize,
+                    std::arch::asm!(
+                        "/* {a} {b} */",
+                        a = inout(reg) a,
+                        b = inout(reg) b,
+                        options(pure, nomem, nostack),
                     );
-                    dr[l] = _mm256_sub_pd(
-                        load3(self.x.get_unchecked(a)),
-                        load3(self.x.get_unchecked(b)),
-                    );
-                    wr[l] = _mm256_sub_pd(
-                        load3(self.v.get_unchecked(a)),
-                        load3(self.v.get_unchecked(b)),
-                    );
+                }
+                // SAFETY: the caller's promises (a DVec3 is three f64, `#[repr(C)]`).
+                unsafe {
+                    dr[l] = _mm256_sub_pd(load3(x.add(a)), load3(x.add(b)));
+                    wr[l] = _mm256_sub_pd(load3(v.add(a)), load3(v.add(b)));
                 }
             }
             let [dx, dy, dz] = transpose_in(dr);
             let [wx, wy, wz] = transpose_in(wr);
             // SAFETY: o + 4 ≤ the slices' length.
             let r = unsafe { _mm256_loadu_pd(self.rest.as_ptr().add(o)) };
-            let (ks, kd) = match self.uniform {
-                Some((ks, kd)) => (_mm256_set1_pd(ks), _mm256_set1_pd(kd)),
-                None => unsafe {
+            let (ks, kd) = if UNIFORM {
+                (self.ks4, self.kd4)
+            } else {
+                // SAFETY: o + 4 ≤ the slices' length (per-spring parameters).
+                unsafe {
                     (
                         _mm256_loadu_pd(self.ks.as_ptr().add(o)),
                         _mm256_loadu_pd(self.kd.as_ptr().add(o)),
                     )
-                },
+                }
             };
             // |d| = sqrt((dx² + dy²) + dz²)
             let n = _mm256_sqrt_pd(_mm256_add_pd(
@@ -636,13 +725,30 @@ mod avx {
         first: usize,
         out: &mut [DVec3],
     ) {
-        let len = out.len();
-        let span = Span::new(springs, uniform, x, v, first, len);
-        let groups = len / LANES;
+        let span = Span::new(springs, uniform, x, v, first, out.len());
+        // SAFETY: the caller's promises; `UNIFORM` is how the span was made.
+        unsafe {
+            match uniform {
+                Some(_) => range_span::<true>(&span, out),
+                None => range_span::<false>(&span, out),
+            }
+        }
+    }
+
+    /// [`range`] over a span, with `UNIFORM` parameters or not.
+    ///
+    /// # Safety
+    /// As for [`range`]; `out` has the span's length and `UNIFORM` is how the span was made.
+    #[target_feature(enable = "avx2")]
+    unsafe fn range_span<const UNIFORM: bool>(span: &Span, out: &mut [DVec3]) {
+        let groups = out.len() / LANES;
         for g in 0..groups {
             let o = g * LANES;
-            // SAFETY: o + 4 ≤ len; the caller vouched for the end points.
-            let rows = unsafe { span.group(o) };
+            // SAFETY: o + 4 ≤ len; the caller vouched for the end points and `UNIFORM`.
+            let rows = unsafe {
+                let (a, b) = span.ends(o);
+                span.group::<UNIFORM>(o, a, b)
+            };
             let dst = out[o..o + LANES].as_mut_ptr().cast::<f64>();
             // SAFETY: out[o..o + 4] is 12 contiguous f64; rows 0..2 write 4 of them from
             // offsets 0, 3, 6 (each row's fourth lane is overwritten by the next row), the
@@ -660,7 +766,8 @@ mod avx {
     }
 
     /// # Safety
-    /// As for [`range`], for springs `first..first + len`.
+    /// As for [`range`], for springs `first..first + len`; and each of their second ends b
+    /// lies in `start..start + sums.len()`.
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn sweep(
@@ -670,42 +777,79 @@ mod avx {
         v: &[DVec3],
         first: usize,
         len: usize,
-        sums: &mut [DVec3],
+        sums: &mut [Sum],
         start: usize,
         cursor: Cursor,
         done: &mut impl FnMut(usize, DVec3),
     ) -> Cursor {
         let span = Span::new(springs, uniform, x, v, first, len);
-        // The running sum lives in a register as (x, y, z, 0) and every force row is added
-        // to it and subtracted from its second end's sum whole: lane by lane the same
-        // additions as `Cursor::take`, so the same bits, in a third of the instructions.
-        let mut c = cursor;
-        let mut sum = pack(c.sum);
+        // One loop per parameter layout: the uniform one keeps k_s and k_d in registers.
+        // SAFETY: the caller's promises; `UNIFORM` is how the span was made.
+        unsafe {
+            match uniform {
+                Some(_) => sweep_span::<true>(&span, sums, start, cursor, done),
+                None => sweep_span::<false>(&span, sums, start, cursor, done),
+            }
+        }
+    }
+
+    /// [`sweep`] over a span, with `UNIFORM` parameters or not.
+    ///
+    /// # Safety
+    /// As for [`sweep`]; `UNIFORM` is how the span was made.
+    #[target_feature(enable = "avx2")]
+    unsafe fn sweep_span<const UNIFORM: bool>(
+        span: &Span,
+        sums: &mut [Sum],
+        start: usize,
+        cursor: Cursor,
+        done: &mut impl FnMut(usize, DVec3),
+    ) -> Cursor {
+        // The running sum lives in a register as (x, y, z, ·), and every force row is added
+        // to it and subtracted from its second end's sum whole (a `Sum` is one vector): lane
+        // by lane the same additions as `Cursor::take`, so the same bits, in a fraction of
+        // the instructions.
+        let Cursor { mut p, sum } = cursor;
+        let mut sum = pack(sum);
+        // Where particle 0's sum would be: particle b's is at `at + b` (wrapping arithmetic;
+        // only sums of the chunk are dereferenced), one subtraction less per spring.
+        let at = sums.as_mut_ptr().wrapping_sub(start);
+        let len = span.a.len();
         let groups = len / LANES;
         for g in 0..groups {
             let o = g * LANES;
-            // SAFETY: o + 4 ≤ len; the caller vouched for the end points.
-            let rows = unsafe { span.group(o) };
-            for (l, &row) in rows.iter().enumerate() {
-                // SAFETY: o + l < len.
-                let (a, b) = unsafe {
-                    (
-                        *span.a.get_unchecked(o + l) as usize,
-                        *span.b.get_unchecked(o + l) as usize,
-                    )
-                };
-                if a != c.p {
-                    c.sum = unpack(sum);
-                    c.advance(a, sums, start, done);
-                    sum = pack(c.sum);
+            // SAFETY: o + 4 ≤ len; the caller vouched for the end points and `UNIFORM`.
+            let (a, b, rows) = unsafe {
+                let (a, b) = span.ends(o);
+                (a, b, span.group::<UNIFORM>(o, a, b))
+            };
+            // The springs come sorted by a, from p on: when the last lane starts at p, so do
+            // all four, and no particle completes within the group (the common case).
+            if a[LANES - 1] == p {
+                for l in 0..LANES {
+                    // SAFETY: b lies in start..start + sums.len() (the caller's promise), and
+                    // no reference to `sums` is alive.
+                    sum = unsafe { take(sum, rows[l], at.wrapping_add(b[l])) };
                 }
-                sum = _mm256_add_pd(sum, row);
-                if let Some(t) = sums.get_mut(b.wrapping_sub(start)) {
-                    *t = unpack(_mm256_sub_pd(pack(*t), row));
+                continue;
+            }
+            for l in 0..LANES {
+                // Particles before a[l] are complete (`Cursor::advance`).
+                while p < a[l] {
+                    done(p, unpack(sum));
+                    p += 1;
+                    if let Some(s) = sums.get(p - start) {
+                        sum = load(s);
+                    }
                 }
+                // SAFETY: as above.
+                sum = unsafe { take(sum, rows[l], at.wrapping_add(b[l])) };
             }
         }
-        c.sum = unpack(sum);
+        let mut c = Cursor {
+            p,
+            sum: unpack(sum),
+        };
         for o in groups * LANES..len {
             let (a, b) = (span.a[o] as usize, span.b[o] as usize);
             c.take(a, b, span.one(o), sums, start, done);
