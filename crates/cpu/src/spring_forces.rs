@@ -466,15 +466,17 @@ mod avx {
 
     use super::{Cursor, LANES, Sum, spring_force};
 
-    /// Loads the three f64 at `p` into lanes 0..3 (lane 3 = 0) without reading past them.
-    ///
-    /// # Safety
-    /// `p` points to three readable f64.
+    /// Loads x, y, z of `p` into lanes 0..3 (lane 3 = 0) without reading past it.
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn load3(p: *const f64) -> __m256d {
-        // SAFETY: the mask reads only the three promised f64.
-        unsafe { _mm256_maskload_pd(p, _mm256_setr_epi64x(-1, -1, -1, 0)) }
+    fn load3(p: &DVec3) -> __m256d {
+        // SAFETY: DVec3 is three contiguous f64 (`#[repr(C)]`); the mask reads only those.
+        unsafe {
+            _mm256_maskload_pd(
+                (p as *const DVec3).cast::<f64>(),
+                _mm256_setr_epi64x(-1, -1, -1, 0),
+            )
+        }
     }
 
     /// (x, y, z, 0).
@@ -616,27 +618,17 @@ mod avx {
             let zero = _mm256_setzero_pd();
             let mut dr = [zero; 4];
             let mut wr = [zero; 4];
-            // Particle p's x and v start at f64 number 3p of their arrays. Computing 3p with
-            // one `lea` and letting both loads scale it by 8 takes one instruction per end
-            // point; left alone, LLVM folds the two multiplications into 24p and spends two.
-            // The empty `asm!` hides 3p's origin from it.
-            let (x, v) = (self.x.as_ptr().cast::<f64>(), self.v.as_ptr().cast::<f64>());
             for l in 0..LANES {
-                let (mut a, mut b) = (3 * a[l], 3 * b[l]);
-                // SAFETY: the template is only a comment naming the registers: no instruction,
-                // no memory or stack access; a and b stay in their registers, unchanged.
+                // SAFETY: the caller's promises.
                 unsafe {
-                    std::arch::asm!(
-                        "/* {a} {b} */",
-                        a = inout(reg) a,
-                        b = inout(reg) b,
-                        options(pure, nomem, nostack),
+                    dr[l] = _mm256_sub_pd(
+                        load3(self.x.get_unchecked(a[l])),
+                        load3(self.x.get_unchecked(b[l])),
                     );
-                }
-                // SAFETY: the caller's promises (a DVec3 is three f64, `#[repr(C)]`).
-                unsafe {
-                    dr[l] = _mm256_sub_pd(load3(x.add(a)), load3(x.add(b)));
-                    wr[l] = _mm256_sub_pd(load3(v.add(a)), load3(v.add(b)));
+                    wr[l] = _mm256_sub_pd(
+                        load3(self.v.get_unchecked(a[l])),
+                        load3(self.v.get_unchecked(b[l])),
+                    );
                 }
             }
             let [dx, dy, dz] = transpose_in(dr);
