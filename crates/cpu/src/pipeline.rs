@@ -545,11 +545,10 @@ mod tests {
         (model, x, v)
     }
 
-    /// Per-particle sums by the scalar definition: `spring_force` per spring, `gather` per
-    /// particle.
-    fn reference(model: &Model, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
+    /// Every spring's force by the scalar definition, `spring_force`.
+    fn scalar_forces(model: &Model, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
         let s = &model.springs;
-        let per_spring: Vec<DVec3> = (0..s.len())
+        (0..s.len())
             .map(|k| {
                 let (a, b) = (s.a[k] as usize, s.b[k] as usize);
                 spring_force(
@@ -562,7 +561,13 @@ mod tests {
                     s.damping[k],
                 )
             })
-            .collect();
+            .collect()
+    }
+
+    /// Per-particle sums by the scalar definition: `spring_force` per spring, `gather` per
+    /// particle.
+    fn reference(model: &Model, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
+        let per_spring = scalar_forces(model, x, v);
         (0..model.len())
             .map(|i| gather(&model.adjacency, &per_spring, i))
             .collect()
@@ -580,20 +585,7 @@ mod tests {
     fn kernels_are_spring_force_bit_for_bit() {
         let (model, x, v) = perturbed();
         let s = &model.springs;
-        let expected: Vec<DVec3> = (0..s.len())
-            .map(|k| {
-                let (a, b) = (s.a[k] as usize, s.b[k] as usize);
-                spring_force(
-                    x[a],
-                    x[b],
-                    v[a],
-                    v[b],
-                    s.rest[k],
-                    s.stiffness[k],
-                    s.damping[k],
-                )
-            })
-            .collect();
+        let expected = scalar_forces(&model, &x, &v);
         assert_eq!(expected[s.len() / 2], DVec3::ZERO);
         assert!(expected.iter().filter(|f| **f != DVec3::ZERO).count() == s.len() - 1);
         for kernel in [Kernel::new(s), Kernel::per_spring()] {

@@ -3,7 +3,7 @@
 //! system and CG solve against the CPU's `System` and `cg::solve`, its runs against the CPU's,
 //! the stiff cube at a frame-sized step, determinism).
 //!
-//! A custom harness (libtest-mimic): without an adapter every test reports itself ignored
+//! A custom harness (`harness/mod.rs`, libtest-mimic): without an adapter every test reports itself ignored
 //! ("skipped: no GPU adapter"), unless `SOFTBODY_REQUIRE_GPU=1`, which makes a missing adapter a
 //! failure. Each test prints the agreement it measured (`--nocapture` shows it).
 //!
@@ -22,19 +22,20 @@
 //! decisions at the band's edge flip on a rounding and the paths part (see [`BOUNCY`]). The
 //! measured agreement is printed per integrator and terrain.
 
+mod harness;
+
 use std::process::ExitCode;
 
+use harness::Test;
+
 use glam::DVec3;
-use libtest_mimic::{Arguments, Completion, Failed, Trial};
+use libtest_mimic::Failed;
 use softbody_cpu::terrain::Surface;
 use softbody_cpu::{CpuSolver, collision_response, energy, forces, spring_forces};
 use softbody_gpu::GpuSolver;
 use softbody_scene::{Integrator, Model, Scene, Solver, State, StepError};
 
-type Test = fn() -> Result<(), Failed>;
-
 fn main() -> ExitCode {
-    let args = Arguments::from_args();
     let tests: Vec<(&str, Test)> = vec![
         ("stage_spring_forces", stage_spring_forces),
         ("stage_accelerations_with_contact_coulomb", || {
@@ -116,26 +117,7 @@ fn main() -> ExitCode {
         ),
     ];
 
-    let adapter = softbody_gpu::device::Gpu::open().map(|gpu| gpu.name());
-    let require = std::env::var("SOFTBODY_REQUIRE_GPU").is_ok_and(|v| v == "1");
-    match &adapter {
-        Ok(name) => eprintln!("GPU tests on {name}"),
-        Err(e) => eprintln!("GPU tests: {e}"),
-    }
-    let trials = tests
-        .into_iter()
-        .map(|(name, test)| match &adapter {
-            Ok(_) => Trial::test(name, test),
-            Err(e) if require => {
-                let message = format!("SOFTBODY_REQUIRE_GPU=1 but {e}");
-                Trial::test(name, move || Err(message.into()))
-            }
-            Err(_) => Trial::ignorable_test(name, || {
-                Ok(Completion::ignored_with("skipped: no GPU adapter"))
-            }),
-        })
-        .collect();
-    libtest_mimic::run(&args, trials).exit_code()
+    harness::run("GPU tests", tests)
 }
 
 // ---------------------------------------------------------------------------------------------

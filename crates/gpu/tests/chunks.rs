@@ -5,19 +5,20 @@
 //! per-spring value, not what they add or in which order, so every integrator's run is
 //! bit-identical to the unchunked run on the same adapter.
 //!
-//! The harness of `adapter.rs` (libtest-mimic): without an adapter the tests report themselves
+//! The harness of every GPU test binary (`harness/mod.rs`, libtest-mimic): without an adapter the tests report themselves
 //! ignored, unless `SOFTBODY_REQUIRE_GPU=1`.
+
+mod harness;
 
 use std::process::ExitCode;
 
-use libtest_mimic::{Arguments, Completion, Failed, Trial};
+use harness::Test;
+
+use libtest_mimic::Failed;
 use softbody_gpu::{GpuOptions, GpuSolver};
 use softbody_scene::{Energies, Integrator, Model, Scene, Solver, State, StepError};
 
-type Test = fn() -> Result<(), Failed>;
-
 fn main() -> ExitCode {
-    let args = Arguments::from_args();
     let tests: Vec<(&str, Test)> = vec![
         ("chunked_explicit_euler_is_bit_identical", || {
             chunked_run(Integrator::ExplicitEuler, 150)
@@ -42,26 +43,7 @@ fn main() -> ExitCode {
         ),
         ("a_binding_too_small_is_refused_with_the_figures", too_small),
     ];
-    let adapter = softbody_gpu::device::Gpu::open().map(|gpu| gpu.name());
-    let require = std::env::var("SOFTBODY_REQUIRE_GPU").is_ok_and(|v| v == "1");
-    match &adapter {
-        Ok(name) => eprintln!("GPU chunk tests on {name}"),
-        Err(e) => eprintln!("GPU chunk tests: {e}"),
-    }
-    let trials = tests
-        .into_iter()
-        .map(|(name, test)| match &adapter {
-            Ok(_) => Trial::test(name, test),
-            Err(e) if require => {
-                let message = format!("SOFTBODY_REQUIRE_GPU=1 but {e}");
-                Trial::test(name, move || Err(message.into()))
-            }
-            Err(_) => Trial::ignorable_test(name, || {
-                Ok(Completion::ignored_with("skipped: no GPU adapter"))
-            }),
-        })
-        .collect();
-    libtest_mimic::run(&args, trials).exit_code()
+    harness::run("GPU chunk tests", tests)
 }
 
 /// Bindings of 64 KiB: 2,048 springs per chunk (20-byte records, 32-byte implicit blocks), and

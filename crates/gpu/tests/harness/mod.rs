@@ -1,0 +1,36 @@
+//! The harness of the GPU test binaries (libtest-mimic): every test runs when wgpu finds an
+//! adapter; without one each reports itself ignored ("skipped: no GPU adapter"), unless
+//! `SOFTBODY_REQUIRE_GPU=1`, which makes a missing adapter a failure (CI sets it).
+
+use std::process::ExitCode;
+
+use libtest_mimic::{Arguments, Completion, Failed, Trial};
+
+/// A GPU test.
+pub type Test = fn() -> Result<(), Failed>;
+
+/// Runs `tests` under the command line's libtest arguments; `what` names the suite in the line
+/// that says which adapter it runs on.
+pub fn run(what: &str, tests: Vec<(&'static str, Test)>) -> ExitCode {
+    let args = Arguments::from_args();
+    let adapter = softbody_gpu::device::Gpu::open().map(|gpu| gpu.name());
+    let require = std::env::var("SOFTBODY_REQUIRE_GPU").is_ok_and(|v| v == "1");
+    match &adapter {
+        Ok(name) => eprintln!("{what} on {name}"),
+        Err(e) => eprintln!("{what}: {e}"),
+    }
+    let trials = tests
+        .into_iter()
+        .map(|(name, test)| match &adapter {
+            Ok(_) => Trial::test(name, test),
+            Err(e) if require => {
+                let message = format!("SOFTBODY_REQUIRE_GPU=1 but {e}");
+                Trial::test(name, move || Err(message.into()))
+            }
+            Err(_) => Trial::ignorable_test(name, || {
+                Ok(Completion::ignored_with("skipped: no GPU adapter"))
+            }),
+        })
+        .collect();
+    libtest_mimic::run(&args, trials).exit_code()
+}
