@@ -26,7 +26,7 @@ mod harness;
 
 use std::process::ExitCode;
 
-use harness::Test;
+use harness::{BOUNCY_PLANE, PLANE, SLOPE, Test};
 
 use glam::DVec3;
 use libtest_mimic::Failed;
@@ -122,34 +122,6 @@ fn main() -> ExitCode {
 
 // ---------------------------------------------------------------------------------------------
 // Scenes and inputs
-
-const PLANE: &str = r#"
-[[terrain]]
-kind = "plane"
-point = [0.0, 0.0, 0.0]
-normal = [0.0, 1.0, 0.0]
-friction = 0.5
-restitution = 0.0
-"#;
-
-/// The plane with restitution: landing particles bounce up to the edge of the contact band.
-const BOUNCY_PLANE: &str = r#"
-[[terrain]]
-kind = "plane"
-point = [0.0, 0.0, 0.0]
-normal = [0.0, 1.0, 0.0]
-friction = 0.5
-restitution = 0.2
-"#;
-
-const SLOPE: &str = r#"
-[[terrain]]
-kind = "plane"
-point = [0.0, 0.0, 0.0]
-normal = [0.4, 1.0, 0.0]
-friction = 0.3
-restitution = 0.0
-"#;
 
 /// A 4×4×4 cube of 30 cm, all three spring families, 1 kg, tilted, 5 cm above the origin.
 fn cube_scene(integrator: Integrator, dt: f64, duration: f64, terrain: &str) -> Scene {

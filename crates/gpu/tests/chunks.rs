@@ -12,7 +12,7 @@ mod harness;
 
 use std::process::ExitCode;
 
-use harness::Test;
+use harness::{BOUNCY_PLANE, SLOPE, Test};
 
 use libtest_mimic::Failed;
 use softbody_gpu::{GpuOptions, GpuSolver};
@@ -49,25 +49,6 @@ fn main() -> ExitCode {
 /// Bindings of 64 KiB: 2,048 springs per chunk (20-byte records, 32-byte implicit blocks), and
 /// every whole buffer of the 8×8×8 cube still fits (the adjacency, the largest, is 51 KB).
 const CAP: u64 = 64 * 1024;
-
-/// The plane with restitution and friction: contacts, bounces and both friction regimes.
-const BOUNCY_PLANE: &str = r#"
-[[terrain]]
-kind = "plane"
-point = [0.0, 0.0, 0.0]
-normal = [0.0, 1.0, 0.0]
-friction = 0.5
-restitution = 0.2
-"#;
-
-const SLOPE: &str = r#"
-[[terrain]]
-kind = "plane"
-point = [0.0, 0.0, 0.0]
-normal = [0.4, 1.0, 0.0]
-friction = 0.3
-restitution = 0.0
-"#;
 
 /// An 8×8×8 cube of 30 cm (512 particles, 6,220 springs of all three families), tilted, its
 /// lowest corner 7 mm into `terrain` (contacts act from the first step), thrown down at 2 m/s.

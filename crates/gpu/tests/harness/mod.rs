@@ -1,6 +1,10 @@
 //! The harness of the GPU test binaries (libtest-mimic): every test runs when wgpu finds an
 //! adapter; without one each reports itself ignored ("skipped: no GPU adapter"), unless
-//! `SOFTBODY_REQUIRE_GPU=1`, which makes a missing adapter a failure (CI sets it).
+//! `SOFTBODY_REQUIRE_GPU=1`, which makes a missing adapter a failure (CI sets it). Also the
+//! terrain the binaries' scenes share.
+
+// Each test binary compiles this module and uses only part of the terrain.
+#![allow(dead_code)]
 
 use std::process::ExitCode;
 
@@ -34,3 +38,33 @@ pub fn run(what: &str, tests: Vec<(&'static str, Test)>) -> ExitCode {
         .collect();
     libtest_mimic::run(&args, trials).exit_code()
 }
+
+/// A level plane, friction 0.5, no restitution: landing particles stay in the contact band.
+pub const PLANE: &str = r#"
+[[terrain]]
+kind = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+friction = 0.5
+restitution = 0.0
+"#;
+
+/// The plane with restitution: landing particles bounce up to the edge of the contact band.
+pub const BOUNCY_PLANE: &str = r#"
+[[terrain]]
+kind = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+friction = 0.5
+restitution = 0.2
+"#;
+
+/// A plane tilted about 22° (normal (0.4, 1, 0)), friction 0.3: particles slide.
+pub const SLOPE: &str = r#"
+[[terrain]]
+kind = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.4, 1.0, 0.0]
+friction = 0.3
+restitution = 0.0
+"#;
