@@ -457,7 +457,7 @@ fn reference_states(
     let unstable = |instability| StudyError::ReferenceUnstable { dt, instability };
     let step_error = |e: StepError| match e {
         StepError::Unstable(i) => unstable(i),
-        StepError::Device(d) => StudyError::Device(d),
+        StepError::Device(d) | StepError::Invalid(d) => StudyError::Device(d),
     };
     let e0 = solver.energies().map_err(step_error)?;
     let scale = run::energy_scale(solver.as_mut(), &e0).map_err(step_error)?;
@@ -569,7 +569,7 @@ fn measure_run(
     let sim = solver.model().simulation;
     let step_error = |e: StepError| match e {
         StepError::Unstable(i) => StudyError::Device(format!("unstable initial state: {i}")),
-        StepError::Device(d) => StudyError::Device(d),
+        StepError::Device(d) | StepError::Invalid(d) => StudyError::Device(d),
     };
     let e0 = solver.energies().map_err(step_error)?;
     let scale = run::energy_scale(solver, &e0).map_err(step_error)?;

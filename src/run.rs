@@ -39,7 +39,7 @@ impl From<StepError> for RunError {
     fn from(e: StepError) -> Self {
         match e {
             StepError::Unstable(i) => RunError::Unstable(i),
-            StepError::Device(d) => RunError::Device(d),
+            StepError::Device(d) | StepError::Invalid(d) => RunError::Device(d),
         }
     }
 }

@@ -146,16 +146,6 @@ impl Plan {
         }
     }
 
-    /// A plan for no particles (implicit Euler has no use for one).
-    pub(crate) fn empty() -> Plan {
-        Plan {
-            threads: rayon::current_num_threads(),
-            bounds: vec![0, 0],
-            forward: None,
-            per_spring: Vec::new(),
-        }
-    }
-
     /// Whether the plan was made for the current rayon pool.
     pub(crate) fn fits(&self) -> bool {
         self.threads == rayon::current_num_threads()

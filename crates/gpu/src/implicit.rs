@@ -29,9 +29,8 @@
 //! The CG stopping rule is the CPU's (relative preconditioned residual, round-off growth, cap),
 //! with the tolerance [`CG_TOLERANCE_F32`]: the CPU's 1e-8 is below what f32 resolves.
 
-use softbody_cpu::integrators::implicit_euler::cg::Constraint;
-use softbody_cpu::integrators::implicit_euler::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
 use softbody_scene::Statistics;
+use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS, Constraint};
 use wgpu::util::DeviceExt;
 
 use crate::layout::{CG_DISPATCH_WORDS, CandidateGpu, CgScalars, SpringBlockGpu, dispatch_slot};

@@ -1504,7 +1504,7 @@ impl GpuSolver {
     #[doc(hidden)]
     pub fn debug_implicit_solve(
         &mut self,
-        constraints: &[softbody_cpu::integrators::implicit_euler::cg::Constraint],
+        constraints: &[softbody_scene::implicit::Constraint],
         rhs: &[DVec3],
         z: &[DVec3],
         dv: &[DVec3],
@@ -1697,12 +1697,28 @@ impl Solver for GpuSolver {
         let implicit = self
             .implicit
             .as_ref()
-            .map(|im| im.statistics)
+            .map(|im| im.statistics.clone())
             .unwrap_or_default();
         Statistics {
             steps: self.steps,
             ..implicit
         }
+    }
+
+    fn sync(&mut self) -> Result<(), StepError> {
+        self.healthy()?;
+        if let Err(e) = self.gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
+            return Err(self.fail(format!("the GPU did not finish its work: {e}")));
+        }
+        self.healthy()
+    }
+
+    fn set_state(&mut self, state: &State) -> Result<(), StepError> {
+        GpuSolver::set_state(self, state)
+    }
+
+    fn memory_bytes(&self) -> u64 {
+        0
     }
 }
 

@@ -475,7 +475,7 @@ fn cg_dispatch_slots_and_constraint_codes_match() {
         wgsl_const(Stage::Cg, "DISPATCH_WORDS") as usize,
         CG_DISPATCH_WORDS
     );
-    use softbody_cpu::integrators::implicit_euler::cg::Constraint;
+    use softbody_scene::implicit::Constraint;
     for (name, c) in [
         ("CONSTRAINT_FREE", Constraint::Free),
         ("CONSTRAINT_NORMAL", Constraint::Normal(glam::DVec3::Y)),

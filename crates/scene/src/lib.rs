@@ -23,6 +23,7 @@
 
 pub mod error;
 pub mod format;
+pub mod implicit;
 pub mod mesh;
 pub mod model;
 pub mod scene;
@@ -40,7 +41,7 @@ pub use scene::{
     Body, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene, Simulation,
     SpringCounts, SpringParams, Terrain, TerrainShape, TriangleMesh, rotation_from_degrees,
 };
-pub use solver::{Energies, Instability, Solver, Statistics, StepError};
+pub use solver::{Energies, Instability, Solver, Statistics, StepError, Timer, Timings};
 
 /// The time integrators, by the names scene files and the command line use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]

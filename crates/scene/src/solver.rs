@@ -66,10 +66,104 @@ pub enum StepError {
     /// The device failed (GPU lost, out of memory, ...).
     #[error("device failure: {0}")]
     Device(String),
+    /// The request does not fit the solver (a state of the wrong size).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Wall-clock time spent in one stage, over a run: what rapier's stage counters report.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Timer {
+    /// Seconds in all.
+    pub seconds: f64,
+    /// Times the stage ran.
+    pub calls: u64,
+}
+
+/// Per-stage wall-clock timings of a solver, in the order the stages first ran. Each backend
+/// names its own stages (the CPU's explicit integrators run spring forces, forces, update and
+/// collision response as one fused pass, so that is one stage there); see each solver's
+/// documentation for what its stages measure.
+///
+/// ```
+/// use softbody_scene::Timings;
+/// let mut t = Timings::default();
+/// let x = t.time("assemble", || 6 * 7);
+/// t.add("cg", 0.25);
+/// t.add("cg", 0.5);
+/// assert_eq!(x, 42);
+/// assert_eq!(t.get("cg").unwrap().calls, 2);
+/// assert_eq!(t.get("cg").unwrap().seconds, 0.75);
+/// assert_eq!(t.iter().map(|(stage, _)| stage).collect::<Vec<_>>(), ["assemble", "cg"]);
+/// ```
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Timings {
+    stages: Vec<(&'static str, Timer)>,
+}
+
+impl Timings {
+    /// Counts one run of `stage` that took `seconds`.
+    pub fn add(&mut self, stage: &'static str, seconds: f64) {
+        let timer = match self.stages.iter_mut().find(|(s, _)| *s == stage) {
+            Some((_, t)) => t,
+            None => {
+                self.stages.push((stage, Timer::default()));
+                &mut self.stages.last_mut().expect("just pushed").1
+            }
+        };
+        timer.seconds += seconds;
+        timer.calls += 1;
+    }
+
+    /// Runs `f` as one run of `stage`.
+    pub fn time<R>(&mut self, stage: &'static str, f: impl FnOnce() -> R) -> R {
+        let started = std::time::Instant::now();
+        let result = f();
+        self.add(stage, started.elapsed().as_secs_f64());
+        result
+    }
+
+    /// The timer of `stage`, if it ran.
+    pub fn get(&self, stage: &str) -> Option<Timer> {
+        self.stages
+            .iter()
+            .find(|(s, _)| *s == stage)
+            .map(|&(_, t)| t)
+    }
+
+    /// Every stage that ran, in the order it first ran.
+    pub fn iter(&self) -> impl Iterator<Item = (&'static str, Timer)> + '_ {
+        self.stages.iter().copied()
+    }
+
+    /// Seconds over all stages.
+    pub fn total(&self) -> f64 {
+        self.stages.iter().map(|(_, t)| t.seconds).sum()
+    }
+}
+
+impl fmt::Display for Timings {
+    /// One line per stage: name, seconds, calls, share of the total.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let total = self.total();
+        for (stage, t) in self.iter() {
+            let share = if total > 0.0 {
+                100.0 * t.seconds / total
+            } else {
+                0.0
+            };
+            writeln!(
+                f,
+                "{stage:<24} {:>10.4} s {:>10} calls {share:>5.1} %",
+                t.seconds, t.calls
+            )?;
+        }
+        Ok(())
+    }
 }
 
 /// Counters a backend keeps over a run.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Statistics {
     /// Steps taken.
     pub steps: u64,
@@ -79,11 +173,17 @@ pub struct Statistics {
     pub cg_solves: u64,
     /// Largest relative residual a CG solve ended with.
     pub cg_max_residual: f64,
+    /// Wall-clock time per stage.
+    pub timings: Timings,
 }
 
 /// A backend that advances a [`Model`] through time. The CPU and GPU solvers implement it; the
-/// CLI drives it without knowing which runs.
-pub trait Solver {
+/// CLI, the tests and the benchmarks drive it without knowing which runs.
+///
+/// A solver may run ahead of its caller (a GPU queues work): [`Solver::advance`] may return
+/// before the steps are computed, and [`Solver::sync`] waits for them. Reading the state or the
+/// energies waits too.
+pub trait Solver: Send {
     /// `"cpu"` or `"gpu"`.
     fn backend(&self) -> &'static str;
     /// What runs it, for headers and logs (thread count, adapter name).
@@ -92,12 +192,34 @@ pub trait Solver {
     fn model(&self) -> &Model;
     /// Advances `steps` steps; stops at the first unstable one.
     fn advance(&mut self, steps: u64) -> Result<(), StepError>;
+    /// Waits until every step asked for has been computed (a no-op where stepping is
+    /// synchronous): what a benchmark calls before stopping its clock.
+    fn sync(&mut self) -> Result<(), StepError>;
     /// Steps taken since the start.
     fn steps_taken(&self) -> u64;
     /// The current state (a GPU backend reads it back).
     fn state(&mut self) -> Result<&State, StepError>;
+    /// Replaces the current state; the step count stays. The state must have one position and
+    /// one velocity per particle ([`StepError::Invalid`] otherwise).
+    fn set_state(&mut self, state: &State) -> Result<(), StepError>;
     /// Energies of the current state.
     fn energies(&mut self) -> Result<Energies, StepError>;
-    /// Counters over the run so far.
+    /// Counters and per-stage timings over the run so far.
     fn statistics(&self) -> Statistics;
+    /// Bytes the solver holds for the model, the state and its scratch (host memory on the
+    /// CPU, device buffers on a GPU).
+    fn memory_bytes(&self) -> u64;
+}
+
+/// Whether `state` fits `model`: the check of [`Solver::set_state`].
+pub fn check_state_len(model: &Model, state: &State) -> Result<(), StepError> {
+    let n = model.len();
+    if state.x.len() != n || state.v.len() != n {
+        return Err(StepError::Invalid(format!(
+            "set_state: the state has {} positions and {} velocities, the model {n} particles",
+            state.x.len(),
+            state.v.len()
+        )));
+    }
+    Ok(())
 }

@@ -1,10 +1,31 @@
 //! Explicit (forward) Euler: x' = x + h v, v' = v + h a(x, v).
 
-use softbody_scene::State;
+use crate::terrain::Surface;
+use softbody_scene::{Model, State};
 
-use crate::Workspace;
+use super::Passes;
 
-/// One step, collision response included; returns the first particle that is not finite.
-pub fn step(ws: &mut Workspace, state: &mut State) -> Option<usize> {
-    super::euler_step(ws, state, |x, v, a, h| (x + h * v, v + h * a))
+/// Explicit Euler and its scratch.
+pub struct ExplicitEuler {
+    pub(super) passes: Passes,
+}
+
+impl ExplicitEuler {
+    /// Sized for `model`.
+    pub fn new(model: &Model) -> ExplicitEuler {
+        ExplicitEuler {
+            passes: Passes::new(model),
+        }
+    }
+
+    /// One step, collision response included; returns the first particle that is not finite.
+    pub fn step(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &mut State,
+    ) -> Option<usize> {
+        self.passes
+            .euler_step(model, surfaces, state, |x, v, a, h| (x + h * v, v + h * a))
+    }
 }

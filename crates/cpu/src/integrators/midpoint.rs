@@ -4,48 +4,83 @@
 //! Two fused passes: the first writes y_m, the second the new state (collision response and
 //! finiteness check included).
 
-use softbody_scene::State;
+use glam::DVec3;
+use softbody_scene::{Model, State};
 
-use super::finish;
-use crate::Workspace;
+use super::{Passes, finish};
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
+use crate::terrain::Surface;
+use crate::vec_bytes;
 
-/// One step, collision response included; returns the first particle that is not finite.
-pub fn step(ws: &mut Workspace, state: &mut State) -> Option<usize> {
-    let h = ws.model.simulation.dt;
-    let (model, surfaces) = (&ws.model, &ws.surfaces[..]);
-    let (x, v) = (&state.x[..], &state.v[..]);
-    pass(
-        &mut ws.plan,
-        ws.kernel,
-        model,
-        x,
-        v,
-        (&mut ws.stage_x[..], &mut ws.stage_v[..]),
-        |i, springs, (xm, vm)| {
-            let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
-            *xm = x[i] + 0.5 * h * v[i];
-            *vm = v[i] + 0.5 * h * a;
-            true
-        },
-    );
-    let (xm, vm) = (&ws.stage_x[..], &ws.stage_v[..]);
-    let bad = pass(
-        &mut ws.plan,
-        ws.kernel,
-        model,
-        xm,
-        vm,
-        (&mut ws.next_x[..], &mut ws.next_v[..]),
-        |i, springs, (xn, vn)| {
-            let a = acceleration_with(model, surfaces, i, xm[i], vm[i], springs);
-            *xn = x[i] + h * vm[i];
-            *vn = v[i] + h * a;
-            finish(model, surfaces, i, xn, vn)
-        },
-    );
-    std::mem::swap(&mut state.x, &mut ws.next_x);
-    std::mem::swap(&mut state.v, &mut ws.next_v);
-    bad
+/// The midpoint method and its scratch: the passes and the midpoint state y_m.
+pub struct Midpoint {
+    passes: Passes,
+    mid_x: Vec<DVec3>,
+    mid_v: Vec<DVec3>,
+}
+
+impl Midpoint {
+    /// Sized for `model`.
+    pub fn new(model: &Model) -> Midpoint {
+        let n = model.len();
+        Midpoint {
+            passes: Passes::new(model),
+            mid_x: vec![DVec3::ZERO; n],
+            mid_v: vec![DVec3::ZERO; n],
+        }
+    }
+
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        self.passes.memory_bytes() + vec_bytes(&self.mid_x) + vec_bytes(&self.mid_v)
+    }
+
+    /// One step, collision response included; returns the first particle that is not finite.
+    pub fn step(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &mut State,
+    ) -> Option<usize> {
+        let h = model.simulation.dt;
+        let Passes {
+            plan,
+            kernel,
+            next_x,
+            next_v,
+        } = &mut self.passes;
+        let (x, v) = (&state.x[..], &state.v[..]);
+        pass(
+            plan,
+            *kernel,
+            model,
+            x,
+            v,
+            (&mut self.mid_x[..], &mut self.mid_v[..]),
+            |i, springs, (xm, vm)| {
+                let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+                *xm = x[i] + 0.5 * h * v[i];
+                *vm = v[i] + 0.5 * h * a;
+                true
+            },
+        );
+        let (xm, vm) = (&self.mid_x[..], &self.mid_v[..]);
+        let bad = pass(
+            plan,
+            *kernel,
+            model,
+            xm,
+            vm,
+            (&mut next_x[..], &mut next_v[..]),
+            |i, springs, (xn, vn)| {
+                let a = acceleration_with(model, surfaces, i, xm[i], vm[i], springs);
+                *xn = x[i] + h * vm[i];
+                *vn = v[i] + h * a;
+                finish(model, surfaces, i, xn, vn)
+            },
+        );
+        self.passes.swap_into(state);
+        bad
+    }
 }

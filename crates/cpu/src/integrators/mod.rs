@@ -3,11 +3,15 @@
 //! springs, [`crate::contact`]) and ends with [`crate::collision_response`]; implicit Euler
 //! handles contact inside its solve.
 //!
-//! Each explicit stage is one fused `pipeline::pass`: spring forces at
-//! the stage's (x, v), then per particle its acceleration and the stage update, written to other
-//! arrays than the ones read (the workspace double-buffers the state). The last stage also
-//! applies the collision response and checks finiteness (`finish`). Updates have no
-//! reductions, so any split gives the same bits.
+//! Each integrator is a type owning its scratch, one module each; [`Stepper`] holds the one a
+//! run uses. Adding an integrator is a module here, a variant of [`Stepper`], and its WGSL twin
+//! on the GPU (see ARCHITECTURE.md, "Add an integrator").
+//!
+//! Each explicit stage is one fused `pipeline::pass`: spring forces at the stage's (x, v),
+//! then per particle its acceleration and the stage update, written to other arrays than the
+//! ones read ([`Passes`] double-buffers the state). The last stage also applies the collision
+//! response and checks finiteness (`finish`). Updates have no reductions, so any split gives
+//! the same bits.
 
 pub mod explicit_euler;
 pub mod implicit_euler;
@@ -15,14 +19,165 @@ pub mod midpoint;
 pub mod rk4;
 pub mod symplectic_euler;
 
+use crate::terrain::Surface;
 use glam::DVec3;
-use softbody_scene::{Model, State};
+use softbody_scene::{Integrator, Model, State, Statistics, Timings};
 
-use crate::Workspace;
 use crate::collision_response::respond_one;
 use crate::forces::acceleration_with;
-use crate::pipeline::pass;
-use crate::terrain::Surface;
+use crate::pipeline::{Plan, pass};
+use crate::spring_forces::Kernel;
+use crate::vec_bytes;
+
+/// The integrator of a run with its scratch.
+pub enum Stepper {
+    /// [`explicit_euler`].
+    ExplicitEuler(explicit_euler::ExplicitEuler),
+    /// [`symplectic_euler`].
+    SymplecticEuler(symplectic_euler::SymplecticEuler),
+    /// [`midpoint`].
+    Midpoint(midpoint::Midpoint),
+    /// [`rk4`].
+    Rk4(rk4::Rk4),
+    /// [`implicit_euler`].
+    ImplicitEuler(Box<implicit_euler::ImplicitEuler>),
+}
+
+/// The stage the explicit integrators' fused passes are timed as.
+pub const EXPLICIT_STAGE: &str = "fused passes";
+
+impl Stepper {
+    /// The model's integrator, sized for it. Call it in the thread pool that will step it: the
+    /// passes split the particles by its thread count.
+    pub fn new(model: &Model) -> Stepper {
+        match model.simulation.integrator {
+            Integrator::ExplicitEuler => {
+                Stepper::ExplicitEuler(explicit_euler::ExplicitEuler::new(model))
+            }
+            Integrator::SymplecticEuler => {
+                Stepper::SymplecticEuler(symplectic_euler::SymplecticEuler::new(model))
+            }
+            Integrator::Midpoint => Stepper::Midpoint(midpoint::Midpoint::new(model)),
+            Integrator::Rk4 => Stepper::Rk4(rk4::Rk4::new(model)),
+            Integrator::ImplicitEuler => {
+                Stepper::ImplicitEuler(Box::new(implicit_euler::ImplicitEuler::new(model)))
+            }
+        }
+    }
+
+    /// Advances `state` by one step, timing its stages into `timings`, and returns the first
+    /// particle with a non-finite position or velocity afterwards, and which it is.
+    pub fn step(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &mut State,
+        timings: &mut Timings,
+    ) -> Option<(usize, &'static str)> {
+        let explicit = |timings: &mut Timings, step: &mut dyn FnMut() -> Option<usize>| {
+            timings.time(EXPLICIT_STAGE, step)
+        };
+        let bad = match self {
+            Stepper::ExplicitEuler(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
+            Stepper::SymplecticEuler(s) => {
+                explicit(timings, &mut || s.step(model, surfaces, state))
+            }
+            Stepper::Midpoint(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
+            Stepper::Rk4(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
+            Stepper::ImplicitEuler(s) => {
+                s.step(model, surfaces, state, timings);
+                return timings.time("finiteness", || crate::first_non_finite(state));
+            }
+        };
+        bad.map(|i| (i, crate::non_finite_what(state, i)))
+    }
+
+    /// Bytes of scratch held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        match self {
+            Stepper::ExplicitEuler(s) => s.passes.memory_bytes(),
+            Stepper::SymplecticEuler(s) => s.passes.memory_bytes(),
+            Stepper::Midpoint(s) => s.memory_bytes(),
+            Stepper::Rk4(s) => s.memory_bytes(),
+            Stepper::ImplicitEuler(s) => s.memory_bytes(),
+        }
+    }
+
+    /// The integrator's own counters (implicit Euler's CG iterations and solves; zero for the
+    /// others).
+    pub fn statistics(&self) -> Statistics {
+        match self {
+            Stepper::ImplicitEuler(s) => s.statistics.clone(),
+            _ => Statistics::default(),
+        }
+    }
+}
+
+/// What every explicit integrator holds: the fused passes' plan for the model and the second
+/// state buffer a pass writes the next state into (the buffers are then swapped).
+pub struct Passes {
+    pub(super) plan: Plan,
+    pub(super) kernel: Kernel,
+    pub(super) next_x: Vec<DVec3>,
+    pub(super) next_v: Vec<DVec3>,
+}
+
+impl Passes {
+    /// Sized and planned for `model`, in the current thread pool.
+    pub(crate) fn new(model: &Model) -> Passes {
+        let n = model.len();
+        Passes {
+            plan: Plan::new(model),
+            kernel: Kernel::new(&model.springs),
+            next_x: vec![DVec3::ZERO; n],
+            next_v: vec![DVec3::ZERO; n],
+        }
+    }
+
+    /// Bytes held on the heap.
+    pub(crate) fn memory_bytes(&self) -> u64 {
+        self.plan.memory_bytes() + vec_bytes(&self.next_x) + vec_bytes(&self.next_v)
+    }
+
+    /// One step of a single-stage Euler method in one fused pass: spring forces, then per
+    /// particle the gathered forces, gravity, drag and contact, `update(x, v, a, h) -> (x', v')`,
+    /// the collision response and the finiteness check. Returns the first particle that is not
+    /// finite.
+    pub(crate) fn euler_step(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &mut State,
+        update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
+    ) -> Option<usize> {
+        let h = model.simulation.dt;
+        let (x, v) = (&state.x[..], &state.v[..]);
+        let bad = pass(
+            &mut self.plan,
+            self.kernel,
+            model,
+            x,
+            v,
+            (&mut self.next_x[..], &mut self.next_v[..]),
+            // Inlined into the pass's block loop: a call per particle costs more than the
+            // update.
+            #[inline(always)]
+            |i, springs, (xn, vn)| {
+                let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+                (*xn, *vn) = update(x[i], v[i], a, h);
+                finish(model, surfaces, i, xn, vn)
+            },
+        );
+        self.swap_into(state);
+        bad
+    }
+
+    /// Makes the second state buffer the state.
+    pub(crate) fn swap_into(&mut self, state: &mut State) {
+        std::mem::swap(&mut state.x, &mut self.next_x);
+        std::mem::swap(&mut state.v, &mut self.next_v);
+    }
+}
 
 /// The end of an explicit step for particle i: its collision response (unless it is pinned),
 /// then whether its position and velocity are finite.
@@ -49,37 +204,6 @@ pub(crate) fn finish(
 fn all_finite(x: DVec3, v: DVec3) -> bool {
     let d = (x - x) + (v - v);
     d.x + d.y + d.z == 0.0
-}
-
-/// One step of a single-stage Euler method in one fused pass: spring forces, then per particle
-/// the gathered forces, gravity, drag and contact, `update(x, v, a, h) -> (x', v')`, the
-/// collision response and the finiteness check. Returns the first particle that is not finite.
-pub(crate) fn euler_step(
-    ws: &mut Workspace,
-    state: &mut State,
-    update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
-) -> Option<usize> {
-    let h = ws.model.simulation.dt;
-    let (model, surfaces) = (&ws.model, &ws.surfaces[..]);
-    let (x, v) = (&state.x[..], &state.v[..]);
-    let bad = pass(
-        &mut ws.plan,
-        ws.kernel,
-        model,
-        x,
-        v,
-        (&mut ws.next_x[..], &mut ws.next_v[..]),
-        // Inlined into the pass's block loop: a call per particle costs more than the update.
-        #[inline(always)]
-        |i, springs, (xn, vn)| {
-            let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
-            (*xn, *vn) = update(x[i], v[i], a, h);
-            finish(model, surfaces, i, xn, vn)
-        },
-    );
-    std::mem::swap(&mut state.x, &mut ws.next_x);
-    std::mem::swap(&mut state.v, &mut ws.next_v);
-    bad
 }
 
 #[cfg(test)]

@@ -3,92 +3,135 @@
 //! y ← y + h/6 (k1 + 2k2 + 2k3 + k4).
 //!
 //! The weighted sum is accumulated as the stages go. Each stage is one fused pass that reads
-//! the stage state and writes the next one (the stage buffer and the workspace's second state
+//! the stage state and writes the next one (the stage buffer and the passes' second state
 //! buffer take turns) along with the running sums; the last writes the new state, collision
 //! response and finiteness check included.
 
-use softbody_scene::State;
+use glam::DVec3;
+use softbody_scene::{Model, State};
 
-use super::finish;
-use crate::Workspace;
+use super::{Passes, finish};
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
+use crate::terrain::Surface;
+use crate::vec_bytes;
 
-/// One step, collision response included; returns the first particle that is not finite.
-pub fn step(ws: &mut Workspace, state: &mut State) -> Option<usize> {
-    let h = ws.model.simulation.dt;
-    let (model, surfaces) = (&ws.model, &ws.surfaces[..]);
-    let (x, v) = (&state.x[..], &state.v[..]);
+/// RK4 and its scratch: the passes, the stage state and the running weighted sums.
+pub struct Rk4 {
+    passes: Passes,
+    stage_x: Vec<DVec3>,
+    stage_v: Vec<DVec3>,
+    sum_x: Vec<DVec3>,
+    sum_v: Vec<DVec3>,
+}
 
-    // k1 at y.
-    pass(
-        &mut ws.plan,
-        ws.kernel,
-        model,
-        x,
-        v,
-        (
-            &mut ws.stage_x[..],
-            &mut ws.stage_v[..],
-            &mut ws.sum_x[..],
-            &mut ws.sum_v[..],
-        ),
-        |i, springs, (xs, vs, sum_x, sum_v)| {
-            let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
-            *sum_x = v[i];
-            *sum_v = a;
-            *xs = x[i] + 0.5 * h * v[i];
-            *vs = v[i] + 0.5 * h * a;
-            true
-        },
-    );
-    // k2 and k3 at y + h/2 k1 and y + h/2 k2; the next stage at y + h/2 k2 and y + h k3.
-    for (weight, next) in [(2.0, 0.5 * h), (2.0, h)] {
-        let (xs, vs) = (&ws.stage_x[..], &ws.stage_v[..]);
+impl Rk4 {
+    /// Sized for `model`.
+    pub fn new(model: &Model) -> Rk4 {
+        let zeros = || vec![DVec3::ZERO; model.len()];
+        Rk4 {
+            passes: Passes::new(model),
+            stage_x: zeros(),
+            stage_v: zeros(),
+            sum_x: zeros(),
+            sum_v: zeros(),
+        }
+    }
+
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        self.passes.memory_bytes()
+            + [&self.stage_x, &self.stage_v, &self.sum_x, &self.sum_v]
+                .into_iter()
+                .map(vec_bytes)
+                .sum::<u64>()
+    }
+
+    /// One step, collision response included; returns the first particle that is not finite.
+    pub fn step(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &mut State,
+    ) -> Option<usize> {
+        let h = model.simulation.dt;
+        let Passes {
+            plan,
+            kernel,
+            next_x,
+            next_v,
+        } = &mut self.passes;
+        let (x, v) = (&state.x[..], &state.v[..]);
+
+        // k1 at y.
         pass(
-            &mut ws.plan,
-            ws.kernel,
+            plan,
+            *kernel,
             model,
-            xs,
-            vs,
+            x,
+            v,
             (
-                &mut ws.next_x[..],
-                &mut ws.next_v[..],
-                &mut ws.sum_x[..],
-                &mut ws.sum_v[..],
+                &mut self.stage_x[..],
+                &mut self.stage_v[..],
+                &mut self.sum_x[..],
+                &mut self.sum_v[..],
             ),
-            |i, springs, (xn, vn, sum_x, sum_v)| {
-                let a = acceleration_with(model, surfaces, i, xs[i], vs[i], springs);
-                *sum_x += weight * vs[i];
-                *sum_v += weight * a;
-                *xn = x[i] + next * vs[i];
-                *vn = v[i] + next * a;
+            |i, springs, (xs, vs, sum_x, sum_v)| {
+                let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+                *sum_x = v[i];
+                *sum_v = a;
+                *xs = x[i] + 0.5 * h * v[i];
+                *vs = v[i] + 0.5 * h * a;
                 true
             },
         );
-        std::mem::swap(&mut ws.stage_x, &mut ws.next_x);
-        std::mem::swap(&mut ws.stage_v, &mut ws.next_v);
+        // k2 and k3 at y + h/2 k1 and y + h/2 k2; the next stage at y + h/2 k2 and y + h k3.
+        for (weight, next) in [(2.0, 0.5 * h), (2.0, h)] {
+            let (xs, vs) = (&self.stage_x[..], &self.stage_v[..]);
+            pass(
+                plan,
+                *kernel,
+                model,
+                xs,
+                vs,
+                (
+                    &mut next_x[..],
+                    &mut next_v[..],
+                    &mut self.sum_x[..],
+                    &mut self.sum_v[..],
+                ),
+                |i, springs, (xn, vn, sum_x, sum_v)| {
+                    let a = acceleration_with(model, surfaces, i, xs[i], vs[i], springs);
+                    *sum_x += weight * vs[i];
+                    *sum_v += weight * a;
+                    *xn = x[i] + next * vs[i];
+                    *vn = v[i] + next * a;
+                    true
+                },
+            );
+            std::mem::swap(&mut self.stage_x, next_x);
+            std::mem::swap(&mut self.stage_v, next_v);
+        }
+        // k4 at y + h k3, and the new state.
+        let (xs, vs) = (&self.stage_x[..], &self.stage_v[..]);
+        let (sum_x, sum_v) = (&self.sum_x[..], &self.sum_v[..]);
+        let bad = pass(
+            plan,
+            *kernel,
+            model,
+            xs,
+            vs,
+            (&mut next_x[..], &mut next_v[..]),
+            |i, springs, (xn, vn)| {
+                let a = acceleration_with(model, surfaces, i, xs[i], vs[i], springs);
+                let sx = sum_x[i] + 1.0 * vs[i];
+                let sv = sum_v[i] + 1.0 * a;
+                *xn = x[i] + h / 6.0 * sx;
+                *vn = v[i] + h / 6.0 * sv;
+                finish(model, surfaces, i, xn, vn)
+            },
+        );
+        self.passes.swap_into(state);
+        bad
     }
-    // k4 at y + h k3, and the new state.
-    let (xs, vs) = (&ws.stage_x[..], &ws.stage_v[..]);
-    let (sum_x, sum_v) = (&ws.sum_x[..], &ws.sum_v[..]);
-    let bad = pass(
-        &mut ws.plan,
-        ws.kernel,
-        model,
-        xs,
-        vs,
-        (&mut ws.next_x[..], &mut ws.next_v[..]),
-        |i, springs, (xn, vn)| {
-            let a = acceleration_with(model, surfaces, i, xs[i], vs[i], springs);
-            let sx = sum_x[i] + 1.0 * vs[i];
-            let sv = sum_v[i] + 1.0 * a;
-            *xn = x[i] + h / 6.0 * sx;
-            *vn = v[i] + h / 6.0 * sv;
-            finish(model, surfaces, i, xn, vn)
-        },
-    );
-    std::mem::swap(&mut state.x, &mut ws.next_x);
-    std::mem::swap(&mut state.v, &mut ws.next_v);
-    bad
 }

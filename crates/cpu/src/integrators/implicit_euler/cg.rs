@@ -17,32 +17,11 @@ use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::Model;
 
+pub use softbody_scene::implicit::Constraint;
+
 use super::system::System;
 use crate::forces::PARTICLE_CHUNK;
 use crate::reduce::chunked_sum;
-
-/// The velocity constraint of one particle during a solve.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Constraint {
-    /// Δv is free.
-    Free,
-    /// The component along this unit normal is prescribed; the tangential part is free.
-    Normal(DVec3),
-    /// All of Δv is prescribed (pinned particles and sticking contacts).
-    Fixed,
-}
-
-impl Constraint {
-    /// S_i p: the free part of p.
-    #[inline(always)]
-    pub fn filter(self, p: DVec3) -> DVec3 {
-        match self {
-            Constraint::Free => p,
-            Constraint::Normal(n) => p - p.dot(n) * n,
-            Constraint::Fixed => DVec3::ZERO,
-        }
-    }
-}
 
 /// How a solve ended.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -36,7 +36,8 @@ pub mod system;
 
 use glam::DVec3;
 use rayon::prelude::*;
-use softbody_scene::{FrictionModel, Model, State, Statistics};
+pub use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
+use softbody_scene::{FrictionModel, Model, State, Statistics, Timings};
 
 use self::cg::{Constraint, Scratch};
 use self::system::System;
@@ -45,10 +46,6 @@ use crate::terrain::Surface;
 
 /// CG stops when the preconditioned residual is this fraction of the right-hand side's.
 pub const CG_TOLERANCE: f64 = 1e-8;
-/// CG stops after this many iterations whatever the residual (counted in the statistics).
-pub const CG_MAX_ITERATIONS: u32 = 2000;
-/// Solves per step at most while the contact active set changes.
-pub const ACTIVE_SET_ROUNDS: u32 = 8;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Mode {
@@ -78,7 +75,7 @@ struct Candidate {
 }
 
 /// Implicit Euler's state between steps and its scratch.
-pub struct Implicit {
+pub struct ImplicitEuler {
     system: System,
     scratch: Scratch,
     b: Vec<DVec3>,
@@ -95,12 +92,12 @@ pub struct Implicit {
     pub statistics: Statistics,
 }
 
-impl Implicit {
+impl ImplicitEuler {
     /// Sized for `model`.
-    pub fn new(model: &Model) -> Implicit {
+    pub fn new(model: &Model) -> ImplicitEuler {
         let n = model.len();
         let zeros = || vec![DVec3::ZERO; n];
-        Implicit {
+        ImplicitEuler {
             system: System::new(model),
             scratch: Scratch::new(n),
             b: zeros(),
@@ -129,40 +126,61 @@ impl Implicit {
             + vec_bytes(&self.sticking)
     }
 
-    /// One step.
-    pub fn step(&mut self, model: &Model, surfaces: &[Surface], state: &mut State) {
+    /// One step, its stages timed into `timings`: "assemble" (the linear system),
+    /// "contacts" (candidates, constraints, active set), "cg" (the solves), "update".
+    pub fn step(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        state: &mut State,
+        timings: &mut Timings,
+    ) {
         let sim = &model.simulation;
         let (h, eps) = (sim.dt, sim.contact_distance);
-        self.system.assemble(model, &state.x, &state.v, &mut self.b);
-        let mut candidates = self.find_candidates(model, surfaces, state, h, eps);
+        timings.time("assemble", || {
+            self.system.assemble(model, &state.x, &state.v, &mut self.b)
+        });
+        let mut candidates = timings.time("contacts", || {
+            self.find_candidates(model, surfaces, state, h, eps)
+        });
 
         for _ in 0..ACTIVE_SET_ROUNDS {
-            self.constrain(model, surfaces, state, &candidates);
-            let outcome = cg::solve(
-                &mut self.system,
-                model,
-                &self.constraints,
-                &self.rhs,
-                &self.z,
-                &mut self.dv,
-                &mut self.scratch,
-                CG_TOLERANCE,
-                CG_MAX_ITERATIONS,
-            );
+            timings.time("contacts", || {
+                self.constrain(model, surfaces, state, &candidates)
+            });
+            let outcome = timings.time("cg", || {
+                cg::solve(
+                    &mut self.system,
+                    model,
+                    &self.constraints,
+                    &self.rhs,
+                    &self.z,
+                    &mut self.dv,
+                    &mut self.scratch,
+                    CG_TOLERANCE,
+                    CG_MAX_ITERATIONS,
+                )
+            });
             let st = &mut self.statistics;
             st.cg_iterations += outcome.iterations as u64;
             st.cg_solves += 1;
             st.cg_max_residual = st.cg_max_residual.max(outcome.relative_residual);
             if candidates.is_empty()
-                || !self.update_active_set(model, surfaces, state, &mut candidates)
+                || !timings.time("contacts", || {
+                    self.update_active_set(model, surfaces, state, &mut candidates)
+                })
             {
                 break;
             }
         }
+        timings.time("update", || self.finish(&candidates, h, state));
+    }
 
+    /// Records who touches and sticks, then v ← v + Δv, x ← x + h v.
+    fn finish(&mut self, candidates: &[Candidate], h: f64, state: &mut State) {
         self.touching.fill(false);
         self.sticking.fill(false);
-        for c in &candidates {
+        for c in candidates {
             self.touching[c.particle as usize] = c.mode != Mode::Inactive;
             self.sticking[c.particle as usize] = c.mode == Mode::Stick;
         }

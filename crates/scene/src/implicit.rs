@@ -1,0 +1,35 @@
+//! What the implicit-Euler solvers of every backend share: the velocity constraint of a
+//! particle in the filtered CG solve, and the limits of a step's solve.
+//!
+//! Each backend keeps its own CG tolerance, which depends on its precision (the CPU's f64 solve
+//! goes to 1e-8, the GPU's f32 solve to 1e-5).
+
+use glam::DVec3;
+
+/// CG stops after this many iterations whatever the residual (counted in the statistics).
+pub const CG_MAX_ITERATIONS: u32 = 2000;
+/// Solves per step at most while the contact active set changes.
+pub const ACTIVE_SET_ROUNDS: u32 = 8;
+
+/// The velocity constraint of one particle during a solve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Constraint {
+    /// Δv is free.
+    Free,
+    /// The component along this unit normal is prescribed; the tangential part is free.
+    Normal(DVec3),
+    /// All of Δv is prescribed (pinned particles and sticking contacts).
+    Fixed,
+}
+
+impl Constraint {
+    /// S_i p: the free part of p.
+    #[inline(always)]
+    pub fn filter(self, p: DVec3) -> DVec3 {
+        match self {
+            Constraint::Free => p,
+            Constraint::Normal(n) => p - p.dot(n) * n,
+            Constraint::Fixed => DVec3::ZERO,
+        }
+    }
+}
