@@ -3,7 +3,7 @@
 //!
 //! The pipeline of one step reads top to bottom:
 //! [`spring_forces`] (one force per spring, gathered per particle) → [`forces`] (gravity, drag,
-//! springs, then [`contact`] and friction against each [`terrain`] surface) → an
+//! springs, then [`contact`] and friction against each terrain [`Surface`]) → an
 //! [`integrators`] step → [`collision_response`] (explicit family) → a finiteness check.
 //! Implicit Euler replaces the last four with a linearised backward-Euler solve that treats
 //! contacts as velocity constraints.
@@ -37,17 +37,15 @@ pub mod integrators;
 mod pipeline;
 pub mod reduce;
 pub mod spring_forces;
-pub mod terrain;
 
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{
     Energies, Instability, Integrator, Model, Solver, State, Statistics, StepError,
 };
+use softbody_terrain::Surface;
 
 pub use rayon::ThreadPoolBuildError;
-
-use crate::terrain::Surface;
 
 /// The model, its terrain surfaces, and the scratch a step needs (allocated once).
 pub struct Workspace {

@@ -2,7 +2,7 @@
 //! `shaders/terrain.wgsl` reads at group 1 (`surfaces`: one [`SurfaceGpu`] per shape,
 //! `terrain_data`: heights and signed-distance grids), and bakes mesh terrain into
 //! signed-distance grids. `shaders/terrain.wgsl` is the f32 twin of
-//! `softbody_cpu::terrain`; its header lists which field holds what for each kind.
+//! [`softbody_terrain`]; its header lists which field holds what for each kind.
 //!
 //! # Heightfields
 //!
@@ -58,8 +58,8 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
-use softbody_cpu::terrain::Surface;
 use softbody_scene::{FrictionModel, Terrain, TerrainShape, rotation_from_degrees};
+use softbody_terrain::Surface;
 
 /// `SurfaceGpu::kind` of a plane.
 pub const KIND_PLANE: u32 = 0;

@@ -17,12 +17,12 @@ pub mod symplectic_euler;
 
 use glam::DVec3;
 use softbody_scene::{Model, State};
+use softbody_terrain::Surface;
 
 use crate::Workspace;
 use crate::collision_response::respond_one;
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
-use crate::terrain::Surface;
 
 /// The end of an explicit step for particle i: its collision response (unless it is pinned),
 /// then whether its position and velocity are finite.

@@ -37,11 +37,11 @@ pub mod system;
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{FrictionModel, Model, State, Statistics};
+use softbody_terrain::Surface;
 
 use self::cg::{Constraint, Scratch};
 use self::system::System;
 use crate::forces::PARTICLE_CHUNK;
-use crate::terrain::Surface;
 
 /// CG stops when the preconditioned residual is this fraction of the right-hand side's.
 pub const CG_TOLERANCE: f64 = 1e-8;
