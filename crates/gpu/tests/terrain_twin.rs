@@ -11,7 +11,7 @@
 //!
 //! - φ: |φ_gpu − φ_cpu| ≤ 1e-5·s for the analytic kinds and the heightfield (within the
 //!   window cap; beyond it the sign must agree and |φ_gpu| ≥ |φ_cpu|); for meshes
-//!   |φ_gpu − φ_grid| ≤ 1e-5·s against the f64 sampler `sample_sdf`, and |φ_gpu − φ_cpu| ≤
+//!   |φ_gpu − φ_grid| ≤ 1e-5·s against the f64 sampler `SdfGrid::sample`, and |φ_gpu − φ_cpu| ≤
 //!   h√3/2 + 1e-5·s where the CPU φ is 1-Lipschitz over the cell, 1e-5·s where it is affine.
 //! - N: unit length within 1e-5; angle ≤ 1e-3 rad where |φ| ≥ 1e-3·s and at face-interior
 //!   surface points, to the CPU normal or, where f32 cannot tell distances apart (within
@@ -26,7 +26,7 @@ use std::sync::OnceLock;
 use glam::{DVec3, Vec4};
 use libtest_mimic::{Arguments, Failed, Trial};
 use softbody_gpu::terrain::{
-    HF_MAX_HALF_WINDOW, KIND_HEIGHTFIELD, KIND_MESH, TerrainBuffers, pack, sample_sdf,
+    HF_MAX_HALF_WINDOW, KIND_HEIGHTFIELD, KIND_MESH, TerrainBuffers, pack,
 };
 use softbody_scene::{FrictionModel, Heightfield, Terrain, TerrainShape, TriangleMesh};
 use softbody_terrain::{CellTriangle, Contact, Surface};
@@ -712,7 +712,8 @@ fn check(p: &Probe, k: usize) -> Result<String, Failed> {
 
         let mut compare_normal = false;
         if gs.kind == KIND_MESH {
-            let (grid_phi, grid_n) = sample_sdf(gs, &p.packed.data, x);
+            let (grid, values) = p.packed.sdf(k).expect("a mesh has a grid");
+            let (grid_phi, grid_n) = grid.sample(values, x);
             let err = (g_phi - grid_phi).abs();
             st.max_grid_err = st.max_grid_err.max(err);
             if err > tol {

@@ -1,6 +1,7 @@
 //! Terrain geometry of `softbody`, shared by the CPU solver, the GPU solver and the renderer:
-//! point queries against one terrain shape in f64 ([`Surface`], built on parry3d-f64) and the
-//! one rule that splits a heightfield cell into triangles ([`CellTriangle`]).
+//! point queries against one terrain shape in f64 ([`Surface`], built on parry3d-f64), the
+//! one rule that splits a heightfield cell into triangles ([`CellTriangle`]), and the
+//! signed-distance grid that mesh terrain is baked into for the GPU ([`sdf`]).
 //!
 //! # Point queries
 //!
@@ -53,6 +54,7 @@ mod cuboid;
 mod heightfield;
 mod mesh;
 mod plane;
+pub mod sdf;
 mod sphere;
 #[cfg(test)]
 mod testing;
