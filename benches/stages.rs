@@ -12,7 +12,7 @@ use softbody::cpu::contact::contact_force;
 use softbody::cpu::integrators::implicit_euler::cg::{self, Constraint, Scratch};
 use softbody::cpu::integrators::implicit_euler::system::System;
 use softbody::cpu::spring_forces::{self, Kernel};
-use softbody::cpu::terrain::Surface;
+use softbody::terrain::Surface;
 use softbody::{Backend, Integrator, Model, State};
 
 fn model(n: u32, integrator: Integrator, dt: f64) -> (Model, State) {

@@ -1,5 +1,5 @@
-// Terrain point queries on the GPU, in f32: the twin of crates/cpu/src/terrain.rs (read its
-// module doc for the conventions; this file follows them as far as f32 allows).
+// Terrain point queries on the GPU, in f32: the twin of crates/terrain (softbody-terrain; read
+// its crate doc for the conventions; this file follows them as far as f32 allows).
 //
 // terrain_query(k, x) returns vec4(N, φ) for surface k: φ the signed distance (> 0 in free
 // space, < 0 inside the solid) and N the outward unit normal, so that `x ← x − φ·N` puts a
@@ -9,7 +9,8 @@
 // about contacts within a reach should call it.
 //
 // The surfaces and their bulk data are packed by crates/gpu/src/terrain.rs (`pack`), which
-// holds the Rust mirror of SurfaceGpu and the constants of the mesh signed-distance grid.
+// holds the Rust mirror of SurfaceGpu; the mesh signed-distance grid, its constants and an f64
+// twin of its sampler are in crates/terrain/src/sdf.rs.
 //
 // Per kind (field use of SurfaceGpu in brackets):
 //
@@ -23,12 +24,13 @@
 //   N radial; within ε of the centre N = +y.
 // - 4 heightfield [center.xyz the world position of vertex (0, 0) at height 0, center.w ε,
 //   axis = (dx, dz, min height, max height), dims = (rows, cols, offset, 0); heights at
-//   terrain_data[offset + r·cols + c]]: parry's triangulation (the cell of rows r, r+1 and
-//   columns c, c+1 is split from vertex (r+1, c) to (r, c+1) into (r,c),(r+1,c),(r,c+1) and
-//   (r+1,c),(r+1,c+1),(r,c+1)); inside = within the footprint (edges included) and strictly
-//   below the triangle under (x, z); |φ| = distance to the nearest triangle, searched over a
-//   window of cells (see TERRAIN_HF_MAX_HALF_WINDOW); N from the nearest point to x (outside)
-//   or from x to it (inside), or the nearest triangle's normal within ε.
+//   terrain_data[offset + r·cols + c]]: parry's triangulation (`CellTriangle` in
+//   crates/terrain/src/heightfield.rs: the cell of rows r, r+1 and columns c, c+1 is split
+//   from vertex (r+1, c) to (r, c+1) into (r,c),(r+1,c),(r,c+1) and (r+1,c),(r+1,c+1),(r,c+1));
+//   inside = within the footprint (edges included) and strictly below the triangle under
+//   (x, z); |φ| = distance to the nearest triangle, searched over a window of cells (see
+//   TERRAIN_HF_MAX_HALF_WINDOW); N from the nearest point to x (outside) or from x to it
+//   (inside), or the nearest triangle's normal within ε.
 // - 5 mesh [center.xyz grid origin (node (0,0,0)), center.w cell size h, dims = (nx, ny, nz,
 //   offset); φ at node (i, j, k) = terrain_data[offset + i + nx·(j + ny·k)]]: the signed
 //   distance grid baked on the CPU from the CPU twin's φ, sampled trilinearly; N = the
@@ -36,7 +38,7 @@
 //   Outside the grid box, with c the closest point of the box and d = |x − c|:
 //   φ = φ(c) + sign(φ(c))·d (continuous, with the sign of the nearest grid value; the grid
 //   is padded so that such points are at least the padding away from every triangle), and N
-//   the normalised gradient of that expression. Error bounds: crates/gpu/src/terrain.rs.
+//   the normalised gradient of that expression. Error bounds: crates/terrain/src/sdf.rs.
 // - 6 none (geometry the CPU twin refuses, e.g. a zero plane normal): φ = TERRAIN_FAR, N = +y.
 //
 // ε (center.w for box, ball, heightfield) is the f32 analogue of the CPU's degenerate-normal

@@ -42,7 +42,7 @@
 //!   integrator's energy error only in undamped scenes: damping, drag, friction and inelastic
 //!   contacts remove energy on purpose;
 //! - the deepest penetration: the smallest signed distance φ of any particle to any terrain shape
-//!   ([`Surface::query`](crate::cpu::terrain::Surface::query)) at the frames, negative inside the
+//!   ([`Surface::query`](crate::terrain::Surface::query)) at the frames, negative inside the
 //!   solid (None without terrain). The explicit integrators project particles back onto the
 //!   surface after every step, so theirs is ≈ 0 unless a particle is pinned inside or pushed into
 //!   a second shape; implicit Euler treats contacts as velocity constraints and may end slightly
@@ -82,8 +82,8 @@ use std::time::{Duration, Instant};
 
 use glam::DVec3;
 use serde_json::{Value, json};
-use softbody_cpu::terrain::Surface;
 use softbody_scene::{Instability, Integrator, Scene, Solver, StepError};
+use softbody_terrain::Surface;
 
 use crate::output::{Frame, FrameSink, Header};
 use crate::run::{self, ENERGY_GROWTH_BOUND, RunError};

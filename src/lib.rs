@@ -51,6 +51,8 @@ pub use softbody_scene::{
     Energies, Instability, Integrator, Model, Scene, SceneError, Solver, State, Statistics,
     StepError,
 };
+/// The terrain crate: point queries, the heightfield split rule, signed-distance grids.
+pub use softbody_terrain as terrain;
 
 /// Which solver runs a scene.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

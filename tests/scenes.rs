@@ -8,7 +8,7 @@
 
 use std::path::{Path, PathBuf};
 
-use softbody::cpu::terrain::Surface;
+use softbody::terrain::Surface;
 use softbody::{Backend, Integrator, Model, Scene};
 
 /// Simulated time each scene is stepped for, seconds.

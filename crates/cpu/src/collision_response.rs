@@ -7,8 +7,7 @@
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::Model;
-
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 
 /// Applies the response to every particle.
 pub fn respond(model: &Model, surfaces: &[Surface], x: &mut [DVec3], v: &mut [DVec3]) {

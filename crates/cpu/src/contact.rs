@@ -17,8 +17,7 @@
 
 use glam::DVec3;
 use softbody_scene::FrictionModel;
-
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 
 /// The contact and friction force on one particle (mass m, position x, velocity v, applied
 /// force f) for step size h.

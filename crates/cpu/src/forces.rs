@@ -6,10 +6,10 @@
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::Model;
+use softbody_terrain::Surface;
 
 use crate::contact::contact_force;
 use crate::spring_forces;
-use crate::terrain::Surface;
 
 /// Particles per rayon task in per-particle passes (the fewest in the fused passes, which size
 /// their tasks with [`particle_chunk`]).

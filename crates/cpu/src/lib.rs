@@ -3,7 +3,7 @@
 //!
 //! The pipeline of one step reads top to bottom:
 //! [`spring_forces`] (one force per spring, gathered per particle) → [`forces`] (gravity, drag,
-//! springs, then [`contact`] and friction against each [`terrain`] surface) → an
+//! springs, then [`contact`] and friction against each terrain [`Surface`](softbody_terrain::Surface)) → an
 //! [`integrators`] step → [`collision_response`] (explicit family) → a finiteness check.
 //! Implicit Euler replaces the last four with a linearised backward-Euler solve that treats
 //! contacts as velocity constraints.
@@ -38,7 +38,6 @@ mod pipeline;
 pub mod reduce;
 mod solver;
 pub mod spring_forces;
-pub mod terrain;
 
 use rayon::prelude::*;
 use softbody_scene::State;

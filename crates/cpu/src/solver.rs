@@ -9,7 +9,7 @@ use softbody_scene::{
 };
 
 use crate::integrators::Stepper;
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 use crate::{energy, vec_bytes};
 
 /// The CPU backend.

@@ -30,10 +30,10 @@ use harness::{BOUNCY_PLANE, PLANE, SLOPE, Test};
 
 use glam::DVec3;
 use libtest_mimic::Failed;
-use softbody_cpu::terrain::Surface;
 use softbody_cpu::{CpuSolver, collision_response, energy, forces, spring_forces};
 use softbody_gpu::GpuSolver;
 use softbody_scene::{Integrator, Model, Scene, Solver, State, StepError};
+use softbody_terrain::Surface;
 
 fn main() -> ExitCode {
     let tests: Vec<(&str, Test)> = vec![

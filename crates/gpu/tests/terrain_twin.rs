@@ -1,4 +1,4 @@
-//! `shaders/terrain.wgsl` against its CPU twin `softbody_cpu::terrain::Surface::query`, on a
+//! `shaders/terrain.wgsl` against its CPU twin `softbody_terrain::Surface::query`, on a
 //! wgpu adapter: one probe kernel (`shaders/terrain_probe.wgsl`) evaluates every surface of a
 //! terrain list holding each kind at every test point, and each test compares one surface's
 //! column with the CPU's f64 answer at the same (f32-rounded) point.
@@ -11,7 +11,7 @@
 //!
 //! - φ: |φ_gpu − φ_cpu| ≤ 1e-5·s for the analytic kinds and the heightfield (within the
 //!   window cap; beyond it the sign must agree and |φ_gpu| ≥ |φ_cpu|); for meshes
-//!   |φ_gpu − φ_grid| ≤ 1e-5·s against the f64 sampler `sample_sdf`, and |φ_gpu − φ_cpu| ≤
+//!   |φ_gpu − φ_grid| ≤ 1e-5·s against the f64 sampler `SdfGrid::sample`, and |φ_gpu − φ_cpu| ≤
 //!   h√3/2 + 1e-5·s where the CPU φ is 1-Lipschitz over the cell, 1e-5·s where it is affine.
 //! - N: unit length within 1e-5; angle ≤ 1e-3 rad where |φ| ≥ 1e-3·s and at face-interior
 //!   surface points, to the CPU normal or, where f32 cannot tell distances apart (within
@@ -25,11 +25,11 @@ use std::sync::OnceLock;
 
 use glam::{DVec3, Vec4};
 use libtest_mimic::{Arguments, Failed, Trial};
-use softbody_cpu::terrain::{Contact, Surface};
 use softbody_gpu::terrain::{
-    HF_MAX_HALF_WINDOW, KIND_HEIGHTFIELD, KIND_MESH, TerrainBuffers, pack, sample_sdf,
+    HF_MAX_HALF_WINDOW, KIND_HEIGHTFIELD, KIND_MESH, TerrainBuffers, pack,
 };
 use softbody_scene::{FrictionModel, Heightfield, Terrain, TerrainShape, TriangleMesh};
+use softbody_terrain::{CellTriangle, Contact, Surface};
 use wgpu::util::DeviceExt;
 
 const TERRAIN_WGSL: &str = include_str!("../../../shaders/terrain.wgsl");
@@ -127,14 +127,8 @@ fn heightfield_surface_points(h: &Heightfield, rng: &mut Rng, count: usize) -> V
                 u *= 0.9;
                 v *= 0.9;
             }
-            let y = |r: usize, c: usize| h.heights[r][c];
-            let height = if u + v <= 1.0 {
-                y(r, c) + u * (y(r, c + 1) - y(r, c)) + v * (y(r + 1, c) - y(r, c))
-            } else {
-                y(r + 1, c + 1)
-                    + (1.0 - u) * (y(r + 1, c) - y(r + 1, c + 1))
-                    + (1.0 - v) * (y(r, c + 1) - y(r + 1, c + 1))
-            };
+            let y = [0, 1].map(|dr| [0, 1].map(|dc| h.heights[r + dr][c + dc]));
+            let height = CellTriangle::at(u, v).height(u, v, y);
             h.origin + DVec3::new((c as f64 + u) * dx, height, (r as f64 + v) * dz)
         })
         .collect()
@@ -632,10 +626,8 @@ fn tie_normals(shape: &TerrainShape, x: DVec3, c: Contact, eta: f64, gpu_eps: f6
             };
             for r in range(p.z - reach, p.z + reach, dz, rows) {
                 for cc in range(p.x - reach, p.x + reach, dx, cols) {
-                    for [a, b, t] in [
-                        [v(r, cc), v(r + 1, cc), v(r, cc + 1)],
-                        [v(r + 1, cc), v(r + 1, cc + 1), v(r, cc + 1)],
-                    ] {
+                    for half in CellTriangle::BOTH {
+                        let [a, b, t] = half.corners().map(|[dr, dc]| v(r + dr, cc + dc));
                         let q = closest_on_triangle(x, a, b, t);
                         let d = (x - q).length();
                         if d <= c.phi.abs() + eta {
@@ -720,7 +712,8 @@ fn check(p: &Probe, k: usize) -> Result<String, Failed> {
 
         let mut compare_normal = false;
         if gs.kind == KIND_MESH {
-            let (grid_phi, grid_n) = sample_sdf(gs, &p.packed.data, x);
+            let (grid, values) = p.packed.sdf(k).expect("a mesh has a grid");
+            let (grid_phi, grid_n) = grid.sample(values, x);
             let err = (g_phi - grid_phi).abs();
             st.max_grid_err = st.max_grid_err.max(err);
             if err > tol {

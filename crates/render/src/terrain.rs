@@ -9,11 +9,13 @@
 //! - bowl: the lower half (y ≤ centre) of its sphere, seen from inside, [`SPHERE_SLICES`] ×
 //!   [`SPHERE_STACKS`]/2 cells: the upper half would only hide the inside;
 //! - heightfield: each grid cell split into two triangles along the diagonal from vertex
-//!   (r + 1, c) to (r, c + 1), as the solvers' collision queries split it, cells checkered;
+//!   (r + 1, c) to (r, c + 1), by the rule the solvers' collision queries use
+//!   ([`CellTriangle`]), cells checkered;
 //! - mesh: its own triangles.
 
 use glam::DVec3;
 use softbody_scene::{Terrain, TerrainShape, rotation_from_degrees};
+use softbody_terrain::CellTriangle;
 
 /// Segments around a sphere's axis.
 pub const SPHERE_SLICES: usize = 32;
@@ -75,16 +77,12 @@ pub fn triangulate(
                 for r in 0..rows.saturating_sub(1) {
                     for c in 0..cols.saturating_sub(1) {
                         let color = HEIGHTFIELD[(r + c) % 2];
-                        let (a, b, cc, d) =
-                            (at(r, c), at(r, c + 1), at(r + 1, c + 1), at(r + 1, c));
-                        out.push(TerrainTriangle {
-                            corners: [a, d, b],
-                            color,
-                        });
-                        out.push(TerrainTriangle {
-                            corners: [d, cc, b],
-                            color,
-                        });
+                        for half in CellTriangle::BOTH {
+                            out.push(TerrainTriangle {
+                                corners: half.corners().map(|[dr, dc]| at(r + dr, c + dc)),
+                                color,
+                            });
+                        }
                     }
                 }
             }

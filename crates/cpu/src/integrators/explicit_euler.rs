@@ -1,6 +1,6 @@
 //! Explicit (forward) Euler: x' = x + h v, v' = v + h a(x, v).
 
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 use softbody_scene::{Model, State};
 
 use super::Passes;

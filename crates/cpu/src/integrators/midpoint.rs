@@ -10,7 +10,7 @@ use softbody_scene::{Model, State};
 use super::{Passes, finish};
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 use crate::vec_bytes;
 
 /// The midpoint method and its scratch: the passes and the midpoint state y_m.

@@ -19,7 +19,7 @@ pub mod midpoint;
 pub mod rk4;
 pub mod symplectic_euler;
 
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 use glam::DVec3;
 use softbody_scene::{Integrator, Model, State, Statistics, Timings};
 

@@ -13,7 +13,7 @@ use softbody_scene::{Model, State};
 use super::{Passes, finish};
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 use crate::vec_bytes;
 
 /// RK4 and its scratch: the passes, the stage state and the running weighted sums.

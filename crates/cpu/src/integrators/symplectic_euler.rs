@@ -1,6 +1,6 @@
 //! Symplectic (semi-implicit) Euler: v' = v + h a(x, v), x' = x + h v'.
 
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 use softbody_scene::{Model, State};
 
 use super::Passes;

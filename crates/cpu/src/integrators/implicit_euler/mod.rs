@@ -42,7 +42,7 @@ use softbody_scene::{FrictionModel, Model, State, Statistics, Timings};
 use self::cg::{Constraint, Scratch};
 use self::system::System;
 use crate::forces::PARTICLE_CHUNK;
-use crate::terrain::Surface;
+use softbody_terrain::Surface;
 
 /// CG stops when the preconditioned residual is this fraction of the right-hand side's.
 pub const CG_TOLERANCE: f64 = 1e-8;
