@@ -15,13 +15,14 @@ use std::time::Instant;
 use anyhow::{Context, anyhow};
 use clap::Args;
 use glam::DVec3;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use softbody::output::{Frame, FrameSink, Header};
 use softbody::run::RunError;
-use softbody::{Backend, Model, Scene};
+use softbody::{Backend, Model, Overrides, Scene};
 use softbody_render::{Bounds, Camera, GifWriter, RenderOptions, Renderer};
 
-use crate::{Failure, bad_input, load, non_negative, open_failure, positive, progress, status};
+use crate::args::{SceneOverrides, positive};
+use crate::{Failure, bad_input, file_stem, load_with, open_failure, progress, status};
 
 #[derive(Args)]
 pub struct RenderArgs {
@@ -56,12 +57,6 @@ pub struct RenderArgs {
     /// S, the strain drawn in full blue or red with --springs.
     #[arg(long, default_value_t = softbody_render::DEFAULT_STRAIN_RANGE, value_parser = positive, value_name = "S")]
     strain_range: f64,
-    /// Simulated time, seconds (scene input only).
-    #[arg(long, value_parser = non_negative, allow_negative_numbers = true)]
-    duration: Option<f64>,
-    /// Frames per simulated second (scene input only).
-    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
-    fps: Option<f64>,
     /// Do not draw the bodies' shadows on the terrain.
     #[arg(long)]
     no_shadows: bool,
@@ -72,6 +67,12 @@ pub struct RenderArgs {
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
+    // Last: the heading applies to every option after it.
+    #[command(
+        flatten,
+        next_help_heading = "Overrides of the scene (.toml input only)"
+    )]
+    overrides: SceneOverrides,
 }
 
 fn point(s: &str) -> Result<DVec3, String> {
@@ -106,39 +107,22 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
             )));
         }
     };
-    if input == Input::Frames && (args.duration.is_some() || args.fps.is_some()) {
+    let overrides = Overrides::from(&args.overrides);
+    if input == Input::Frames && !overrides.is_empty() {
         return Err(bad_input(anyhow!(
             "--duration and --fps apply to a scene; frames from {} are drawn as they were run",
             args.input.display()
         )));
     }
     let outs = if args.out.is_empty() {
-        let stem = args
-            .input
-            .file_stem()
-            .map_or("frames".into(), |s| s.to_string_lossy());
-        vec![PathBuf::from("out").join(stem.as_ref())]
+        vec![PathBuf::from("out").join(file_stem(&args.input).as_ref())]
     } else {
         args.out.clone()
     };
 
     match input {
         Input::Scene => {
-            let mut scene = load(&args.input)?;
-            if let Some(d) = args.duration {
-                scene.simulation.duration = d;
-            }
-            if let Some(fps) = args.fps {
-                scene.simulation.frame_rate = fps;
-            }
-            scene.validate().map_err(|e| {
-                bad_input(anyhow!(
-                    "{}: {}: {} (with the command-line overrides)",
-                    args.input.display(),
-                    e.key,
-                    e.message
-                ))
-            })?;
+            let scene = load_with(&args.input, &overrides)?;
             let (model, _) = Model::build(&scene);
             let sim = scene.simulation;
             let mut drawer = Drawer::new(&args, &model, &outs, sim.frame_rate, sim.frame_count())?;
@@ -459,15 +443,7 @@ impl<'m> Drawer<'m> {
             .iter()
             .map(|p| Output::create(p, args.width, args.height, frame_rate))
             .collect::<Result<Vec<_>, _>>()?;
-        let bar = progress::bar(frames, args.quiet);
-        if !bar.is_hidden() {
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} frames, {per_sec}, ETA {eta} {msg}",
-                )
-                .expect("static template"),
-            );
-        }
+        let bar = progress::bar(frames, "frames", args.quiet);
         Ok(Drawer {
             model,
             options,
