@@ -3,8 +3,9 @@
 //! The crate ties the pieces together for programs that embed it and for the `softbody` CLI:
 //! load a [`Scene`] (replacing some of its settings with [`Overrides`]), open a [`Solver`] on a
 //! [`Backend`], and [`run`](run::run) it frame by frame into a [`FrameSink`](output::FrameSink)
-//! (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series), or measure the integrators against a converged
-//! reference with a [`compare::Study`].
+//! (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series; JSON Lines read back by
+//! [`output::jsonl::Reader`]), or measure the integrators against a converged reference with a
+//! [`compare::Study`].
 //!
 //! ```
 //! use softbody::{Backend, Scene, Solver};

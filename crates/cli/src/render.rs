@@ -8,7 +8,7 @@
 //! frames before it, as `softbody run` does.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter};
+use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -16,7 +16,7 @@ use anyhow::{Context, anyhow};
 use clap::Args;
 use glam::DVec3;
 use indicatif::ProgressBar;
-use softbody::output::{Frame, FrameSink, Header};
+use softbody::output::{Frame, FrameSink, Header, jsonl};
 use softbody::run::RunError;
 use softbody::{Backend, Model, Overrides, Scene};
 use softbody_render::{Bounds, Camera, GifWriter, RenderOptions, Renderer};
@@ -159,33 +159,16 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
         }
         Input::Frames => {
             let path = &args.input;
-            let file = File::open(path)
-                .with_context(|| format!("cannot read {}", path.display()))
-                .map_err(bad_input)?;
-            let mut lines = BufReader::new(file).lines();
-            let line =
-                |n: usize, l: Option<std::io::Result<String>>| -> Result<Option<String>, Failure> {
-                    l.transpose()
-                        .with_context(|| format!("cannot read {}:{n}", path.display()))
-                        .map_err(bad_input)
-                };
-            let Some(text) = line(1, lines.next())? else {
-                return Err(bad_input(anyhow!(
-                    "{}: empty, no header line",
-                    path.display()
-                )));
-            };
-            let header: FramesHeader = serde_json::from_str(&text)
-                .with_context(|| format!("{}:1: not a frames header", path.display()))
-                .map_err(bad_input)?;
-            let Some(scene_path) = header.scene else {
+            let frames = jsonl::Reader::open(path).map_err(bad_input)?;
+            let header = frames.header();
+            let Some(scene_path) = &header.scene else {
                 return Err(bad_input(anyhow!(
                     "{}: the header names no scene file (frames of a scene built in code), so the \
                      terrain and surface are unknown; render the scene itself instead",
                     path.display()
                 )));
             };
-            let scene = Scene::from_file(&scene_path)
+            let scene = Scene::from_file(scene_path)
                 .map_err(|e| bad_input(anyhow!("the scene of {}: {e}", path.display())))?;
             let (model, _) = Model::build(&scene);
             if model.len() != header.particles {
@@ -197,27 +180,10 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
                 )));
             }
             let mut drawer = Drawer::new(&args, &model, &outs, header.frame_rate, header.frames)?;
-            let mut n = 1;
-            while let Some(text) = line(n + 1, lines.next())? {
-                n += 1;
-                if text.trim().is_empty() {
-                    continue;
-                }
-                let frame: FrameLine = serde_json::from_str(&text)
-                    .with_context(|| format!("{}:{n}: not a frame", path.display()))
-                    .map_err(bad_input)?;
-                if frame.positions.len() != model.len() {
-                    return Err(bad_input(anyhow!(
-                        "{}:{n}: {} positions for {} particles",
-                        path.display(),
-                        frame.positions.len(),
-                        model.len()
-                    )));
-                }
-                let positions: Vec<DVec3> =
-                    frame.positions.into_iter().map(DVec3::from_array).collect();
+            for frame in frames {
+                let frame = frame.map_err(bad_input)?;
                 drawer
-                    .frame(frame.frame, positions)
+                    .frame(frame.index, frame.positions)
                     .context("cannot write the pictures")?;
             }
             drawer.finish(&args, started)
@@ -229,22 +195,6 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
 enum Input {
     Scene,
     Frames,
-}
-
-/// What `render` reads from a frames header.
-#[derive(serde::Deserialize)]
-struct FramesHeader {
-    particles: usize,
-    frame_rate: f64,
-    frames: u64,
-    scene: Option<String>,
-}
-
-/// What `render` reads from a frame line.
-#[derive(serde::Deserialize)]
-struct FrameLine {
-    frame: u64,
-    positions: Vec<[f64; 3]>,
 }
 
 /// One destination, being written beside its final place.
