@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use softbody_scene::{Energies, Solver};
 
 pub use self::csv::CsvSink;
-pub use self::destination::{Output, OutputError};
+pub use self::destination::{Output, OutputError, Staged};
 pub use self::jsonl::JsonlSink;
 pub use self::npz::NpzSink;
 pub use self::obj::ObjSink;
