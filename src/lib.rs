@@ -1,9 +1,11 @@
 //! `softbody`: mass-spring soft bodies, simulated on the CPU (f64, rayon) or a GPU (wgpu).
 //!
 //! The crate ties the pieces together for programs that embed it and for the `softbody` CLI:
-//! load a [`Scene`], open a [`Solver`] on a [`Backend`], and [`run`](run::run) it frame by
-//! frame into a [`FrameSink`](output::FrameSink) (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series),
-//! or measure the integrators against a converged reference with a [`compare::Study`].
+//! load a [`Scene`] (replacing some of its settings with [`Overrides`]), open a [`Solver`] on a
+//! [`Backend`], and [`run`](run::run) it frame by frame into a [`FrameSink`](output::FrameSink)
+//! (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series; JSON Lines read back by
+//! [`output::jsonl::Reader`]), or measure the integrators against a converged reference with a
+//! [`compare::Study`].
 //!
 //! ```
 //! use softbody::{Backend, Scene, Solver};
@@ -34,11 +36,13 @@
 pub mod benchmark;
 pub mod compare;
 pub mod output;
+mod overrides;
 pub mod run;
 
 use std::fmt;
 use std::str::FromStr;
 
+pub use overrides::{OverrideError, Overrides};
 /// The CPU solver crate.
 pub use softbody_cpu as cpu;
 pub use softbody_cpu::CpuSolver;

@@ -12,6 +12,10 @@
 //! replaced when it holds nothing but frames of the same series (`<stem>_<digits>.<ext>` of
 //! the format being written): `--out ~` must not delete a home directory, and a PLY run must
 //! not delete the `.vtu` files a `.pvd` names (the series formats share a default directory).
+//!
+//! [`Staged`] is the mechanism underneath, for other outputs too (`softbody render`'s pictures):
+//! a file, or a directory of numbered files that is merged into an existing directory rather
+//! than replacing it.
 
 use std::fs;
 use std::io::{self, BufWriter};
@@ -67,29 +71,13 @@ fn io_context<T>(result: io::Result<T>, what: impl FnOnce() -> String) -> Result
     })
 }
 
-/// What [`Output::commit`] renames into place.
-enum Staged {
-    Stdout,
-    File {
-        temp: NamedTempFile,
-        path: PathBuf,
-    },
-    Series {
-        /// The frames, to become `dir`.
-        frames: TempDir,
-        dir: PathBuf,
-        stem: String,
-        format: Format,
-        /// The collection file (VTK's `.pvd`), to become its path.
-        index: Option<(NamedTempFile, PathBuf)>,
-    },
-}
-
-/// An output being written: the sink a run writes frames into, and the temporary file or
+/// An output being written: the sink a run writes frames into, and the temporary files or
 /// directory it writes them to.
 pub struct Output {
     sink: Box<dyn FrameSink>,
-    staged: Staged,
+    /// Committed in order: a series' frames before the collection file that lists them. Empty
+    /// for standard output.
+    staged: Vec<Staged>,
 }
 
 impl Output {
@@ -98,7 +86,8 @@ impl Output {
     /// `path` names the file for JSON Lines, CSV and NPZ, the `.pvd` file for VTK (the frames
     /// go to the directory of the same name without the extension beside it), and the
     /// directory for PLY and OBJ. Checks up front what it can (a series to standard output, a
-    /// directory that is not ours), so that a run is not computed for nothing.
+    /// directory that is not ours, a directory where the file should go), so that a run is not
+    /// computed for nothing.
     pub fn create(format: Format, path: Option<&Path>) -> Result<Output, OutputError> {
         let Some(path) = path else {
             if format.is_series() {
@@ -106,72 +95,42 @@ impl Output {
             }
             return Ok(Output {
                 sink: super::sink(format, Box::new(io::stdout().lock()))?,
-                staged: Staged::Stdout,
+                staged: Vec::new(),
             });
         };
-        let parent = parent_of(path);
-        io_context(fs::create_dir_all(parent), || {
-            format!("cannot create {}", parent.display())
-        })?;
-        let (dir, stem) = match format {
-            Format::Jsonl | Format::Csv | Format::Npz => {
-                let temp = temp_file(parent)?;
-                let handle = io_context(temp.reopen(), || {
-                    format!("cannot write in {}", parent.display())
-                })?;
-                return Ok(Output {
-                    sink: super::sink(format, Box::new(BufWriter::new(handle)))?,
-                    staged: Staged::File {
-                        temp,
-                        path: path.to_owned(),
-                    },
-                });
-            }
-            Format::Vtk | Format::Ply | Format::Obj => series_names(format, path)?,
-        };
-        check_replaceable(&dir, &stem, format)?;
-        if format == Format::Vtk && path.is_dir() {
-            return Err(OutputError::Io {
-                what: format!("cannot write {}", path.display()),
-                source: io::Error::new(io::ErrorKind::IsADirectory, "it is a directory"),
+        if !format.is_series() {
+            let (staged, file) = Staged::file(path)?;
+            return Ok(Output {
+                sink: super::sink(format, Box::new(BufWriter::new(file)))?,
+                staged: vec![staged],
             });
         }
-        let frames = temp_dir(parent)?;
-        let (sink, index): (Box<dyn FrameSink>, _) = match format {
+        let (dir, stem) = series_names(format, path)?;
+        let frames = Staged::dir(&dir, &stem, Existing::Series(format))?;
+        let frames_path = frames.path().to_owned();
+        let (sink, staged): (Box<dyn FrameSink>, _) = match format {
             Format::Vtk => {
-                let temp = temp_file(parent)?;
-                let handle = io_context(temp.reopen(), || {
-                    format!("cannot write in {}", parent.display())
-                })?;
+                let (index, file) = Staged::file(path)?;
                 // The .pvd names the frames relative to itself: `<dir name>/<file>`.
                 let sink = super::VtkSink::new(
-                    frames.path().to_owned(),
+                    frames_path,
                     stem.clone(),
                     format!("{stem}/"),
-                    Box::new(BufWriter::new(handle)),
+                    Box::new(BufWriter::new(file)),
                 );
-                (Box::new(sink), Some((temp, path.to_owned())))
+                (Box::new(sink), vec![frames, index])
             }
             Format::Ply => (
-                Box::new(super::PlySink::new(frames.path().to_owned(), stem.clone())),
-                None,
+                Box::new(super::PlySink::new(frames_path, stem)),
+                vec![frames],
             ),
             // OBJ: the single-file formats returned above.
             _ => (
-                Box::new(super::ObjSink::new(frames.path().to_owned(), stem.clone())),
-                None,
+                Box::new(super::ObjSink::new(frames_path, stem)),
+                vec![frames],
             ),
         };
-        Ok(Output {
-            sink,
-            staged: Staged::Series {
-                frames,
-                dir,
-                stem,
-                format,
-                index,
-            },
-        })
+        Ok(Output { sink, staged })
     }
 
     /// The sink the run writes into.
@@ -186,30 +145,115 @@ impl Output {
         io_context(self.sink.finish(), || "cannot write frames".to_owned())?;
         // Close every file the sink holds before renaming (Windows will not rename open files).
         drop(self.sink);
-        match self.staged {
-            Staged::Stdout => Ok(()),
-            Staged::File { temp, path } => {
-                temp.persist(&path).map(drop).map_err(|e| OutputError::Io {
-                    what: format!("cannot write {}", path.display()),
-                    source: e.error,
-                })
+        self.staged.into_iter().try_for_each(Staged::commit)
+    }
+}
+
+/// A file or a directory being written beside its destination: [`Staged::commit`] puts it in
+/// place, and dropping it first removes it. Hidden (`.softbody-*.part`) until then, and made
+/// with the permissions of an ordinary file or directory, since it is renamed as it is.
+pub struct Staged {
+    temp: Temp,
+    destination: PathBuf,
+}
+
+enum Temp {
+    File(NamedTempFile),
+    Dir {
+        files: TempDir,
+        stem: String,
+        existing: Existing,
+    },
+}
+
+/// What committing a directory does with one already at its destination.
+enum Existing {
+    /// A series' directory is its own: replaced whole, but only when it holds nothing but frame
+    /// files of the same series.
+    Series(Format),
+    /// A directory of numbered files with this extension is the user's: the staged files are
+    /// moved into it, its other files stay, and the numbered files of an earlier, longer set
+    /// go.
+    Merge(String),
+}
+
+impl Staged {
+    /// A file to be renamed over `path`, and the handle to write it through. Makes the missing
+    /// directories above `path`; refuses a directory at `path`, which the rename at the end
+    /// could not replace.
+    pub fn file(path: &Path) -> Result<(Staged, fs::File), OutputError> {
+        let parent = create_parent(path)?;
+        if path.is_dir() {
+            return Err(OutputError::Io {
+                what: format!("cannot write {}", path.display()),
+                source: io::Error::new(io::ErrorKind::IsADirectory, "it is a directory"),
+            });
+        }
+        let temp = temp_file(parent)?;
+        let file = io_context(temp.reopen(), || {
+            format!("cannot write in {}", parent.display())
+        })?;
+        let staged = Staged {
+            temp: Temp::File(temp),
+            destination: path.to_owned(),
+        };
+        Ok((staged, file))
+    }
+
+    /// A directory of numbered files `<stem>_<digits>.<extension>` to be put at `dir`, written
+    /// into [`Staged::path`]. When `dir` exists, the new files are moved into it: its other
+    /// files stay, and its numbered files of that stem and extension that were not written
+    /// this time (those of an earlier, longer set) are removed. Refuses a `dir` that is not a
+    /// directory.
+    pub fn numbered_files(dir: &Path, stem: &str, extension: &str) -> Result<Staged, OutputError> {
+        Staged::dir(dir, stem, Existing::Merge(extension.to_owned()))
+    }
+
+    fn dir(dir: &Path, stem: &str, existing: Existing) -> Result<Staged, OutputError> {
+        let parent = create_parent(dir)?;
+        match &existing {
+            Existing::Series(format) => check_replaceable(dir, stem, *format)?,
+            Existing::Merge(_) if dir.exists() && !dir.is_dir() => {
+                return Err(OutputError::Io {
+                    what: format!("cannot write into {}", dir.display()),
+                    source: io::Error::new(io::ErrorKind::NotADirectory, "it is not a directory"),
+                });
             }
-            Staged::Series {
-                frames,
-                dir,
+            Existing::Merge(_) => {}
+        }
+        let files = temp_dir(parent)?;
+        Ok(Staged {
+            temp: Temp::Dir {
+                files,
+                stem: stem.to_owned(),
+                existing,
+            },
+            destination: dir.to_owned(),
+        })
+    }
+
+    /// Where to write now: the temporary file, or the temporary directory.
+    pub fn path(&self) -> &Path {
+        match &self.temp {
+            Temp::File(file) => file.path(),
+            Temp::Dir { files, .. } => files.path(),
+        }
+    }
+
+    /// Puts the file or directory in place. Close the handles to it first (Windows will not
+    /// rename open files).
+    pub fn commit(self) -> Result<(), OutputError> {
+        let path = self.destination;
+        match self.temp {
+            Temp::File(temp) => temp.persist(&path).map(drop).map_err(|e| OutputError::Io {
+                what: format!("cannot write {}", path.display()),
+                source: e.error,
+            }),
+            Temp::Dir {
+                files,
                 stem,
-                format,
-                index,
-            } => {
-                place_dir(frames, &dir, &stem, format)?;
-                if let Some((temp, path)) = index {
-                    temp.persist(&path).map_err(|e| OutputError::Io {
-                        what: format!("cannot write {}", path.display()),
-                        source: e.error,
-                    })?;
-                }
-                Ok(())
-            }
+                existing,
+            } => place_dir(files, &path, &stem, &existing),
         }
     }
 }
@@ -219,6 +263,15 @@ fn parent_of(path: &Path) -> &Path {
     path.parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."))
+}
+
+/// The directory `path` is in, made if missing.
+fn create_parent(path: &Path) -> Result<&Path, OutputError> {
+    let parent = parent_of(path);
+    io_context(fs::create_dir_all(parent), || {
+        format!("cannot create {}", parent.display())
+    })?;
+    Ok(parent)
 }
 
 /// The frames directory of a series written to `path`, and the stem of its file names.
@@ -262,10 +315,15 @@ fn frame_extension(format: Format) -> &'static str {
 
 /// Whether `name` is a frame file of the series `stem` in `format`: `<stem>_<digits>.<ext>`.
 fn is_frame_file(name: &str, stem: &str, format: Format) -> bool {
+    is_numbered(name, stem, frame_extension(format))
+}
+
+/// Whether `name` is `<stem>_<digits>.<extension>`.
+fn is_numbered(name: &str, stem: &str, extension: &str) -> bool {
     let Some(digits) = name
         .strip_prefix(stem)
         .and_then(|n| n.strip_prefix('_'))
-        .and_then(|n| n.strip_suffix(frame_extension(format)))
+        .and_then(|n| n.strip_suffix(extension))
         .and_then(|n| n.strip_suffix('.'))
     else {
         return false;
@@ -283,11 +341,7 @@ fn check_replaceable(dir: &Path, stem: &str, format: Format) -> Result<(), Outpu
     if !meta.is_dir() {
         return Err(OutputError::Foreign(dir.to_owned(), dir.to_owned(), format));
     }
-    let entries = io_context(fs::read_dir(dir), || {
-        format!("cannot read {}", dir.display())
-    })?;
-    for entry in entries {
-        let entry = io_context(entry, || format!("cannot read {}", dir.display()))?;
+    for entry in read_dir(dir)? {
         let ours = entry.file_type().is_ok_and(|t| t.is_file())
             && entry
                 .file_name()
@@ -298,6 +352,14 @@ fn check_replaceable(dir: &Path, stem: &str, format: Format) -> Result<(), Outpu
         }
     }
     Ok(())
+}
+
+/// The entries of `dir`.
+fn read_dir(dir: &Path) -> Result<Vec<fs::DirEntry>, OutputError> {
+    let cannot = || format!("cannot read {}", dir.display());
+    io_context(fs::read_dir(dir), cannot)?
+        .map(|entry| io_context(entry, cannot))
+        .collect()
 }
 
 /// A builder for staged names: hidden, recognisable, and created with ordinary permissions
@@ -325,22 +387,34 @@ fn temp_dir(dir: &Path) -> Result<TempDir, OutputError> {
     })
 }
 
-/// Renames the staged directory `frames` to `dir`, replacing a directory of frames there.
-fn place_dir(frames: TempDir, dir: &Path, stem: &str, format: Format) -> Result<(), OutputError> {
-    let parent = parent_of(dir);
+/// Renames the staged directory `files` to `dir`, or into it (see [`Existing`]).
+fn place_dir(
+    files: TempDir,
+    dir: &Path,
+    stem: &str,
+    existing: &Existing,
+) -> Result<(), OutputError> {
     let cannot = || format!("cannot write {}", dir.display());
-    // Checked again: the directory may have changed during the run.
-    check_replaceable(dir, stem, format)?;
-    // A directory cannot be renamed over a non-empty one: move the old one into a temporary
-    // directory (deleted with it) first.
-    let old = if dir.exists() {
-        let aside = temp_dir(parent)?;
-        io_context(fs::rename(dir, aside.path().join("old")), cannot)?;
-        Some(aside)
-    } else {
-        None
+    let old = match existing {
+        Existing::Merge(extension) if dir.exists() => {
+            return merge_dir(&files, dir, stem, extension);
+        }
+        Existing::Merge(_) => None,
+        Existing::Series(format) => {
+            // Checked again: the directory may have changed during the run.
+            check_replaceable(dir, stem, *format)?;
+            // A directory cannot be renamed over a non-empty one: move the old one into a
+            // temporary directory (deleted with it) first.
+            if dir.exists() {
+                let aside = temp_dir(parent_of(dir))?;
+                io_context(fs::rename(dir, aside.path().join("old")), cannot)?;
+                Some(aside)
+            } else {
+                None
+            }
+        }
     };
-    let staged = frames.keep();
+    let staged = files.keep();
     if let Err(e) = fs::rename(&staged, dir) {
         // Put things back as they were: the old frames where they were, no staged directory.
         if let Some(aside) = &old {
@@ -356,6 +430,32 @@ fn place_dir(frames: TempDir, dir: &Path, stem: &str, format: Format) -> Result<
         io_context(aside.close(), || {
             format!("cannot remove the previous frames of {}", dir.display())
         })?;
+    }
+    Ok(())
+}
+
+/// Moves the files of `files` into the existing directory `dir`, then removes the numbered
+/// files there that were not among them.
+fn merge_dir(files: &TempDir, dir: &Path, stem: &str, extension: &str) -> Result<(), OutputError> {
+    let mut written = std::collections::HashSet::new();
+    for entry in read_dir(files.path())? {
+        let name = entry.file_name();
+        io_context(fs::rename(entry.path(), dir.join(&name)), || {
+            format!("cannot write in {}", dir.display())
+        })?;
+        written.insert(name);
+    }
+    for entry in read_dir(dir)? {
+        let name = entry.file_name();
+        let stale = !written.contains(&name)
+            && name
+                .to_str()
+                .is_some_and(|n| is_numbered(n, stem, extension));
+        if stale {
+            io_context(fs::remove_file(entry.path()), || {
+                format!("cannot remove {}", entry.path().display())
+            })?;
+        }
     }
     Ok(())
 }
@@ -407,6 +507,67 @@ mod tests {
         );
         assert!(series_names(Format::Obj, Path::new("..")).is_err());
         assert!(series_names(Format::Obj, Path::new("/")).is_err());
+    }
+
+    #[test]
+    fn numbered_files_merge_into_an_existing_directory() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("pictures");
+        let write = |staged: &Staged, names: &[&str]| {
+            for name in names {
+                fs::write(staged.path().join(name), "new").unwrap();
+            }
+        };
+        let names = || {
+            let mut names: Vec<String> = fs::read_dir(&dir)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().into_string().unwrap())
+                .collect();
+            names.sort();
+            names
+        };
+        // Absent: the staged directory becomes it.
+        let staged = Staged::numbered_files(&dir, "frame", "png").unwrap();
+        write(
+            &staged,
+            &["frame_000000.png", "frame_000001.png", "frame_000002.png"],
+        );
+        staged.commit().unwrap();
+        assert_eq!(
+            names(),
+            ["frame_000000.png", "frame_000001.png", "frame_000002.png"]
+        );
+
+        // Present: a shorter set replaces its files, the user's files stay.
+        fs::write(dir.join("notes.txt"), "mine").unwrap();
+        fs::write(dir.join("frame_000000.jpg"), "mine").unwrap();
+        let staged = Staged::numbered_files(&dir, "frame", "png").unwrap();
+        write(&staged, &["frame_000000.png"]);
+        staged.commit().unwrap();
+        assert_eq!(
+            names(),
+            ["frame_000000.jpg", "frame_000000.png", "notes.txt"]
+        );
+        assert_eq!(
+            fs::read_to_string(dir.join("frame_000000.png")).unwrap(),
+            "new"
+        );
+        assert_eq!(
+            fs::read_dir(root.path()).unwrap().count(),
+            1,
+            "nothing staged is left beside it"
+        );
+
+        // A file where the directory should go, and a directory where a file should go.
+        let file = root.path().join("file");
+        fs::write(&file, "x").unwrap();
+        assert!(Staged::numbered_files(&file, "frame", "png").is_err());
+        assert!(Staged::file(&dir).is_err());
+        // Dropped before commit: nothing changes.
+        let staged = Staged::numbered_files(&dir, "frame", "png").unwrap();
+        write(&staged, &["frame_000009.png"]);
+        drop(staged);
+        assert!(!dir.join("frame_000009.png").exists());
     }
 
     #[test]

@@ -7,7 +7,7 @@
 
 mod csv;
 pub mod destination;
-mod jsonl;
+pub mod jsonl;
 mod npz;
 mod obj;
 mod ply;
@@ -20,11 +20,11 @@ use std::path::Path;
 use std::str::FromStr;
 
 use glam::DVec3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use softbody_scene::{Energies, Solver};
 
 pub use self::csv::CsvSink;
-pub use self::destination::{Output, OutputError};
+pub use self::destination::{Output, OutputError, Staged};
 pub use self::jsonl::JsonlSink;
 pub use self::npz::NpzSink;
 pub use self::obj::ObjSink;
@@ -129,7 +129,7 @@ impl FromStr for Format {
 }
 
 /// A body's particle range, as the header lists it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct HeaderBody {
     /// Body name.
     pub name: String,
@@ -139,8 +139,9 @@ pub struct HeaderBody {
     pub count: u32,
 }
 
-/// What a frame file says about its run, before the frames.
-#[derive(Debug, Clone, Serialize)]
+/// What a frame file says about its run, before the frames (read back from JSON Lines by
+/// [`jsonl::Reader`]).
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Header {
     /// Format version.
     pub softbody_frames: u32,
@@ -151,7 +152,7 @@ pub struct Header {
     /// Integrator name.
     pub integrator: String,
     /// `"cpu"` or `"gpu"`.
-    pub backend: &'static str,
+    pub backend: String,
     /// What ran it (threads, adapter).
     pub device: String,
     /// Time step, seconds.
@@ -166,15 +167,15 @@ pub struct Header {
     /// (`softbody render`) rebuild the terrain and the topology from it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scene: Option<String>,
-    /// Springs as (a, b) particle pairs; not serialised in the JSON header.
+    /// Springs as (a, b) particle pairs; not serialised in the JSON header (empty when read).
     #[serde(skip)]
     pub springs: Vec<[u32; 2]>,
     /// Springs' rest lengths, metres, in the order of `springs`; not serialised in the JSON
-    /// header.
+    /// header (empty when read).
     #[serde(skip)]
     pub rest: Vec<f64>,
     /// The bodies' outer surface ([`softbody_scene::Model::surface`]); not serialised in the
-    /// JSON header.
+    /// JSON header (empty when read).
     #[serde(skip)]
     pub surface: Vec<[u32; 3]>,
 }
@@ -197,7 +198,7 @@ impl Header {
                 })
                 .collect(),
             integrator: model.simulation.integrator.name().to_owned(),
-            backend: solver.backend(),
+            backend: solver.backend().to_string(),
             device: solver.device(),
             dt: model.simulation.dt,
             frame_rate: model.simulation.frame_rate,

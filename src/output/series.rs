@@ -110,7 +110,7 @@ pub(crate) mod tests {
                 })
                 .collect(),
             integrator: "rk4".to_owned(),
-            backend: "cpu",
+            backend: "cpu".to_owned(),
             device: "test".to_owned(),
             dt: 0.001,
             frame_rate: 100.0,

@@ -5,7 +5,8 @@ use std::io::Write;
 use clap::Args;
 use softbody::{Backend, Integrator};
 
-use crate::{Failure, bad_input, open_failure, positive, positive_or_fraction, progress, status};
+use crate::args::{positive, time_step};
+use crate::{Failure, bad_input, open_failure, progress, status};
 
 #[derive(Args)]
 pub struct BenchArgs {
@@ -30,7 +31,7 @@ pub struct BenchArgs {
     stiffness: Option<f64>,
     /// Time step, seconds, e.g. 0.001 or 1/60 (default: half the largest stable
     /// symplectic-Euler step for the size and stiffness).
-    #[arg(long, value_parser = positive_or_fraction, allow_negative_numbers = true)]
+    #[arg(long, value_parser = time_step, allow_negative_numbers = true)]
     dt: Option<f64>,
     /// One JSON object per line and size instead of a table.
     #[arg(long)]
@@ -54,7 +55,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
     let mut out = std::io::stdout().lock();
     let mut header = false;
     for &n in &args.sizes {
-        let bar = progress::bar(0, args.quiet);
+        let bar = progress::bar(0, "steps", args.quiet);
         bar.set_message(format!("{n}³ cube"));
         let m = benchmark::measure(n, &options, &mut |done, total| {
             bar.set_length(total);

@@ -6,9 +6,10 @@ use std::time::Instant;
 
 use clap::Args;
 use softbody::compare::{Report, Study, StudyError};
-use softbody::{Backend, Integrator};
+use softbody::{Backend, Integrator, Overrides};
 
-use crate::{Failure, bad_input, emit, load, open_failure, positive_or_fraction, progress, status};
+use crate::args::time_step;
+use crate::{Failure, bad_input, emit, load, open_failure, progress, status};
 
 #[derive(Args)]
 pub struct CompareArgs {
@@ -19,7 +20,7 @@ pub struct CompareArgs {
     #[arg(long, value_delimiter = ',', default_value = "all", value_parser = integrators)]
     integrators: Vec<Vec<Integrator>>,
     /// Time steps, seconds, comma-separated, e.g. 1e-4,5e-5 or 1/60 (default: the scene's dt).
-    #[arg(long, value_delimiter = ',', value_parser = positive_or_fraction, allow_negative_numbers = true)]
+    #[arg(long, value_delimiter = ',', value_parser = time_step, allow_negative_numbers = true)]
     dt: Vec<f64>,
     /// The reference is rk4 at the smallest dt divided by this (its check at twice that step).
     #[arg(long, default_value_t = softbody::compare::REFINEMENT,
@@ -67,6 +68,16 @@ pub fn compare(args: CompareArgs) -> Result<(), Failure> {
             list.push(*i);
         }
     }
+    // Each dt is an override like `run --dt`, refused alike; the study checks the rest.
+    for &dt in &args.dt {
+        let overrides = Overrides {
+            dt: Some(dt),
+            ..Overrides::default()
+        };
+        overrides
+            .apply_to(scene.clone(), &args.scene)
+            .map_err(bad_input)?;
+    }
     let study = Study {
         integrators: list,
         dts: args.dt.clone(),
@@ -75,19 +86,8 @@ pub fn compare(args: CompareArgs) -> Result<(), Failure> {
         refinement: args.refinement,
         ..Study::new(scene)
     };
-    study.validate().map_err(|e| {
-        bad_input(anyhow::anyhow!(
-            "{}: {e} (with the command-line overrides)",
-            args.scene.display()
-        ))
-    })?;
-
-    let bar = progress::bar(study.total_steps(), args.quiet);
-    let started = Instant::now();
-    let result = study.run(&mut |done, _| bar.set_position(done));
-    bar.finish_and_clear();
-    let report = result.map_err(|e| match e {
-        StudyError::Invalid(_) => bad_input(e),
+    let failure = |e: StudyError| match e {
+        StudyError::Invalid(_) => bad_input(anyhow::anyhow!("{}: {e}", args.scene.display())),
         StudyError::Open(o) => open_failure(o),
         StudyError::ReferenceUnstable { .. } => Failure {
             status: status::UNSTABLE,
@@ -97,7 +97,14 @@ pub fn compare(args: CompareArgs) -> Result<(), Failure> {
             status: status::NO_ADAPTER,
             error: e.into(),
         },
-    })?;
+    };
+    study.validate().map_err(failure)?;
+
+    let bar = progress::bar(study.total_steps(), "steps", args.quiet);
+    let started = Instant::now();
+    let result = study.run(&mut |done, _| bar.set_position(done));
+    bar.finish_and_clear();
+    let report = result.map_err(failure)?;
 
     let name = args.scene.display().to_string();
     if let Some(path) = &args.plot {

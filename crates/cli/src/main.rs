@@ -7,6 +7,7 @@
 //! found no usable GPU adapter, or the device failed during the run (the frames before it are
 //! written).
 
+mod args;
 mod bench;
 mod check;
 mod compare;
@@ -14,12 +15,15 @@ mod progress;
 mod render;
 mod run;
 
+use std::borrow::Cow;
 use std::io::Write;
 use std::path::Path;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use softbody::Scene;
+use softbody::output::OutputError;
+use softbody::run::RunError;
+use softbody::{Integrator, Overrides, Scene};
 
 /// Exit statuses (documented in the README).
 mod status {
@@ -52,30 +56,6 @@ enum Command {
     Render(render::RenderArgs),
     /// Run a scene with several integrators and time steps against a converged rk4 reference.
     Compare(compare::CompareArgs),
-}
-
-fn positive_or_fraction(s: &str) -> Result<f64, String> {
-    match s.split_once('/') {
-        Some((a, b)) => {
-            let (a, b) = (positive(a.trim())?, positive(b.trim())?);
-            positive(&(a / b).to_string()).map_err(|_| format!("`{s}` is not a usable fraction"))
-        }
-        None => positive(s),
-    }
-}
-
-fn positive(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
-        _ => Err(format!("`{s}` is not a finite number greater than zero")),
-    }
-}
-
-fn non_negative(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
-        _ => Err(format!("`{s}` is not a finite number of at least zero")),
-    }
 }
 
 /// A failure with its exit status.
@@ -131,6 +111,18 @@ fn load(path: &Path) -> Result<Scene, Failure> {
     Scene::from_file(path).map_err(bad_input)
 }
 
+/// Loads a scene file with the command line's overrides applied: every command that takes
+/// overrides goes through here.
+fn load_with(path: &Path, overrides: &Overrides) -> Result<Scene, Failure> {
+    overrides.apply_to(load(path)?, path).map_err(bad_input)
+}
+
+/// The stem of an input file, for the default output names.
+fn file_stem(path: &Path) -> Cow<'_, str> {
+    path.file_stem()
+        .map_or("frames".into(), |s| s.to_string_lossy())
+}
+
 /// A solver that cannot be opened: no usable GPU (4), a scene the GPU does not run (2), or CPU
 /// threads that cannot start (1, as before).
 fn open_failure(e: softbody::OpenError) -> Failure {
@@ -142,6 +134,31 @@ fn open_failure(e: softbody::OpenError) -> Failure {
     Failure {
         status,
         error: e.into(),
+    }
+}
+
+/// An output that cannot be made: a request that cannot be met (2), else the file system (1).
+fn output_failure(e: OutputError) -> Failure {
+    if e.is_bad_input() {
+        bad_input(e)
+    } else {
+        e.into()
+    }
+}
+
+/// A run of `integrator` that stopped early: unstable (3) or a failed device (4), the frames
+/// before it kept as `kept` says; or frames that could not be written (1).
+fn run_failure(e: RunError, integrator: Integrator, kept: &str) -> Failure {
+    match e {
+        RunError::Unstable(i) => Failure {
+            status: status::UNSTABLE,
+            error: anyhow::anyhow!("{i}; {}\n{kept}", softbody::Instability::advice(integrator)),
+        },
+        RunError::Device(d) => Failure {
+            status: status::NO_ADAPTER,
+            error: anyhow::anyhow!("device failure: {d}\n{kept}"),
+        },
+        RunError::Io(_) => e.into(),
     }
 }
 

@@ -4,28 +4,19 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
+use softbody::Backend;
 use softbody::output::{Format, Output, OutputError};
 use softbody::run::RunError;
-use softbody::{Backend, Integrator};
 
-use crate::{Failure, bad_input, load, non_negative, open_failure, positive, progress, status};
+use crate::args::StepOverrides;
+use crate::{
+    Failure, bad_input, file_stem, load_with, open_failure, output_failure, progress, run_failure,
+};
 
 #[derive(Args)]
 pub struct RunArgs {
     /// The scene file (TOML).
     scene: PathBuf,
-    /// Integrator: explicit-euler, symplectic-euler, midpoint, rk4 or implicit-euler.
-    #[arg(long)]
-    integrator: Option<Integrator>,
-    /// Time step, seconds.
-    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
-    dt: Option<f64>,
-    /// Simulated time, seconds.
-    #[arg(long, value_parser = non_negative, allow_negative_numbers = true)]
-    duration: Option<f64>,
-    /// Frames per simulated second.
-    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
-    fps: Option<f64>,
     /// Output file (the .pvd for vtk, a directory for ply and obj); `-` writes to standard
     /// output (single-file formats). Default: out/{scene file stem}.{extension}, or the
     /// directory out/{scene file stem} for ply and obj.
@@ -44,31 +35,13 @@ pub struct RunArgs {
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
+    // Last: the heading applies to every option after it.
+    #[command(flatten, next_help_heading = "Overrides of the scene")]
+    overrides: StepOverrides,
 }
 
 pub fn run(args: RunArgs) -> Result<(), Failure> {
-    let mut scene = load(&args.scene)?;
-    let sim = &mut scene.simulation;
-    if let Some(i) = args.integrator {
-        sim.integrator = i;
-    }
-    if let Some(dt) = args.dt {
-        sim.dt = dt;
-    }
-    if let Some(d) = args.duration {
-        sim.duration = d;
-    }
-    if let Some(fps) = args.fps {
-        sim.frame_rate = fps;
-    }
-    scene.validate().map_err(|e| {
-        bad_input(anyhow::anyhow!(
-            "{}: {}: {} (with the command-line overrides)",
-            args.scene.display(),
-            e.key,
-            e.message
-        ))
-    })?;
+    let scene = load_with(&args.scene, &(&args.overrides).into())?;
 
     let format = args
         .format
@@ -77,13 +50,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
     let out_path = match &args.out {
         Some(p) => p.clone(),
-        None => {
-            let stem = args
-                .scene
-                .file_stem()
-                .map_or("frames".into(), |s| s.to_string_lossy());
-            format.default_path(&stem)
-        }
+        None => format.default_path(&file_stem(&args.scene)),
     };
     // Refused before the run rather than after it.
     if to_stdout && format.is_series() {
@@ -98,7 +65,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     let mut output = Output::create(format, (!to_stdout).then_some(out_path.as_path()))
         .map_err(output_failure)?;
 
-    let bar = progress::bar(scene.simulation.steps(), args.quiet);
+    let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
     let started = Instant::now();
     let result = softbody::run::run(
         solver.as_mut(),
@@ -132,26 +99,10 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             }
             Ok(())
         }
-        Err(RunError::Unstable(i)) => Err(Failure {
-            status: status::UNSTABLE,
-            error: anyhow::anyhow!(
-                "{i}; {}\nthe frames before it are in {where_}",
-                softbody::Instability::advice(scene.simulation.integrator)
-            ),
-        }),
-        Err(RunError::Device(d)) => Err(Failure {
-            status: status::NO_ADAPTER,
-            error: anyhow::anyhow!("device failure: {d}\nthe frames before it are in {where_}"),
-        }),
-        Err(e) => Err(e.into()),
-    }
-}
-
-/// An output that cannot be made: a request that cannot be met (2), else the file system (1).
-fn output_failure(e: OutputError) -> Failure {
-    if e.is_bad_input() {
-        bad_input(e)
-    } else {
-        e.into()
+        Err(e) => Err(run_failure(
+            e,
+            scene.simulation.integrator,
+            &format!("the frames before it are in {where_}"),
+        )),
     }
 }

@@ -288,6 +288,34 @@ fn command_line_overrides_the_scene() {
 }
 
 #[test]
+fn dt_takes_a_fraction() {
+    let (sb, scene) = sandbox_with(&Cube::default(), "s");
+    let run = sb.run(&["run", &scene, "--dt", "1/2000", "--out", "-", "--quiet"]);
+    run.expect_status(EXIT_OK);
+    let f = parse_jsonl(&run.stdout_text());
+    assert_eq!(f64_of(&f.header["dt"]), 1.0 / 2000.0);
+    assert_eq!(
+        f.frames.len(),
+        frame_schedule(1.0 / 2000.0, 0.05, 100.0).len()
+    );
+}
+
+#[test]
+fn an_override_error_names_the_overrides() {
+    let (sb, scene) = sandbox_with(&Cube::default(), "s");
+    let run = sb.run(&["run", &scene, "--fps", "5000", "--integrator", "rk4"]);
+    run.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        run.stderr.contains("simulation.frame_rate")
+            && run.stderr.contains(
+                "(with the overrides simulation.integrator = rk4, simulation.frame_rate = 5000)"
+            ),
+        "{}",
+        run.stderr
+    );
+}
+
+#[test]
 fn every_integrator_runs() {
     let (sb, scene) = sandbox_with(&Cube::default(), "s");
     for name in [

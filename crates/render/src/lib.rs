@@ -17,6 +17,9 @@
 //! Everything is computed in one thread in a fixed order from the inputs alone: the same
 //! inputs give the same bytes, every run, on every machine with IEEE-754 doubles.
 //!
+//! [`animation`] draws a whole run: the camera placed once for every frame (automatically, or
+//! as given) or following the bodies, the pictures written as numbered PNG files or as one GIF.
+//!
 //! ```
 //! use softbody_render::{Renderer, RenderOptions, Bounds};
 //! use softbody_scene::{Model, Scene};
@@ -45,6 +48,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod animation;
 pub mod camera;
 pub mod colormap;
 mod encode;
