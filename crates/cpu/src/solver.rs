@@ -9,8 +9,8 @@ use softbody_scene::{
 };
 
 use crate::integrators::Stepper;
-use softbody_terrain::Surface;
 use crate::{energy, vec_bytes};
+use softbody_terrain::Surface;
 
 /// The CPU backend.
 ///

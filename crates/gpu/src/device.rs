@@ -5,8 +5,9 @@
 //! performance). The device gets the adapter's own limits and no optional features.
 //!
 //! wgpu's default handler for errors outside an error scope panics; [`Gpu::open`] installs one
-//! that records the first such error (and a device loss), and the solver turns the record into
-//! [`StepError::Device`](softbody_scene::StepError) at its next synchronisation point.
+//! that records the first such error (and a device loss), and every solver on the device turns
+//! the record into [`StepError::Device`](softbody_scene::StepError) at its next synchronisation
+//! point.
 
 use std::sync::{Arc, Mutex};
 
@@ -82,8 +83,9 @@ pub fn backends_list(backends: wgpu::Backends) -> String {
 }
 
 impl Gpu {
-    /// Finds an adapter that runs compute shaders and opens its device.
-    pub fn open() -> Result<Gpu, GpuError> {
+    /// Finds an adapter that runs compute shaders and opens its device: a context that many
+    /// solvers may share ([`GpuSolver::on`](crate::GpuSolver::on)).
+    pub fn open() -> Result<Arc<Gpu>, GpuError> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         let tried = desc.backends & wgpu::Instance::enabled_backend_features();
         let tried_names = backends_list(tried);
@@ -143,14 +145,14 @@ impl Gpu {
                 sink.record(format!("the device was lost: {message}"));
             }
         });
-        Ok(Gpu {
+        Ok(Arc::new(Gpu {
             device,
             queue,
             info,
             limits,
             downlevel,
             errors,
-        })
+        }))
     }
 
     /// The adapter, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) via Vulkan".

@@ -3,6 +3,7 @@
 //! the struct's size and every member's offset against these definitions.
 
 use bytemuck::{Pod, Zeroable};
+use softbody_scene::implicit::Constraint;
 use softbody_scene::{Model, Springs};
 
 /// The run's constants: twin of `Params` in `shaders/common.wgsl` (`@group(0) @binding(0)` of
@@ -230,4 +231,17 @@ pub struct CandidateGpu {
     pub restitution: f32,
     /// Mode (low two bits: 0 none, 1 inactive, 2 stick, 3 slip) and flags.
     pub state: u32,
+}
+
+/// The constraint as `constraints[i]` holds it: (n, kind) with kind 0 free, 1 normal, 2 fixed
+/// (`CONSTRAINT_*` in `shaders/common.wgsl`).
+pub fn constraint_vec4(c: Constraint) -> [f32; 4] {
+    match c {
+        Constraint::Free => [0.0; 4],
+        Constraint::Normal(n) => {
+            let n = n.as_vec3();
+            [n.x, n.y, n.z, 1.0]
+        }
+        Constraint::Fixed => [0.0, 0.0, 0.0, 2.0],
+    }
 }

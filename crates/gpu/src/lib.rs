@@ -19,18 +19,38 @@
 //! backends were tried and how to get a software adapter.
 #![warn(missing_docs)]
 
+mod buffers;
+mod builder;
+mod check_finite;
+pub mod chunks;
+mod collision_response;
+#[cfg(feature = "debug")]
+pub mod debug;
 pub mod device;
-pub mod implicit;
+mod energy;
+mod forces;
+pub mod grid;
+mod integrators;
+mod kernel;
 pub mod layout;
+mod limits;
 pub mod shaders;
-pub mod solver;
+mod solver;
+mod spring_forces;
+mod submit;
 pub mod terrain;
 
-pub use implicit::CG_TOLERANCE_F32;
-pub use solver::{GpuOptions, GpuSolver, Grid, STEPS_PER_SUBMISSION};
+pub use device::Gpu;
+pub use grid::Grid;
+pub use integrators::implicit_euler::CG_TOLERANCE_F32;
+pub use solver::{GpuOptions, GpuSolver, STEPS_PER_SUBMISSION};
 
-/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`).
+/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`; the
+/// kernels are checked against it when their pipelines are made).
 pub const WORKGROUP_SIZE: u64 = 256;
+
+/// Bytes of a `vec4<f32>`, the storage element of every vector.
+const VEC4: u64 = 16;
 
 /// Why the GPU solver could not be opened.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

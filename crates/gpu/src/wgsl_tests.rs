@@ -1,16 +1,17 @@
 //! Tests of the WGSL that need no adapter: every composed module parses and validates with
-//! naga, its bindings match the host's tables, its entry points have the workgroup size the host
-//! dispatches for, and every struct shared with the host has the Rust twin's layout.
+//! naga, each entry point's bindings reflect as the host binds them, and every struct shared with the host has the Rust twin's layout.
 
 use std::mem::{offset_of, size_of};
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 
+use crate::chunks::{Chunking, MAX_SPRING_CHUNKS};
+use crate::kernel::{Access, Parsed, reflect};
 use crate::layout::{
     CG_DISPATCH_WORDS, CandidateGpu, CgScalars, Params, SpringBlockGpu, SpringChunk, SpringGpu,
     Status, StepIndex, dispatch_slot,
 };
-use crate::shaders::{Access, Chunking, MAX_SPRING_CHUNKS, Stage, TERRAIN_BINDINGS};
+use crate::shaders::Stage;
 use crate::terrain::SurfaceGpu;
 
 fn parse(stage: Stage) -> naga::Module {
@@ -41,120 +42,86 @@ fn every_composed_module_parses_and_validates() {
     }
 }
 
-#[test]
-fn bindings_match_the_host_tables() {
-    for stage in Stage::ALL {
-        let module = parse(stage);
-        let mut found: Vec<(u32, u32, Access)> = module
-            .global_variables
-            .iter()
-            .filter_map(|(_, var)| {
-                let binding = var.binding.as_ref()?;
-                let access = match var.space {
-                    naga::AddressSpace::Uniform => Access::Uniform,
-                    naga::AddressSpace::Storage { access } => {
-                        if access.contains(naga::StorageAccess::STORE) {
-                            Access::ReadWrite
-                        } else {
-                            Access::Read
-                        }
-                    }
-                    other => panic!("{}: unexpected address space {other:?}", stage.file()),
-                };
-                Some((binding.group, binding.binding, access))
-            })
-            .collect();
-        found.sort_by_key(|&(g, b, _)| (g, b));
-        // WGSL does not say whether a uniform is bound at a dynamic offset.
-        let mut expected: Vec<(u32, u32, Access)> = stage
-            .bindings()
-            .iter()
-            .map(|&(b, a)| match a {
-                Access::DynamicUniform => (0, b, Access::Uniform),
-                a => (0, b, a),
-            })
-            .collect();
-        if stage.uses_terrain() {
-            expected.extend(TERRAIN_BINDINGS.iter().map(|&(b, a)| (1, b, a)));
-        }
-        assert_eq!(found, expected, "bindings of {}", stage.file());
-    }
+/// The names a kernel binds, as reflection reads them.
+fn names(stage: Stage, chunking: Chunking, entry: &str) -> (Vec<String>, bool) {
+    let parsed = Parsed::new(stage, &stage.source_chunked(chunking)).expect("validates");
+    let (bindings, terrain) = reflect(&parsed, entry).expect("reflects");
+    (bindings.into_iter().map(|b| b.name).collect(), terrain)
 }
 
+/// Every entry point of every stage reflects (the host dispatches its workgroup size) and binds
+/// at most 8 storage buffers with the terrain's: WebGPU's guaranteed minimum per stage.
 #[test]
-fn entry_points_exist_with_the_dispatched_workgroup_size() {
+fn every_entry_point_reflects_within_webgpu_limits() {
+    let mut kernels = 0;
     for stage in Stage::ALL {
-        let module = parse(stage);
-        for &name in stage.entry_points() {
-            let ep = module
-                .entry_points
+        let parsed = Parsed::new(stage, &stage.source()).expect("validates");
+        for entry in parsed.entry_points() {
+            let (bindings, terrain) = reflect(&parsed, entry)
+                .unwrap_or_else(|e| panic!("{entry} in {}: {e}", stage.file()));
+            let storage = bindings
                 .iter()
-                .find(|ep| ep.name == name)
-                .unwrap_or_else(|| panic!("{} has no entry point {name}", stage.file()));
-            assert_eq!(ep.stage, naga::ShaderStage::Compute);
-            let expected = [crate::WORKGROUP_SIZE as u32, 1, 1];
-            assert_eq!(ep.workgroup_size, expected, "{name} in {}", stage.file());
-        }
-        assert_eq!(module.entry_points.len(), stage.entry_points().len());
-    }
-}
-
-/// Each entry point uses exactly the bindings of its [`Stage::kernel`] table (for the stages
-/// with per-entry layouts; for the others, a subset of the module's), its terrain group only if
-/// the table says so, and at most 8 storage buffers (WebGPU's guaranteed minimum per stage).
-#[test]
-fn entry_points_use_their_kernel_bindings() {
-    for stage in Stage::ALL {
-        let module = parse(stage);
-        let info = Validator::new(ValidationFlags::all(), Capabilities::default())
-            .validate(&module)
-            .expect("validates");
-        for (index, ep) in module.entry_points.iter().enumerate() {
-            let uses = info.get_entry_point(index);
-            let mut used: Vec<(u32, u32)> = module
-                .global_variables
-                .iter()
-                .filter(|&(handle, var)| var.binding.is_some() && !uses[handle].is_empty())
-                .map(|(_, var)| {
-                    let b = var.binding.as_ref().unwrap();
-                    (b.group, b.binding)
-                })
-                .collect();
-            used.sort();
-            let kernel = stage.kernel(&ep.name);
-            let mut declared: Vec<(u32, u32)> = kernel.bindings.iter().map(|&b| (0, b)).collect();
-            if kernel.terrain {
-                declared.extend(TERRAIN_BINDINGS.iter().map(|&(b, _)| (1, b)));
-            }
-            let name = format!("{} in {}", ep.name, stage.file());
-            if stage.per_entry_layouts() {
-                // Binding 0 (params) is in every layout, used or not.
-                let used_or_params: Vec<(u32, u32)> = if used.contains(&(0, 0)) {
-                    used.clone()
-                } else {
-                    std::iter::once((0, 0))
-                        .chain(used.iter().copied())
-                        .collect()
-                };
-                assert_eq!(used_or_params, declared, "bindings of {name}");
-            } else {
-                for b in &used {
-                    assert!(declared.contains(b), "{name} uses {b:?} outside its layout");
-                }
-            }
-            let storage = stage
-                .kernel_bindings(&kernel)
-                .iter()
-                .filter(|(_, a)| matches!(a, Access::Read | Access::ReadWrite))
+                .filter(|b| b.access != Access::Uniform)
                 .count()
-                + if kernel.terrain {
-                    TERRAIN_BINDINGS.len()
-                } else {
-                    0
-                };
-            assert!(storage <= 8, "{name} binds {storage} storage buffers");
+                + if terrain { 2 } else { 0 };
+            assert!(storage <= 8, "{entry} binds {storage} storage buffers");
+            assert_eq!(
+                terrain,
+                stage.uses_terrain()
+                    && !matches!(
+                        entry,
+                        "implicit_constrain" | "implicit_active_set" | "implicit_finish"
+                    ),
+                "{entry}"
+            );
+            kernels += 1;
         }
     }
+    assert_eq!(kernels, 31);
+}
+
+/// Reflection reads what an entry point uses through the functions it calls, with the access
+/// the WGSL declares, and only that.
+#[test]
+fn reflection_reads_each_kernels_own_bindings() {
+    let one = Chunking::ONE;
+    // `gather` (gather.wgsl) reads per_spring and adjacency; contact_force reads the terrain.
+    assert_eq!(
+        names(Stage::Forces, one, "accelerations"),
+        (
+            ["params", "x", "v", "per_spring", "adjacency", "mass", "a"]
+                .map(String::from)
+                .to_vec(),
+            true
+        )
+    );
+    assert_eq!(
+        names(Stage::Cg, one, "cg_alpha"),
+        (
+            ["partials", "scalars", "dispatch"]
+                .map(String::from)
+                .to_vec(),
+            false
+        )
+    );
+    let parsed = Parsed::new(Stage::CheckFinite, &Stage::CheckFinite.source()).unwrap();
+    let (bindings, _) = reflect(&parsed, "check_finite").unwrap();
+    let access: Vec<(&str, Access, bool)> = bindings
+        .iter()
+        .map(|b| (b.name.as_str(), b.access, b.dynamic))
+        .collect();
+    assert_eq!(
+        access,
+        [
+            ("params", Access::Uniform, false),
+            ("x", Access::Read, false),
+            ("v", Access::Read, false),
+            ("status", Access::ReadWrite, false),
+            ("step_index", Access::Uniform, true),
+        ]
+    );
+    let parsed = Parsed::new(Stage::Rk4, &Stage::Rk4.source()).unwrap();
+    assert!(reflect(&parsed, "no_such_kernel").is_err());
 }
 
 /// The size of a WGSL struct and its members' (name, offset).
@@ -271,13 +238,12 @@ fn spring_chunk_layout_matches() {
     }
 }
 
-/// The gathering modules composed for several spring chunks validate, and each gathering entry
-/// point uses exactly its kernel's bindings plus [`Stage::chunk_bindings`] (every chunk bound is
-/// read, none read unbound); the other entry points are unchanged.
+/// The gathering modules composed for several spring chunks validate, and each gathering
+/// entry point reads every chunk (`per_spring_1`, …, and the blocks' `block_1`, … for
+/// `assemble_particles`); no other entry point reads one.
 #[test]
 fn chunked_gathers_validate_and_read_every_chunk() {
     let chunkings = [
-        Chunking::ONE,
         Chunking { count: 2, shift: 8 },
         Chunking {
             count: 4,
@@ -290,56 +256,36 @@ fn chunked_gathers_validate_and_read_every_chunk() {
     ];
     for chunking in chunkings {
         for stage in [Stage::Forces, Stage::System] {
-            let source = stage.source_chunked(chunking);
-            let module = naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| {
-                panic!(
-                    "{} ({chunking:?}) does not parse:\n{}",
-                    stage.file(),
-                    e.emit_to_string(&source)
-                )
-            });
-            let info = Validator::new(ValidationFlags::all(), Capabilities::default())
-                .validate(&module)
-                .unwrap_or_else(|e| {
-                    panic!(
-                        "{} ({chunking:?}) does not validate:\n{}",
-                        stage.file(),
-                        e.emit_to_string(&source)
-                    )
-                });
-            for (index, ep) in module.entry_points.iter().enumerate() {
-                let uses = info.get_entry_point(index);
-                let mut used: Vec<u32> = module
-                    .global_variables
+            let parsed = Parsed::new(stage, &stage.source_chunked(chunking))
+                .unwrap_or_else(|e| panic!("{} ({chunking:?}): {e}", stage.file()));
+            for entry in parsed.entry_points() {
+                let (bindings, _) = reflect(&parsed, entry).unwrap();
+                let chunk_reads: Vec<String> = bindings
                     .iter()
-                    .filter(|&(handle, _)| !uses[handle].is_empty())
-                    .filter_map(|(_, var)| var.binding.as_ref())
-                    .filter(|b| b.group == 0 && b.binding != 0)
-                    .map(|b| b.binding)
+                    .map(|b| b.name.clone())
+                    .filter(|n| {
+                        n.rsplit_once('_').is_some_and(|(base, c)| {
+                            matches!(base, "per_spring" | "block") && c.parse::<u32>().is_ok()
+                        })
+                    })
                     .collect();
-                used.sort();
-                let kernel = stage.kernel(&ep.name);
-                let extra = stage.chunk_bindings(&ep.name, chunking);
-                assert_eq!(extra.len() % (chunking.count as usize - 1).max(1), 0);
-                let mut expected: Vec<u32> = kernel
-                    .bindings
-                    .iter()
-                    .copied()
-                    .chain(extra.iter().map(|&(b, _)| b))
-                    .filter(|&b| b != 0)
-                    .collect();
-                expected.sort();
-                let name = format!("{} in {} ({chunking:?})", ep.name, stage.file());
-                if stage.per_entry_layouts() {
-                    assert_eq!(used, expected, "bindings of {name}");
-                } else {
-                    for b in &used {
-                        assert!(expected.contains(b), "{name} uses {b} outside its layout");
-                    }
-                    for &(b, _) in &extra {
-                        assert!(used.contains(&b), "{name} does not read chunk binding {b}");
-                    }
-                }
+                let extra =
+                    |base: &'static str| (1..chunking.count).map(move |c| format!("{base}_{c}"));
+                let expected: Vec<String> = match entry {
+                    "accelerations" | "apply_particles" => extra("per_spring").collect(),
+                    "assemble_particles" => extra("per_spring").chain(extra("block")).collect(),
+                    _ => Vec::new(),
+                };
+                let mut sorted = chunk_reads.clone();
+                sorted.sort();
+                let mut expected_sorted = expected.clone();
+                expected_sorted.sort();
+                assert_eq!(
+                    sorted,
+                    expected_sorted,
+                    "{entry} in {} ({chunking:?})",
+                    stage.file()
+                );
             }
         }
     }
@@ -483,7 +429,7 @@ fn cg_dispatch_slots_and_constraint_codes_match() {
     ] {
         assert_eq!(
             wgsl_const(Stage::Cg, name),
-            f64::from(crate::implicit::constraint_vec4(c)[3]),
+            f64::from(crate::layout::constraint_vec4(c)[3]),
             "{name}"
         );
     }

@@ -679,8 +679,16 @@ fn two_dimensional_grids() -> Result<(), Failed> {
     let (model, state) = Model::build(&scene);
     let mut runs = Vec::new();
     for width in [None, Some(1), Some(2)] {
-        let mut g = GpuSolver::with_grid_width(model.clone(), state.clone(), width)
-            .map_err(|e| e.to_string())?;
+        let mut g = GpuSolver::with_options(
+            &softbody_gpu::Gpu::open().map_err(|e| e.to_string())?,
+            model.clone(),
+            state.clone(),
+            softbody_gpu::GpuOptions {
+                grid_width: width,
+                ..Default::default()
+            },
+        )
+        .map_err(|e| e.to_string())?;
         g.advance(200).map_err(step_error)?;
         let e = g.energies().map_err(step_error)?;
         runs.push((g.state().map_err(step_error)?.clone(), e));
@@ -1239,8 +1247,16 @@ fn implicit_two_dimensional_grids() -> Result<(), Failed> {
     let (model, state) = Model::build(&scene);
     let mut runs = Vec::new();
     for width in [None, Some(1), Some(2)] {
-        let mut g = GpuSolver::with_grid_width(model.clone(), state.clone(), width)
-            .map_err(|e| e.to_string())?;
+        let mut g = GpuSolver::with_options(
+            &softbody_gpu::Gpu::open().map_err(|e| e.to_string())?,
+            model.clone(),
+            state.clone(),
+            softbody_gpu::GpuOptions {
+                grid_width: width,
+                ..Default::default()
+            },
+        )
+        .map_err(|e| e.to_string())?;
         g.advance(20).map_err(step_error)?;
         let e = g.energies().map_err(step_error)?;
         let stats = g.statistics();

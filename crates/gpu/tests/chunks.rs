@@ -87,7 +87,9 @@ fn step_error(e: StepError) -> Failed {
 }
 
 fn open(model: &Model, state: &State, options: GpuOptions) -> Result<GpuSolver, Failed> {
-    GpuSolver::with_options(model.clone(), state.clone(), options).map_err(|e| e.to_string().into())
+    let gpu = softbody_gpu::Gpu::open().map_err(|e| e.to_string())?;
+    GpuSolver::with_options(&gpu, model.clone(), state.clone(), options)
+        .map_err(|e| e.to_string().into())
 }
 
 fn capped() -> GpuOptions {
@@ -237,7 +239,8 @@ fn too_small() -> Result<(), Failed> {
         max_binding_size: Some(4096),
         ..GpuOptions::default()
     };
-    let e = match GpuSolver::with_options(model, state, options) {
+    let gpu = softbody_gpu::Gpu::open().map_err(|e| e.to_string())?;
+    let e = match GpuSolver::with_options(&gpu, model, state, options) {
         Ok(_) => return Err("a 4 KiB binding was accepted".into()),
         Err(e) => e.to_string(),
     };

@@ -21,19 +21,16 @@
 //!
 //! Without an adapter the tests are reported ignored, unless `SOFTBODY_REQUIRE_GPU=1`.
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use glam::{DVec3, Vec4};
 use libtest_mimic::{Arguments, Failed, Trial};
+use softbody_gpu::Gpu;
 use softbody_gpu::terrain::{
     HF_MAX_HALF_WINDOW, KIND_HEIGHTFIELD, KIND_MESH, TerrainBuffers, pack,
 };
 use softbody_scene::{FrictionModel, Heightfield, Terrain, TerrainShape, TriangleMesh};
 use softbody_terrain::{CellTriangle, Contact, Surface};
-use wgpu::util::DeviceExt;
-
-const TERRAIN_WGSL: &str = include_str!("../../../shaders/terrain.wgsl");
-const PROBE_WGSL: &str = include_str!("../../../shaders/terrain_probe.wgsl");
 
 /// φ tolerance, relative to s.
 const PHI_TOL: f64 = 1e-5;
@@ -372,156 +369,21 @@ fn make_points(cases: &[Case], cpu: &[Surface]) -> Vec<Point> {
     points
 }
 
-struct Device {
-    device: wgpu::Device,
-    queue: wgpu::Queue,
-    adapter: String,
-}
-
-fn open_device() -> Result<Device, String> {
-    let instance =
-        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-        power_preference:
-            wgpu::PowerPreference::from_env().unwrap_or(wgpu::PowerPreference::HighPerformance),
-        force_fallback_adapter: false,
-        compatible_surface: None,
-        apply_limit_buckets: false,
-    }))
-    .map_err(|e| format!("no adapter: {e}"))?;
-    let info = adapter.get_info();
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: Some("terrain_twin"),
-        required_limits: adapter.limits(),
-        ..Default::default()
-    }))
-    .map_err(|e| format!("cannot open the device of {}: {e}", info.name))?;
-    Ok(Device {
-        device,
-        queue,
-        adapter: format!("{} ({:?}, {})", info.name, info.backend, info.driver_info),
-    })
-}
-
+/// The probe's output for `points` on `gpu`: (N, φ) of `terrain_query` and
+/// `terrain_query_within` per point and surface.
 fn run_probe(
-    dev: &Device,
+    gpu: &Arc<Gpu>,
     packed: &TerrainBuffers,
     points: &[Point],
 ) -> Result<Vec<[Vec4; 2]>, String> {
-    let device = &dev.device;
-    let source = format!("{TERRAIN_WGSL}\n{PROBE_WGSL}");
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("terrain_probe"),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some("terrain_probe"),
-        layout: None,
-        module: &module,
-        entry_point: Some("probe"),
-        compilation_options: Default::default(),
-        cache: None,
-    });
-    let storage = |label: &str, bytes: &[u8], extra: wgpu::BufferUsages| {
-        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: bytes,
-            usage: wgpu::BufferUsages::STORAGE | extra,
-        })
-    };
-    let input: Vec<[f32; 4]> = points
+    let input: Vec<Vec4> = points
         .iter()
-        .map(|p| [p.x.x as f32, p.x.y as f32, p.x.z as f32, p.reach as f32])
+        .map(|p| p.x.as_vec3().extend(p.reach as f32))
         .collect();
-    let surfaces = packed.surfaces_for_binding();
-    let out_len = (points.len() * surfaces.len() * 2 * 16) as u64;
-    let points_buf = storage(
-        "points",
-        bytemuck::cast_slice(&input),
-        wgpu::BufferUsages::empty(),
-    );
-    let surfaces_buf = storage(
-        "surfaces",
-        bytemuck::cast_slice(surfaces),
-        wgpu::BufferUsages::empty(),
-    );
-    let data_buf = storage(
-        "terrain_data",
-        bytemuck::cast_slice(&packed.data),
-        wgpu::BufferUsages::empty(),
-    );
-    let out_buf = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("out"),
-        size: out_len,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let readback = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("readback"),
-        size: out_len,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let group0 = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("probe"),
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: points_buf.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: out_buf.as_entire_binding(),
-            },
-        ],
-    });
-    let group1 = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("terrain"),
-        layout: &pipeline.get_bind_group_layout(1),
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: surfaces_buf.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: data_buf.as_entire_binding(),
-            },
-        ],
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &group0, &[]);
-        pass.set_bind_group(1, &group1, &[]);
-        pass.dispatch_workgroups(points.len().div_ceil(64) as u32, 1, 1);
-    }
-    encoder.copy_buffer_to_buffer(&out_buf, 0, &readback, 0, out_len);
-    dev.queue.submit([encoder.finish()]);
-    if let Some(e) = pollster::block_on(scope.pop()) {
-        return Err(format!("validation: {e}"));
-    }
-    readback
-        .slice(..)
-        .map_async(wgpu::MapMode::Read, |r| r.expect("map"));
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| format!("poll: {e}"))?;
-    let bytes = readback
-        .slice(..)
-        .get_mapped_range()
-        .map_err(|e| format!("map: {e}"))?;
-    let raw: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
-    Ok(raw
-        .chunks_exact(2)
-        .map(|c| [Vec4::from(c[0]), Vec4::from(c[1])])
-        .collect())
+    softbody_gpu::debug::terrain_probe(gpu, packed, &input).map_err(|e| e.to_string())
 }
 
-fn probe(dev: &Device) -> Result<Probe, String> {
+fn probe(dev: &Arc<Gpu>) -> Result<Probe, String> {
     let cases = cases();
     let terrains: Vec<Terrain> = cases.iter().map(|c| c.terrain.clone()).collect();
     let cpu: Vec<Surface> = terrains.iter().map(Surface::new).collect();
@@ -533,11 +395,11 @@ fn probe(dev: &Device) -> Result<Probe, String> {
         "terrain_twin: {} points × {} surfaces on {} in {:.2} s",
         points.len(),
         cases.len(),
-        dev.adapter,
+        dev.name(),
         t.elapsed().as_secs_f64()
     );
     Ok(Probe {
-        adapter: dev.adapter.clone(),
+        adapter: dev.name(),
         cases,
         cpu,
         packed,
@@ -881,12 +743,12 @@ fn check(p: &Probe, k: usize) -> Result<String, Failed> {
 }
 
 static PROBE: OnceLock<Result<Probe, String>> = OnceLock::new();
-static DEVICE: OnceLock<Result<Device, String>> = OnceLock::new();
+static DEVICE: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
 
 fn main() {
     let args = Arguments::from_args();
     let require = std::env::var("SOFTBODY_REQUIRE_GPU").is_ok_and(|v| v == "1");
-    let device = DEVICE.get_or_init(open_device);
+    let device = DEVICE.get_or_init(|| Gpu::open().map_err(|e| e.to_string()));
     if let Err(e) = device {
         eprintln!("terrain_twin: {e}");
     }

@@ -1,7 +1,7 @@
 //! Explicit (forward) Euler: x' = x + h v, v' = v + h a(x, v).
 
-use softbody_terrain::Surface;
 use softbody_scene::{Model, State};
+use softbody_terrain::Surface;
 
 use super::Passes;
 

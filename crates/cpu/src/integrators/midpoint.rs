@@ -10,8 +10,8 @@ use softbody_scene::{Model, State};
 use super::{Passes, finish};
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
-use softbody_terrain::Surface;
 use crate::vec_bytes;
+use softbody_terrain::Surface;
 
 /// The midpoint method and its scratch: the passes and the midpoint state y_m.
 pub struct Midpoint {

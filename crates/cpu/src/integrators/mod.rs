@@ -19,9 +19,9 @@ pub mod midpoint;
 pub mod rk4;
 pub mod symplectic_euler;
 
-use softbody_terrain::Surface;
 use glam::DVec3;
 use softbody_scene::{Integrator, Model, State, Statistics, Timings};
+use softbody_terrain::Surface;
 
 use crate::collision_response::respond_one;
 use crate::forces::acceleration_with;

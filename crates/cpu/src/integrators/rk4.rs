@@ -13,8 +13,8 @@ use softbody_scene::{Model, State};
 use super::{Passes, finish};
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
-use softbody_terrain::Surface;
 use crate::vec_bytes;
+use softbody_terrain::Surface;
 
 /// RK4 and its scratch: the passes, the stage state and the running weighted sums.
 pub struct Rk4 {

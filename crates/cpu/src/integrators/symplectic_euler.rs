@@ -1,7 +1,7 @@
 //! Symplectic (semi-implicit) Euler: v' = v + h a(x, v), x' = x + h v'.
 
-use softbody_terrain::Surface;
 use softbody_scene::{Model, State};
+use softbody_terrain::Surface;
 
 use super::Passes;
 

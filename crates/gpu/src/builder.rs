@@ -1,0 +1,271 @@
+//! [`Builder`]: what every stage is built from — the device, the compiled modules, the terrain's
+//! bind group, and a tally of the device memory allocated.
+
+use std::cell::{Cell, RefCell};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use wgpu::util::DeviceExt;
+
+use crate::buffers::ModelBuffers;
+use crate::chunks::Chunking;
+use crate::chunks::SpringChunks;
+use crate::device::Gpu;
+use crate::grid::Grid;
+use crate::kernel::{self, Call, Kernel, Module, Resources};
+use crate::shaders::Stage;
+use crate::terrain::{SurfaceGpu, TerrainBuffers};
+use crate::{GpuError, VEC4};
+
+/// Makes buffers and kernel calls for one solver.
+pub(crate) struct Builder {
+    gpu: Arc<Gpu>,
+    /// The limits the solver runs under (the device's, or lower for tests).
+    limits: wgpu::Limits,
+    chunking: Chunking,
+    /// Each stage's module, compiled when a kernel of it is first asked for.
+    modules: RefCell<HashMap<Stage, Module>>,
+    terrain_layout: wgpu::BindGroupLayout,
+    terrain: wgpu::BindGroup,
+    /// Storage buffers in the terrain's group.
+    terrain_buffers: u32,
+    /// Bytes of device memory allocated through the builder.
+    bytes: Cell<u64>,
+}
+
+/// What a stage is built from: the builder, the model's buffers, the spring chunks and the
+/// particle grid.
+#[derive(Clone, Copy)]
+pub(crate) struct Setup<'a> {
+    /// Buffers and kernels.
+    pub builder: &'a Builder,
+    /// The model and state.
+    pub buffers: &'a ModelBuffers,
+    /// How the per-spring arrays are split.
+    pub chunks: &'a SpringChunks,
+    /// One thread per particle.
+    pub particles: Grid,
+    /// Particles.
+    pub n: u64,
+}
+
+impl<'a> Setup<'a> {
+    /// Calls of a per-spring kernel, one per spring chunk, each with that chunk's buffers
+    /// ([`ModelBuffers::chunk_resources`]) and what `extra` adds to them.
+    pub fn per_chunk<'r>(
+        &self,
+        stage: Stage,
+        entry: &'static str,
+        extra: impl Fn(usize, Resources<'r>) -> Resources<'r>,
+    ) -> Result<Vec<Call>, GpuError>
+    where
+        'a: 'r,
+    {
+        let tables =
+            (0..self.chunks.len()).map(|c| extra(c, self.buffers.chunk_resources(self.chunks, c)));
+        self.builder.calls(stage, entry, tables)
+    }
+}
+
+/// Usage of the solver's storage buffers: bound, written by the host, read back.
+const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
+    .union(wgpu::BufferUsages::COPY_DST)
+    .union(wgpu::BufferUsages::COPY_SRC);
+
+impl Builder {
+    /// A builder for per-spring arrays split as `chunking`, with the terrain `packed` uploaded.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        limits: wgpu::Limits,
+        chunking: Chunking,
+        packed: &TerrainBuffers,
+    ) -> Result<Builder, GpuError> {
+        let entries = kernel::terrain_entries().map_err(|e| internal(&gpu, e))?;
+        let device = &gpu.device;
+        let terrain_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("terrain"),
+            entries: &entries.iter().map(|(_, e)| *e).collect::<Vec<_>>(),
+        });
+        let surfaces = at_least(
+            bytemuck::cast_slice(packed.surfaces_for_binding()),
+            std::mem::size_of::<SurfaceGpu>(),
+        );
+        let data = at_least(bytemuck::cast_slice(&packed.data), 4);
+        let buffer = |label, contents| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: STORAGE,
+            })
+        };
+        let (surfaces_buffer, data_buffer) =
+            (buffer("surfaces", &surfaces), buffer("terrain_data", &data));
+        let resources = Resources::default()
+            .buffer("surfaces", &surfaces_buffer)
+            .buffer("terrain_data", &data_buffer);
+        let bound = entries
+            .iter()
+            .map(|(name, entry)| {
+                let resource = resources.get(name).ok_or_else(|| {
+                    internal(
+                        &gpu,
+                        format!("terrain.wgsl declares an unknown binding `{name}`"),
+                    )
+                })?;
+                Ok(wgpu::BindGroupEntry {
+                    binding: entry.binding,
+                    resource: resource.clone(),
+                })
+            })
+            .collect::<Result<Vec<_>, GpuError>>()?;
+        let terrain = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain"),
+            layout: &terrain_layout,
+            entries: &bound,
+        });
+        Ok(Builder {
+            bytes: Cell::new((surfaces.len() + data.len()) as u64),
+            terrain_buffers: entries.len() as u32,
+            gpu,
+            limits,
+            chunking,
+            modules: RefCell::new(HashMap::new()),
+            terrain_layout,
+            terrain,
+        })
+    }
+
+    /// The context the solver runs on.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+
+    /// Bytes of device memory allocated through the builder.
+    pub fn bytes(&self) -> u64 {
+        self.bytes.get()
+    }
+
+    /// A buffer of `descriptor`, counted.
+    pub fn buffer(&self, descriptor: &wgpu::BufferDescriptor<'_>) -> wgpu::Buffer {
+        self.bytes.set(self.bytes.get() + descriptor.size);
+        self.gpu.device.create_buffer(descriptor)
+    }
+
+    /// A zeroed storage buffer of at least `bytes` (and at least one `vec4`: wgpu refuses to
+    /// bind an empty buffer).
+    pub fn storage(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes.max(VEC4),
+            usage: STORAGE,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// A storage buffer holding `contents` (one zeroed `element` if it is empty).
+    pub fn storage_init(&self, label: &str, contents: &[u8], element: usize) -> wgpu::Buffer {
+        self.init(label, &at_least(contents, element), STORAGE)
+    }
+
+    /// A buffer holding `contents`, of `usage`.
+    pub fn init(&self, label: &str, contents: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.bytes.set(self.bytes.get() + contents.len() as u64);
+        self.gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+    }
+
+    /// The kernel of `entry` in `stage`'s module (compiled once per stage).
+    pub fn kernel(&self, stage: Stage, entry: &'static str) -> Result<Kernel, GpuError> {
+        if !self.modules.borrow().contains_key(&stage) {
+            let module = Module::new(&self.gpu.device, stage, stage.source_chunked(self.chunking))
+                .map_err(|e| internal(&self.gpu, e))?;
+            self.modules.borrow_mut().insert(stage, module);
+        }
+        let modules = self.modules.borrow();
+        let kernel = Kernel::new(
+            &self.gpu.device,
+            &modules[&stage],
+            entry,
+            &self.terrain_layout,
+        )
+        .map_err(|e| internal(&self.gpu, e))?;
+        let storage = kernel.storage_buffers(self.terrain_buffers);
+        let allowed = self.limits.max_storage_buffers_per_shader_stage;
+        if storage > allowed {
+            return Err(GpuError::Limit {
+                adapter: self.gpu.name(),
+                limit: "max_storage_buffers_per_shader_stage",
+                what: format!("the kernel {entry} ({})", stage.file()),
+                needed: format!("{storage} storage buffers"),
+                available: format!("{allowed}"),
+            });
+        }
+        if let Some(b) = kernel.bindings().last()
+            && b.binding >= self.limits.max_bindings_per_bind_group
+        {
+            return Err(GpuError::Limit {
+                adapter: self.gpu.name(),
+                limit: "max_bindings_per_bind_group",
+                what: format!("the kernel {entry} ({})", stage.file()),
+                needed: format!("binding numbers up to {}", b.binding),
+                available: format!("{}", self.limits.max_bindings_per_bind_group),
+            });
+        }
+        Ok(kernel)
+    }
+
+    /// A call of `entry` in `stage` with `resources` bound by name.
+    pub fn call(
+        &self,
+        stage: Stage,
+        entry: &'static str,
+        resources: &Resources<'_>,
+    ) -> Result<Call, GpuError> {
+        let kernel = self.kernel(stage, entry)?;
+        kernel
+            .call(&self.gpu.device, resources, &self.terrain)
+            .map_err(|e| internal(&self.gpu, e))
+    }
+
+    /// Calls of `entry` in `stage`, one per resource table of `tables` (a per-spring kernel's
+    /// chunks), sharing one pipeline.
+    pub fn calls<'r>(
+        &self,
+        stage: Stage,
+        entry: &'static str,
+        tables: impl IntoIterator<Item = Resources<'r>>,
+    ) -> Result<Vec<Call>, GpuError> {
+        let kernel = self.kernel(stage, entry)?;
+        tables
+            .into_iter()
+            .map(|resources| {
+                kernel
+                    .call(&self.gpu.device, &resources, &self.terrain)
+                    .map_err(|e| internal(&self.gpu, e))
+            })
+            .collect()
+    }
+}
+
+/// `bytes`, or one zeroed element of `element` bytes if empty: wgpu refuses to bind an empty
+/// buffer.
+fn at_least(bytes: &[u8], element: usize) -> Vec<u8> {
+    if bytes.is_empty() {
+        vec![0; element]
+    } else {
+        bytes.to_vec()
+    }
+}
+
+/// A defect of the shaders or of the host's wiring, reported rather than panicking.
+fn internal(gpu: &Gpu, message: String) -> GpuError {
+    GpuError::Device {
+        adapter: gpu.name(),
+        message: format!("internal error in the GPU solver's kernels: {message}"),
+    }
+}

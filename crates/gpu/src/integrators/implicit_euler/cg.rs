@@ -1,0 +1,82 @@
+//! `shaders/cg.wgsl` ↔ `softbody_cpu::integrators::implicit_euler::cg`: filtered,
+//! block-Jacobi-preconditioned conjugate gradients for A Δv = rhs, the CPU's loop operation for
+//! operation in f32, its scalars on the device.
+//!
+//! A solve starts with a round (`cg_start`: the warm start; A Δv; `cg_residual`; `cg_begin`),
+//! then runs batches of iterations (A c → `cg_curvature` → `cg_alpha` → `cg_advance` →
+//! `cg_beta` → `cg_direction`). The vector kernels of an iteration are dispatched indirectly
+//! from the argument slots the one-workgroup scalar kernels rewrite: full grids while the solve
+//! runs, empty ones once it is done, so a batch of iterations is one submission whatever the
+//! solve needs.
+
+use super::system::{System, Vector};
+use super::{Buffers, SLOTS_RUNNING};
+use crate::GpuError;
+use crate::builder::Setup;
+use crate::grid::Grid;
+use crate::kernel::Call;
+use crate::shaders::Stage;
+
+/// The CG kernels' calls.
+pub(crate) struct Cg {
+    start: Call,
+    residual: Call,
+    begin: Call,
+    curvature: Call,
+    alpha: Call,
+    advance: Call,
+    beta: Call,
+    direction: Call,
+    particles: Grid,
+    dispatch: wgpu::Buffer,
+}
+
+/// The one workgroup of the scalar kernels.
+const ONE: Grid = Grid { x: 1, y: 1 };
+
+impl Cg {
+    /// The CG's calls over the implicit buffers `im`.
+    pub fn new(s: Setup<'_>, im: &Buffers) -> Result<Cg, GpuError> {
+        let resources = im.resources(s.buffers.resources());
+        let call = |entry| s.builder.call(Stage::Cg, entry, &resources);
+        Ok(Cg {
+            start: call("cg_start")?,
+            residual: call("cg_residual")?,
+            begin: call("cg_begin")?,
+            curvature: call("cg_curvature")?,
+            alpha: call("cg_alpha")?,
+            advance: call("cg_advance")?,
+            beta: call("cg_beta")?,
+            direction: call("cg_direction")?,
+            particles: s.particles,
+            dispatch: im.dispatch.clone(),
+        })
+    }
+
+    /// A solve's start: the warm start, the residual and the scalars.
+    pub fn encode_start(&self, pass: &mut wgpu::ComputePass<'_>, system: &System) {
+        self.start.run(pass, self.particles);
+        system.encode_apply(pass, Vector::Dv, None);
+        self.residual.run(pass, self.particles);
+        self.begin.run(pass, ONE);
+    }
+
+    /// `iterations` iterations, empty once the solve is done.
+    pub fn encode_iterations(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        system: &System,
+        iterations: u32,
+    ) {
+        let particles = SLOTS_RUNNING.particles;
+        for _ in 0..iterations {
+            system.encode_apply(pass, Vector::C, Some(SLOTS_RUNNING));
+            self.curvature.run_indirect(pass, &self.dispatch, particles);
+            // Direct: they write the indirect arguments (and return at once when done).
+            self.alpha.run(pass, ONE);
+            self.advance.run_indirect(pass, &self.dispatch, particles);
+            self.beta.run(pass, ONE);
+            self.direction.run_indirect(pass, &self.dispatch, particles);
+        }
+    }
+}

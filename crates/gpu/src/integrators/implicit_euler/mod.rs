@@ -1,0 +1,363 @@
+//! Implicit Euler on the GPU, the twin of `softbody_cpu::integrators::implicit_euler`: the
+//! linearised backward-Euler system ([`system`], `shaders/system.wgsl`), solved by filtered PCG
+//! ([`cg`], `shaders/cg.wgsl`), with contacts as velocity constraints and an active set
+//! (`shaders/implicit_euler.wgsl`).
+//!
+//! # A step
+//!
+//! | submission | dispatches | read back |
+//! |---|---|---|
+//! | first | assemble (springs, particles) → candidates (terrain) → round → batch | scalars, changed |
+//! | while CG runs | batch | scalars, changed |
+//! | next round (active set changed) | round → batch | scalars, changed |
+//! | last | finish → `check_finite` | nothing (the status at the end of `advance`) |
+//!
+//! where a round is `implicit_constrain` → the CG's start, and a batch is a run of CG
+//! iterations (the first batch of a solve as many as the last solve took plus 2, later ones
+//! [`ITERATIONS_PER_BATCH`]) followed, with terrain, by the active-set update (A Δv →
+//! `implicit_active_set`), dispatched from the "finished" argument slots so that it runs once,
+//! in the batch where the solve ended. So a solve costs one submission and read-back of 68 bytes
+//! (the [`CgScalars`] and the active set's `changed` word) when it takes no more iterations
+//! than the last one (plus 2), one more per 16 iterations beyond, and a step at least one.
+//!
+//! The CG stopping rule is the CPU's (relative preconditioned residual, round-off growth, cap),
+//! with the tolerance [`CG_TOLERANCE_F32`]: the CPU's 1e-8 is below what f32 resolves.
+
+pub mod cg;
+pub mod system;
+
+use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
+use softbody_scene::{Statistics, StepError, Timings};
+
+use self::cg::Cg;
+use self::system::{System, Vector};
+use crate::builder::Setup;
+use crate::check_finite::CheckFinite;
+use crate::grid::Grid;
+use crate::kernel::{Call, Resources};
+use crate::layout::{CG_DISPATCH_WORDS, CandidateGpu, CgScalars, SpringBlockGpu, dispatch_slot};
+use crate::shaders::Stage;
+use crate::submit::Submitter;
+use crate::{GpuError, VEC4};
+
+/// CG's relative tolerance on the GPU (preconditioned residual norm, as the CPU's
+/// `CG_TOLERANCE`, which is 1e-8): f32 resolves about 6e-8 relative per operation, and the
+/// recursively updated residual of an f32 CG drifts from the true one by about that times the
+/// condition number, so 1e-5 is as far as a solve can usefully go; it is reached in a few dozen
+/// iterations on the test scenes (see the adapter tests for the measured residuals).
+pub const CG_TOLERANCE_F32: f32 = 1e-5;
+
+/// CG iterations per batch (one submission and read-back of the scalars each) after a solve's
+/// first, which is sized from the last solve's count (plus 2, between 4 and 4 × this).
+pub const ITERATIONS_PER_BATCH: u32 = 16;
+
+/// The first batch of a solve has the last solve's iterations plus this many (and at least 4):
+/// consecutive solves take similar counts, so most solves need one submission, and few empty
+/// dispatches (which software adapters do not get for free) are encoded.
+const BATCH_MARGIN: u32 = 2;
+
+/// Byte offsets of a pair of argument slots in the CG's dispatch buffer.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Slots {
+    /// Per-spring kernels.
+    pub springs: u64,
+    /// Per-particle kernels.
+    pub particles: u64,
+}
+
+/// Full grids while a solve runs, empty once it is done.
+pub(crate) const SLOTS_RUNNING: Slots = Slots {
+    springs: dispatch_slot::SPRINGS,
+    particles: dispatch_slot::PARTICLES,
+};
+
+/// Empty while a solve runs, full once it is done.
+pub(crate) const SLOTS_FINISHED: Slots = Slots {
+    springs: dispatch_slot::FINISHED_SPRINGS,
+    particles: dispatch_slot::FINISHED_PARTICLES,
+};
+
+/// Implicit Euler's own buffers.
+pub(crate) struct Buffers {
+    pub b: wgpu::Buffer,
+    pub rhs: wgpu::Buffer,
+    pub z: wgpu::Buffer,
+    pub dv: wgpu::Buffer,
+    pub q: wgpu::Buffer,
+    pub r: wgpu::Buffer,
+    pub c: wgpu::Buffer,
+    /// The inverse diagonal blocks, two `vec4` per particle.
+    pub diag: wgpu::Buffer,
+    pub constraints: wgpu::Buffer,
+    /// Spring blocks, one buffer per spring chunk.
+    pub blocks: Vec<wgpu::Buffer>,
+    pub candidates: wgpu::Buffer,
+    /// Per-workgroup partial sums of the CG's dot products.
+    pub partials: wgpu::Buffer,
+    pub scalars: wgpu::Buffer,
+    pub dispatch: wgpu::Buffer,
+    pub changed: wgpu::Buffer,
+}
+
+impl Buffers {
+    fn new(s: Setup<'_>) -> Buffers {
+        let builder = s.builder;
+        let vectors = |label| builder.storage(label, s.n * VEC4);
+        let settings = CgScalars {
+            tolerance: CG_TOLERANCE_F32,
+            max_iterations: CG_MAX_ITERATIONS,
+            n_partials: s.particles.groups() as u32,
+            particle_grid: [s.particles.x, s.particles.y],
+            spring_grid: [s.chunks.largest_grid().x, s.chunks.largest_grid().y],
+            ..CgScalars::default()
+        };
+        let storage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        Buffers {
+            b: vectors("b"),
+            rhs: vectors("rhs"),
+            z: vectors("z"),
+            dv: vectors("dv"),
+            q: vectors("q"),
+            r: vectors("r"),
+            c: vectors("c"),
+            diag: builder.storage("diag", 2 * s.n * VEC4),
+            constraints: vectors("constraints"),
+            blocks: s
+                .chunks
+                .ranges
+                .iter()
+                .map(|&(_, count)| {
+                    builder.storage(
+                        "blocks",
+                        count * std::mem::size_of::<SpringBlockGpu>() as u64,
+                    )
+                })
+                .collect(),
+            // Zeroed: no particle was touching before the first step.
+            candidates: builder.storage(
+                "candidates",
+                s.n * std::mem::size_of::<CandidateGpu>() as u64,
+            ),
+            partials: builder.storage("cg partials", s.particles.groups().max(1) * 8),
+            scalars: builder.init("cg scalars", bytemuck::bytes_of(&settings), storage),
+            dispatch: builder.init(
+                "cg dispatch",
+                &[0u8; CG_DISPATCH_WORDS * 4],
+                storage | wgpu::BufferUsages::INDIRECT,
+            ),
+            changed: builder.storage("changed", 4),
+        }
+    }
+
+    /// `r` with these buffers added by their shader names (the gathers' blocks as chunks;
+    /// `out` of the products is q).
+    pub fn resources<'a>(&'a self, r: Resources<'a>) -> Resources<'a> {
+        r.buffer("b", &self.b)
+            .buffer("rhs", &self.rhs)
+            .buffer("z", &self.z)
+            .buffer("dv", &self.dv)
+            .buffer("q", &self.q)
+            .buffer("out", &self.q)
+            .buffer("r", &self.r)
+            .buffer("c", &self.c)
+            .buffer("diag", &self.diag)
+            .buffer("constraints", &self.constraints)
+            .chunks("blocks", "block", &self.blocks)
+            .buffer("candidates", &self.candidates)
+            .buffer("partials", &self.partials)
+            .buffer("scalars", &self.scalars)
+            .buffer("dispatch", &self.dispatch)
+            .buffer("changed", &self.changed)
+    }
+}
+
+/// What one read-back after a batch says.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Progress {
+    pub scalars: CgScalars,
+    pub changed: bool,
+}
+
+/// The contact kernels of `implicit_euler.wgsl` that only run with terrain.
+struct Contacts {
+    candidates: Call,
+    active_set: Call,
+}
+
+/// Implicit Euler's buffers, calls and counters.
+pub(crate) struct ImplicitEuler {
+    buffers: Buffers,
+    system: System,
+    cg: Cg,
+    constrain: Call,
+    contacts: Option<Contacts>,
+    finish: Call,
+    particles: Grid,
+    /// Particles: a model without any takes no steps.
+    n: u64,
+    /// Iterations of the last solve.
+    last_iterations: u32,
+    /// Counters over the run.
+    pub statistics: Statistics,
+}
+
+impl ImplicitEuler {
+    /// Its buffers and calls; `terrain`: whether the scene has terrain to touch.
+    pub fn new(s: Setup<'_>, terrain: bool) -> Result<ImplicitEuler, GpuError> {
+        let buffers = Buffers::new(s);
+        let resources = buffers.resources(s.buffers.resources());
+        let call = |entry| s.builder.call(Stage::ImplicitEuler, entry, &resources);
+        let contacts = match terrain {
+            true => Some(Contacts {
+                candidates: call("implicit_candidates")?,
+                active_set: call("implicit_active_set")?,
+            }),
+            false => None,
+        };
+        Ok(ImplicitEuler {
+            system: System::new(s, &buffers)?,
+            cg: Cg::new(s, &buffers)?,
+            constrain: call("implicit_constrain")?,
+            finish: call("implicit_finish")?,
+            contacts,
+            particles: s.particles,
+            n: s.n,
+            last_iterations: ITERATIONS_PER_BATCH,
+            statistics: Statistics::default(),
+            buffers,
+        })
+    }
+
+    /// Its buffers.
+    #[cfg(feature = "debug")]
+    pub fn buffers(&self) -> &Buffers {
+        &self.buffers
+    }
+
+    /// Linearises at the current (x, v): b, the spring blocks and the preconditioner; with
+    /// terrain, the contact candidates.
+    pub fn encode_assemble(&self, pass: &mut wgpu::ComputePass<'_>) {
+        self.system.encode_assemble(pass);
+        if let Some(contacts) = &self.contacts {
+            contacts.candidates.run(pass, self.particles);
+        }
+    }
+
+    /// A solve's start: constraints, z and rhs from the candidates (unless `constrain` is
+    /// false: the twin tests write them), the warm start, the residual and the scalars.
+    pub fn encode_round(&self, pass: &mut wgpu::ComputePass<'_>, constrain: bool) {
+        if constrain {
+            self.constrain.run(pass, self.particles);
+        }
+        self.cg.encode_start(pass, &self.system);
+    }
+
+    /// A batch of CG iterations (the first of a solve, or a later one), then, with terrain, the
+    /// active-set update (empty until the solve is done).
+    pub fn encode_batch(&self, pass: &mut wgpu::ComputePass<'_>, first: bool) {
+        let iterations = if first {
+            (self.last_iterations + BATCH_MARGIN).clamp(4, 4 * ITERATIONS_PER_BATCH)
+        } else {
+            ITERATIONS_PER_BATCH
+        };
+        self.cg.encode_iterations(pass, &self.system, iterations);
+        if let Some(contacts) = &self.contacts {
+            self.system
+                .encode_apply(pass, Vector::Dv, Some(SLOTS_FINISHED));
+            contacts.active_set.run_indirect(
+                pass,
+                &self.buffers.dispatch,
+                SLOTS_FINISHED.particles,
+            );
+        }
+    }
+
+    /// A Δv into q, on the full grids (for the system twin test, with Δv uploaded as p).
+    #[cfg(feature = "debug")]
+    pub fn encode_apply_dv(&self, pass: &mut wgpu::ComputePass<'_>) {
+        self.system.encode_apply(pass, Vector::Dv, None);
+    }
+
+    /// Submits `encoder` (after resetting the active set's `changed` word) and runs CG batches
+    /// until the solve it begins is done; counts the solve and returns its last progress.
+    pub fn solve(
+        &mut self,
+        submitter: &mut Submitter,
+        encoder: wgpu::CommandEncoder,
+    ) -> Result<Progress, StepError> {
+        submitter
+            .queue()
+            .write_buffer(&self.buffers.changed, 0, bytemuck::bytes_of(&0u32));
+        let mut progress = self.progress(submitter, encoder)?;
+        while progress.scalars.done == 0 {
+            let encoder = submitter.encode_pass("cg batch", |pass| self.encode_batch(pass, false));
+            progress = self.progress(submitter, encoder)?;
+        }
+        let scalars = progress.scalars;
+        let st = &mut self.statistics;
+        st.cg_iterations += u64::from(scalars.iterations);
+        st.cg_solves += 1;
+        st.cg_max_residual = st.cg_max_residual.max(scalars.relative_residual());
+        self.last_iterations = scalars.iterations;
+        Ok(progress)
+    }
+
+    /// Submits `encoder` and reads the CG's scalars and the `changed` word back.
+    fn progress(
+        &self,
+        submitter: &mut Submitter,
+        encoder: wgpu::CommandEncoder,
+    ) -> Result<Progress, StepError> {
+        let size = std::mem::size_of::<CgScalars>();
+        let bytes = submitter.submit_and_read(
+            encoder,
+            &[
+                (&self.buffers.scalars, size as u64),
+                (&self.buffers.changed, 4),
+            ],
+        )?;
+        Ok(Progress {
+            scalars: bytemuck::pod_read_unaligned(&bytes[..size]),
+            changed: bytemuck::pod_read_unaligned::<u32>(&bytes[size..size + 4]) != 0,
+        })
+    }
+
+    /// Step `k` (0-based) of a submission of `advance`: the solves until the active set
+    /// settles (at most [`ACTIVE_SET_ROUNDS`]), then the update and `check`.
+    pub fn step(
+        &mut self,
+        submitter: &mut Submitter,
+        check: &CheckFinite,
+        k: u64,
+        timings: &mut Timings,
+    ) -> Result<(), StepError> {
+        if self.n == 0 {
+            return Ok(());
+        }
+        let started = std::time::Instant::now();
+        let encoder = submitter.encode_pass("implicit step", |pass| {
+            self.encode_assemble(pass);
+            self.encode_round(pass, true);
+            self.encode_batch(pass, true);
+        });
+        let mut progress = self.solve(submitter, encoder)?;
+        let mut rounds = 1;
+        while self.contacts.is_some() && progress.changed && rounds < ACTIVE_SET_ROUNDS {
+            let encoder = submitter.encode_pass("active-set round", |pass| {
+                self.encode_round(pass, true);
+                self.encode_batch(pass, true);
+            });
+            progress = self.solve(submitter, encoder)?;
+            rounds += 1;
+        }
+        timings.add("assemble + cg (device)", started.elapsed().as_secs_f64());
+        let encoder = submitter.encode_pass("implicit finish", |pass| {
+            self.finish.run(pass, self.particles);
+            check.encode(pass, k);
+        });
+        submitter.submit(encoder);
+        Ok(())
+    }
+}

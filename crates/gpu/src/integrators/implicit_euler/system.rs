@@ -1,0 +1,111 @@
+//! `shaders/system.wgsl` ↔ `softbody_cpu::integrators::implicit_euler::system`: implicit
+//! Euler's linear system, linearised at the start of the step,
+//!
+//! A = M(1 + h·drag) − h ∂f/∂v − h² ∂f/∂x,  b = h (f + h ∂f/∂x v),
+//!
+//! kept matrix-free as one block B_s = β uuᵀ + γ I per spring (`assemble_springs`), gathered per
+//! particle into b and the block-Jacobi preconditioner (`assemble_particles`); A p is a
+//! per-spring product and a gather (`apply_springs`, `apply_particles`).
+
+use super::{Buffers, Slots};
+use crate::GpuError;
+use crate::builder::Setup;
+use crate::grid::Grid;
+use crate::kernel::Call;
+use crate::shaders::Stage;
+
+/// The product A p of one vector p, into q.
+struct Apply {
+    /// One call per spring chunk.
+    springs: Vec<Call>,
+    particles: Call,
+}
+
+/// Which vector a product multiplies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Vector {
+    /// Δv.
+    Dv,
+    /// CG's search direction c.
+    C,
+}
+
+/// The assembly and the products A Δv and A c.
+pub(crate) struct System {
+    assemble_springs: Vec<Call>,
+    assemble_particles: Call,
+    apply_dv: Apply,
+    apply_c: Apply,
+    spring_grids: Vec<Grid>,
+    particles: Grid,
+    /// The CG's indirect dispatch arguments.
+    dispatch: wgpu::Buffer,
+}
+
+impl System {
+    /// The system's calls over the implicit buffers `im`.
+    pub fn new(s: Setup<'_>, im: &Buffers) -> Result<System, GpuError> {
+        // The per-spring kernels bind their chunk's blocks; the gathers all chunks (`im`).
+        let per_chunk = |entry, p: &wgpu::Buffer| {
+            s.per_chunk(Stage::System, entry, |c, r| {
+                im.resources(r)
+                    .buffer("blocks", &im.blocks[c])
+                    .buffer("p", p)
+            })
+        };
+        let gather = |entry, p: &wgpu::Buffer| {
+            let r = im.resources(s.buffers.resources()).buffer("p", p);
+            s.builder.call(Stage::System, entry, &r)
+        };
+        let apply = |p| -> Result<Apply, GpuError> {
+            Ok(Apply {
+                springs: per_chunk("apply_springs", p)?,
+                particles: gather("apply_particles", p)?,
+            })
+        };
+        Ok(System {
+            assemble_springs: per_chunk("assemble_springs", &im.dv)?,
+            assemble_particles: gather("assemble_particles", &im.dv)?,
+            apply_dv: apply(&im.dv)?,
+            apply_c: apply(&im.c)?,
+            spring_grids: s.chunks.grids.clone(),
+            particles: s.particles,
+            dispatch: im.dispatch.clone(),
+        })
+    }
+
+    /// Linearises at the current (x, v): the spring blocks, b and the preconditioner.
+    pub fn encode_assemble(&self, pass: &mut wgpu::ComputePass<'_>) {
+        for (call, grid) in self.assemble_springs.iter().zip(&self.spring_grids) {
+            call.run(pass, *grid);
+        }
+        self.assemble_particles.run(pass, self.particles);
+    }
+
+    /// q = A `vector`: on the full grids, or (`slots`) indirectly from the CG's argument slots,
+    /// every chunk from the springs' slot (the largest chunk's grid; a shorter chunk's surplus
+    /// threads return at once).
+    pub fn encode_apply(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        vector: Vector,
+        slots: Option<Slots>,
+    ) {
+        let apply = match vector {
+            Vector::Dv => &self.apply_dv,
+            Vector::C => &self.apply_c,
+        };
+        for (call, grid) in apply.springs.iter().zip(&self.spring_grids) {
+            match slots {
+                Some(slots) => call.run_indirect(pass, &self.dispatch, slots.springs),
+                None => call.run(pass, *grid),
+            }
+        }
+        match slots {
+            Some(slots) => apply
+                .particles
+                .run_indirect(pass, &self.dispatch, slots.particles),
+            None => apply.particles.run(pass, self.particles),
+        }
+    }
+}
