@@ -1,18 +1,27 @@
-//! Bitwise determinism across thread counts: the same scene stepped on 1, 2 and 3 threads gives
-//! the same bits, for every integrator, contacts included.
+//! Bitwise determinism, on every backend: the CPU gives the same bits for 1, 2 and 3 threads,
+//! the GPU the same bits run after run, for every integrator, contacts included.
 
-mod common;
+use std::process::ExitCode;
+use std::sync::Arc;
 
-use common::*;
 use glam::DVec3;
 use softbody::scene::SpringParams;
-use softbody::{Integrator, Model, Scene, Solver, State};
+use softbody::{CpuSolver, Integrator, Model, Scene, Solver, State};
+use softbody_testkit::scenes::*;
+use softbody_testkit::{Backend, Failed, Kind, ensure};
+
+fn main() -> ExitCode {
+    softbody_testkit::run(
+        "determinism",
+        &[("runs_repeat_bit_for_bit", runs_repeat_bit_for_bit)],
+    )
+}
 
 /// A slightly tilted 12×12×12 cuboid (1728 particles, ~20 000 springs: more than one rayon task of
-/// particles (1024) and of springs (4096) and more than one reduction chunk (8192), so the work
-/// really is split differently per thread count) falling onto a plane with friction and
-/// restitution; its lowest corner starts 2 mm above the plane at 1 m/s down, so contacts begin
-/// within the first steps.
+/// particles (1024) and of springs (4096), more than one reduction chunk (8192) and several GPU
+/// workgroups, so the work really is split) falling onto a plane with friction and restitution;
+/// its lowest corner starts 2 mm above the plane at 1 m/s down, so contacts begin within the
+/// first steps.
 fn scene(integrator: Integrator) -> Scene {
     let params = SpringParams {
         stiffness: 100.0,
@@ -26,19 +35,19 @@ fn scene(integrator: Integrator) -> Scene {
         .map(|x| x.y)
         .fold(f64::INFINITY, f64::min);
     cube.center.y = 0.002 - lowest;
-    common::scene(
+    softbody_testkit::scenes::scene(
         simulation(integrator, 2e-4),
         vec![cuboid_body(cube)],
         vec![plane(DVec3::ZERO, DVec3::Y, 0.3, 0.4)],
     )
 }
 
-fn run(model: &Model, state: &State, threads: usize, steps: u64) -> (State, [u64; 3]) {
-    let mut solver = solver_from(model.clone(), state.clone(), threads);
-    solver.advance(steps).unwrap();
-    let e = solver.energies().unwrap();
+/// The state and the energies' bits after `steps` steps of `solver`.
+fn run(mut solver: Box<dyn Solver>, steps: u64) -> Result<(State, [u64; 3]), Failed> {
+    solver.advance(steps).map_err(|e| e.to_string())?;
+    let e = solver.energies().map_err(|e| e.to_string())?;
     let energies = [e.kinetic, e.gravitational, e.elastic].map(f64::to_bits);
-    (solver.state().unwrap().clone(), energies)
+    Ok((solver.state().map_err(|e| e.to_string())?.clone(), energies))
 }
 
 fn bits(s: &State) -> Vec<u64> {
@@ -49,33 +58,60 @@ fn bits(s: &State) -> Vec<u64> {
         .collect()
 }
 
-#[test]
-fn thread_count_does_not_change_a_single_bit() {
+/// Each integrator's run, repeated in every configuration the backend has (CPU: pools of 1, 2
+/// and 3 threads; GPU: two solvers on the same device), gives the same bits.
+fn runs_repeat_bit_for_bit(backend: &Backend) -> Result<(), Failed> {
     let steps = 60;
     for integrator in Integrator::ALL {
         let (model, state) = Model::build(&scene(integrator));
-        assert!(model.len() > 1024 && model.springs.len() > 8192);
-        let (one, e1) = run(&model, &state, 1, steps);
+        ensure(model.len() > 1024 && model.springs.len() > 8192, || {
+            "the cube is too small to split the work".into()
+        })?;
+        let configurations: Vec<(String, Box<dyn Solver>)> = match backend.kind() {
+            Kind::Cpu => [1, 2, 3]
+                .into_iter()
+                .map(|threads| {
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .expect("a thread pool");
+                    let solver = CpuSolver::in_pool(model.clone(), state.clone(), Arc::new(pool));
+                    (format!("{threads} thread{}", if threads == 1 { "" } else { "s" }), Box::new(solver) as Box<dyn Solver>)
+                })
+                .collect(),
+            Kind::Gpu => vec![
+                ("run 1".into(), backend.solver_from(model.clone(), state.clone())?),
+                ("run 2".into(), backend.solver_from(model.clone(), state.clone())?),
+            ],
+        };
+        let mut runs = Vec::new();
+        for (name, solver) in configurations {
+            runs.push((name, run(solver, steps)?));
+        }
+        let (first, (one, e1)) = &runs[0];
         // The run did something: contacts happened and the body moved.
         let touching = one.x.iter().filter(|x| x.y < 1e-3).count();
-        assert!(touching > 0, "{integrator}: no particle reached the plane");
-        assert!(one.x.iter().all(|x| x.is_finite()));
-        let reference = bits(&one);
-        for threads in [2, 3] {
-            let (other, e) = run(&model, &state, threads, steps);
+        ensure(touching > 0, || format!("{integrator}: no particle reached the plane"))?;
+        ensure(one.x.iter().all(|x| x.is_finite()), || {
+            format!("{integrator}: not finite")
+        })?;
+        let reference = bits(one);
+        for (name, (other, e)) in &runs[1..] {
             let differ = reference
                 .iter()
-                .zip(bits(&other))
+                .zip(bits(other))
                 .filter(|(a, b)| **a != *b)
                 .count();
-            assert_eq!(
-                differ,
-                0,
-                "{integrator}: {differ} of {} coordinates differ between 1 and {threads} threads",
-                reference.len()
-            );
-            assert_eq!(e1, e, "{integrator}: energies differ on {threads} threads");
+            ensure(differ == 0, || {
+                format!(
+                    "{integrator}: {differ} of {} coordinates differ between {first} and {name}",
+                    reference.len()
+                )
+            })?;
+            ensure(e1 == e, || format!("{integrator}: energies differ between {first} and {name}"))?;
         }
-        println!("{integrator}: {touching} particles near the plane, identical on 1, 2, 3 threads");
+        let names: Vec<&str> = runs.iter().map(|(n, _)| n.as_str()).collect();
+        println!("{integrator}: {touching} particles near the plane, identical in {names:?}");
     }
+    Ok(())
 }

@@ -86,7 +86,7 @@ impl ModelBuffers {
             ),
             x: builder.storage_init("x", bytemuck::cast_slice(&vec4s(&state.x)), 16),
             v: builder.storage_init("v", bytemuck::cast_slice(&vec4s(&state.v)), 16),
-            a: builder.storage("a", n * VEC4),
+            a: builder.storage("a", n, VEC4),
             mass: builder.storage_init("mass", bytemuck::cast_slice(&mass), 8),
             adjacency: builder.storage_init("adjacency", bytemuck::cast_slice(&adjacency), 4),
             springs: chunks
@@ -104,15 +104,16 @@ impl ModelBuffers {
             per_spring: chunks
                 .ranges
                 .iter()
-                .map(|&(_, count)| builder.storage("per_spring", count * VEC4))
+                .map(|&(_, count)| builder.storage("per_spring", count, VEC4))
                 .collect(),
             status: builder.storage_init("status", bytemuck::bytes_of(&Status::RESET), 16),
             step_indices: builder.init("step_indices", &step_indices, wgpu::BufferUsages::UNIFORM),
             step_stride,
-            particle_partials: builder.storage("particle_partials", particle_groups.max(1) * 8),
+            particle_partials: builder.storage("particle_partials", particle_groups, 8),
             spring_partials: builder.storage(
                 "spring_partials",
-                (model.springs.len() as u64).div_ceil(WORKGROUP_SIZE).max(1) * 4,
+                (model.springs.len() as u64).div_ceil(WORKGROUP_SIZE),
+                4,
             ),
         }
     }

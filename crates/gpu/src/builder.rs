@@ -15,7 +15,7 @@ use crate::grid::Grid;
 use crate::kernel::{self, Call, Kernel, Module, Resources};
 use crate::shaders::Stage;
 use crate::terrain::{SurfaceGpu, TerrainBuffers};
-use crate::{GpuError, VEC4};
+use crate::GpuError;
 
 /// Makes buffers and kernel calls for one solver.
 pub(crate) struct Builder {
@@ -151,12 +151,12 @@ impl Builder {
         self.gpu.device.create_buffer(descriptor)
     }
 
-    /// A zeroed storage buffer of at least `bytes` (and at least one `vec4`: wgpu refuses to
-    /// bind an empty buffer).
-    pub fn storage(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+    /// A zeroed storage buffer of `count` elements of `element` bytes, at least one (wgpu
+    /// refuses to bind an empty buffer, and a shader's array needs a whole element).
+    pub fn storage(&self, label: &str, count: u64, element: u64) -> wgpu::Buffer {
         self.buffer(&wgpu::BufferDescriptor {
             label: Some(label),
-            size: bytes.max(VEC4),
+            size: count.max(1) * element,
             usage: STORAGE,
             mapped_at_creation: false,
         })

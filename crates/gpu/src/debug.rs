@@ -181,7 +181,7 @@ pub fn terrain_probe(
     let input: Vec<[f32; 4]> = points.iter().map(|p| p.to_array()).collect();
     let points_buffer = builder.storage_init("probe_points", bytemuck::cast_slice(&input), 16);
     let out_bytes = (points.len() * surfaces * 2) as u64 * VEC4;
-    let out = builder.storage("probe_out", out_bytes);
+    let out = builder.storage("probe_out", out_bytes / VEC4, VEC4);
     let call = builder.call(
         Stage::TerrainProbe,
         "terrain_probe",

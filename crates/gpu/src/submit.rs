@@ -7,10 +7,16 @@
 
 use std::sync::Arc;
 use std::sync::mpsc;
+use std::time::Duration;
 
 use softbody_scene::StepError;
 
 use crate::device::Gpu;
+
+/// How often a read-back that is not mapped yet polls the device.
+const MAP_POLL: Duration = Duration::from_millis(1);
+/// How long a read-back waits for its mapping after its submission is done.
+const MAP_WAIT: Duration = Duration::from_secs(60);
 
 /// Encodes, submits and reads back for one solver.
 pub(crate) struct Submitter {
@@ -132,17 +138,24 @@ impl Submitter {
             self.healthy()?;
             return Err(self.fail(format!("the GPU did not finish its work: {e}")));
         }
-        let mut mapped = receiver.try_recv();
-        if mapped.is_err() {
-            // The map callback runs in a later poll on some backends.
-            let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
-            mapped = receiver.try_recv();
-        }
+        // The map callback runs in whichever thread polls the device next (another solver's,
+        // when solvers share it): wait for it, polling meanwhile.
+        let mut waited = Duration::ZERO;
+        let mapped = loop {
+            match receiver.recv_timeout(MAP_POLL) {
+                Ok(result) => break Some(result),
+                Err(mpsc::RecvTimeoutError::Timeout) if waited < MAP_WAIT => {
+                    waited += MAP_POLL;
+                    let _ = self.gpu.device.poll(wgpu::PollType::Poll);
+                }
+                Err(_) => break None,
+            }
+        };
         self.healthy()?;
         match mapped {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(self.fail(format!("cannot read results back: {e}"))),
-            Err(_) => return Err(self.fail("the read-back never completed".to_owned())),
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(self.fail(format!("cannot read results back: {e}"))),
+            None => return Err(self.fail("the read-back never completed".to_owned())),
         }
         let bytes = match slice.get_mapped_range() {
             Ok(view) => view.to_vec(),

@@ -22,8 +22,8 @@ impl Midpoint {
     /// Its stage buffers and calls.
     pub fn new(s: Setup<'_>) -> Result<Midpoint, GpuError> {
         let b = s.buffers;
-        let stage_x = s.builder.storage("stage_x", s.n * VEC4);
-        let stage_v = s.builder.storage("stage_v", s.n * VEC4);
+        let stage_x = s.builder.storage("stage_x", s.n, VEC4);
+        let stage_v = s.builder.storage("stage_v", s.n, VEC4);
         let resources = b
             .resources()
             .buffer("stage_x", &stage_x)

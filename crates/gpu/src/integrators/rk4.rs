@@ -25,7 +25,7 @@ impl Rk4 {
     /// Its stage and sum buffers and calls.
     pub fn new(s: Setup<'_>) -> Result<Rk4, GpuError> {
         let b = s.buffers;
-        let vectors = |label| s.builder.storage(label, s.n * VEC4);
+        let vectors = |label| s.builder.storage(label, s.n, VEC4);
         let (stage_x, stage_v) = (vectors("stage_x"), vectors("stage_v"));
         let (sum_x, sum_v) = (vectors("sum_x"), vectors("sum_v"));
         let resources = b

@@ -102,7 +102,7 @@ pub(crate) struct Buffers {
 impl Buffers {
     fn new(s: Setup<'_>) -> Buffers {
         let builder = s.builder;
-        let vectors = |label| builder.storage(label, s.n * VEC4);
+        let vectors = |label| builder.storage(label, s.n, VEC4);
         let settings = CgScalars {
             tolerance: CG_TOLERANCE_F32,
             max_iterations: CG_MAX_ITERATIONS,
@@ -122,7 +122,7 @@ impl Buffers {
             q: vectors("q"),
             r: vectors("r"),
             c: vectors("c"),
-            diag: builder.storage("diag", 2 * s.n * VEC4),
+            diag: builder.storage("diag", 2 * s.n, VEC4),
             constraints: vectors("constraints"),
             blocks: s
                 .chunks
@@ -131,23 +131,25 @@ impl Buffers {
                 .map(|&(_, count)| {
                     builder.storage(
                         "blocks",
-                        count * std::mem::size_of::<SpringBlockGpu>() as u64,
+                        count,
+                        std::mem::size_of::<SpringBlockGpu>() as u64,
                     )
                 })
                 .collect(),
             // Zeroed: no particle was touching before the first step.
             candidates: builder.storage(
                 "candidates",
-                s.n * std::mem::size_of::<CandidateGpu>() as u64,
+                s.n,
+                std::mem::size_of::<CandidateGpu>() as u64,
             ),
-            partials: builder.storage("cg partials", s.particles.groups().max(1) * 8),
+            partials: builder.storage("cg partials", s.particles.groups(), 8),
             scalars: builder.init("cg scalars", bytemuck::bytes_of(&settings), storage),
             dispatch: builder.init(
                 "cg dispatch",
                 &[0u8; CG_DISPATCH_WORDS * 4],
                 storage | wgpu::BufferUsages::INDIRECT,
             ),
-            changed: builder.storage("changed", 4),
+            changed: builder.storage("changed", 1, 4),
         }
     }
 

@@ -1,0 +1,155 @@
+//! Scene builders and measurements of the physics tests.
+//!
+//! Scenes are built in code (and validated exactly as a scene file would be), so each test can
+//! state its physical set-up next to the closed form it checks.
+
+use glam::DVec3;
+use softbody_scene::{
+    Body, BodyShape, Cuboid, ExplicitSpring, FrictionModel, Integrator, Model, ParticleSet, Scene,
+    Simulation, Solver, SpringParams, State, Terrain, TerrainShape,
+};
+
+use crate::Failed;
+
+/// |g|, m/s².
+pub const G: f64 = 9.81;
+
+/// Standard gravity along −y.
+pub fn gravity() -> DVec3 {
+    DVec3::new(0.0, -G, 0.0)
+}
+
+/// `[simulation]` with gravity along −y, no drag, ε = 1 mm; one frame per step at most.
+pub fn simulation(integrator: Integrator, dt: f64) -> Simulation {
+    Simulation {
+        integrator,
+        dt,
+        duration: 1.0,
+        frame_rate: 30.0f64.min(1.0 / dt),
+        gravity: gravity(),
+        drag: 0.0,
+        contact_distance: 0.001,
+    }
+}
+
+/// A spring between particles `a` and `b` whose rest length is their initial distance.
+pub fn spring(a: u32, b: u32, stiffness: f64, damping: f64) -> ExplicitSpring {
+    ExplicitSpring {
+        a,
+        b,
+        stiffness,
+        damping,
+        rest: None,
+    }
+}
+
+/// A `particles` body.
+pub fn particles(
+    positions: Vec<DVec3>,
+    velocities: Vec<DVec3>,
+    masses: Vec<f64>,
+    springs: Vec<ExplicitSpring>,
+) -> Body {
+    Body {
+        name: "particles".into(),
+        shape: BodyShape::Particles(ParticleSet {
+            positions,
+            velocities,
+            masses,
+            springs,
+        }),
+        pinned: Vec::new(),
+    }
+}
+
+/// One free particle of mass 1 kg.
+pub fn particle(x: DVec3, v: DVec3) -> Body {
+    particles(vec![x], vec![v], vec![1.0], Vec::new())
+}
+
+/// A cuboid body with the same spring parameters for the families given.
+pub fn cuboid(
+    size: DVec3,
+    resolution: [u32; 3],
+    center: DVec3,
+    mass: f64,
+    params: SpringParams,
+) -> Cuboid {
+    Cuboid {
+        size,
+        resolution,
+        center,
+        rotation: DVec3::ZERO,
+        velocity: DVec3::ZERO,
+        mass,
+        structural: Some(params),
+        shear: Some(params),
+        bending: Some(params),
+    }
+}
+
+/// A body made of one cuboid.
+pub fn cuboid_body(c: Cuboid) -> Body {
+    Body {
+        name: "cube".into(),
+        shape: BodyShape::Cuboid(c),
+        pinned: Vec::new(),
+    }
+}
+
+/// A plane through `point` with outward `normal` (normalised here) and Coulomb friction.
+pub fn plane(point: DVec3, normal: DVec3, restitution: f64, friction: f64) -> Terrain {
+    Terrain {
+        shape: TerrainShape::Plane {
+            point,
+            normal: normal.normalize(),
+        },
+        restitution,
+        friction,
+        friction_model: FrictionModel::Coulomb,
+    }
+}
+
+/// A validated scene.
+pub fn scene(simulation: Simulation, bodies: Vec<Body>, terrain: Vec<Terrain>) -> Scene {
+    let scene = Scene {
+        simulation,
+        bodies,
+        terrain,
+    };
+    scene.validate().expect("the test scene is valid");
+    scene
+}
+
+/// The state after one more step.
+pub fn step(solver: &mut dyn Solver) -> Result<State, Failed> {
+    solver.advance(1).map_err(|e| e.to_string())?;
+    Ok(solver.state().map_err(|e| e.to_string())?.clone())
+}
+
+/// Σ m_i v_i.
+pub fn momentum(model: &Model, state: &State) -> DVec3 {
+    model
+        .mass
+        .iter()
+        .zip(&state.v)
+        .map(|(&m, &v)| m * v)
+        .fold(DVec3::ZERO, |a, b| a + b)
+}
+
+/// Every integrator but implicit Euler (they share the explicit contact model).
+pub const EXPLICIT: [Integrator; 4] = [
+    Integrator::ExplicitEuler,
+    Integrator::SymplecticEuler,
+    Integrator::Midpoint,
+    Integrator::Rk4,
+];
+
+/// Order of accuracy of each integrator.
+pub fn order(integrator: Integrator) -> u32 {
+    match integrator {
+        Integrator::ExplicitEuler | Integrator::SymplecticEuler | Integrator::ImplicitEuler => 1,
+        Integrator::Midpoint => 2,
+        Integrator::Rk4 => 4,
+    }
+}
