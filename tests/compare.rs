@@ -2,13 +2,11 @@
 //! errors), an undamped two-body spring (orders of convergence, energy drift), a stiff spring at
 //! a step too large (reported unstable), and pinned particles inside the terrain (penetration).
 
-mod common;
-
-use common::*;
 use glam::DVec3;
 use softbody::compare::{Report, RunReport, Study, StudyError};
 use softbody::scene::{Body, ExplicitSpring, Simulation, TerrainShape};
 use softbody::{Integrator, Scene};
+use softbody_testkit::scenes::*;
 
 /// Two particles (1 kg and 2 kg) on an undamped spring along x, no gravity, no terrain:
 /// μ = 2/3 kg, ω₀ = √(k/μ); the stretch starts at 0.1 m and grows at 0.3 m/s.

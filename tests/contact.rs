@@ -18,7 +18,10 @@ fn main() -> ExitCode {
     softbody_testkit::run(
         "contact",
         &[
-            ("bounce_follows_the_restitution_law", bounce_follows_the_restitution_law),
+            (
+                "bounce_follows_the_restitution_law",
+                bounce_follows_the_restitution_law,
+            ),
             (
                 "coulomb_friction_stops_a_slide_at_the_predicted_distance",
                 coulomb_friction_stops_a_slide_at_the_predicted_distance,

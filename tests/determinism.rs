@@ -76,12 +76,21 @@ fn runs_repeat_bit_for_bit(backend: &Backend) -> Result<(), Failed> {
                         .build()
                         .expect("a thread pool");
                     let solver = CpuSolver::in_pool(model.clone(), state.clone(), Arc::new(pool));
-                    (format!("{threads} thread{}", if threads == 1 { "" } else { "s" }), Box::new(solver) as Box<dyn Solver>)
+                    (
+                        format!("{threads} thread{}", if threads == 1 { "" } else { "s" }),
+                        Box::new(solver) as Box<dyn Solver>,
+                    )
                 })
                 .collect(),
             Kind::Gpu => vec![
-                ("run 1".into(), backend.solver_from(model.clone(), state.clone())?),
-                ("run 2".into(), backend.solver_from(model.clone(), state.clone())?),
+                (
+                    "run 1".into(),
+                    backend.solver_from(model.clone(), state.clone())?,
+                ),
+                (
+                    "run 2".into(),
+                    backend.solver_from(model.clone(), state.clone())?,
+                ),
             ],
         };
         let mut runs = Vec::new();
@@ -91,7 +100,9 @@ fn runs_repeat_bit_for_bit(backend: &Backend) -> Result<(), Failed> {
         let (first, (one, e1)) = &runs[0];
         // The run did something: contacts happened and the body moved.
         let touching = one.x.iter().filter(|x| x.y < 1e-3).count();
-        ensure(touching > 0, || format!("{integrator}: no particle reached the plane"))?;
+        ensure(touching > 0, || {
+            format!("{integrator}: no particle reached the plane")
+        })?;
         ensure(one.x.iter().all(|x| x.is_finite()), || {
             format!("{integrator}: not finite")
         })?;
@@ -108,7 +119,9 @@ fn runs_repeat_bit_for_bit(backend: &Backend) -> Result<(), Failed> {
                     reference.len()
                 )
             })?;
-            ensure(e1 == e, || format!("{integrator}: energies differ between {first} and {name}"))?;
+            ensure(e1 == e, || {
+                format!("{integrator}: energies differ between {first} and {name}")
+            })?;
         }
         let names: Vec<&str> = runs.iter().map(|(n, _)| n.as_str()).collect();
         println!("{integrator}: {touching} particles near the plane, identical in {names:?}");

@@ -27,7 +27,10 @@ fn main() -> ExitCode {
                 "free_fall_follows_each_methods_exact_recurrence",
                 free_fall_follows_each_methods_exact_recurrence,
             ),
-            ("measured_orders_of_convergence", measured_orders_of_convergence),
+            (
+                "measured_orders_of_convergence",
+                measured_orders_of_convergence,
+            ),
             (
                 "internal_springs_conserve_linear_momentum",
                 internal_springs_conserve_linear_momentum,
@@ -216,7 +219,12 @@ fn tetrahedron(integrator: Integrator, h: f64) -> softbody::Scene {
     )
 }
 
-fn run_to(backend: &Backend, integrator: Integrator, t_end: f64, steps: u64) -> Result<State, Failed> {
+fn run_to(
+    backend: &Backend,
+    integrator: Integrator,
+    t_end: f64,
+    steps: u64,
+) -> Result<State, Failed> {
     let mut solver = backend.solver(&tetrahedron(integrator, t_end / steps as f64))?;
     solver.advance(steps).map_err(|e| e.to_string())?;
     Ok(solver.state().map_err(|e| e.to_string())?.clone())
@@ -260,7 +268,9 @@ fn measured_orders_of_convergence(backend: &Backend) -> Result<(), Failed> {
                     error(&gpu)
                 );
                 ensure(difference <= 10.0 * rounding, || {
-                    format!("{integrator} at T/{steps}: the GPU differs from the CPU by {difference:e}")
+                    format!(
+                        "{integrator} at T/{steps}: the GPU differs from the CPU by {difference:e}"
+                    )
                 })?;
             }
             continue;
@@ -288,7 +298,9 @@ fn measured_orders_of_convergence(backend: &Backend) -> Result<(), Failed> {
         );
         let smallest = errors.iter().copied().fold(f64::INFINITY, f64::min);
         ensure(smallest >= 20.0 * rounding, || {
-            format!("{integrator}: the smallest error {smallest:e} is within 20× the rounding {rounding:e}")
+            format!(
+                "{integrator}: the smallest error {smallest:e} is within 20× the rounding {rounding:e}"
+            )
         })?;
         for (j, q) in orders.iter().enumerate() {
             ensure((q - p).abs() <= 0.25, || {

@@ -11,16 +11,19 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use softbody::scene::TerrainShape;
 use softbody::terrain::Surface;
 use softbody::terrain::sdf::SdfGrid;
-use softbody::scene::TerrainShape;
 use softbody::{Integrator, Model, Scene};
 use softbody_testkit::{Backend, Failed, all, ensure};
 
 fn main() -> ExitCode {
     softbody_testkit::run(
         "scenes",
-        &[("every_scene_loads_builds_and_steps", every_scene_loads_builds_and_steps)],
+        &[(
+            "every_scene_loads_builds_and_steps",
+            every_scene_loads_builds_and_steps,
+        )],
     )
 }
 

@@ -163,16 +163,25 @@ fn explicit_euler_on_the_stiff_cube_is_reported_unstable(backend: &Backend) -> R
     match solver.advance(steps) {
         Err(StepError::Unstable(i)) => {
             println!("advance: {i}");
-            ensure(i.step >= 1 && i.step <= steps && i.particle < n, || format!("{i:?}"))?;
-            ensure(solver.steps_taken() == i.step, || {
-                format!("{} steps taken, unstable at {}", solver.steps_taken(), i.step)
-            })?;
-            ensure((i.time - i.step as f64 * scene.simulation.dt).abs() < 1e-12, || {
+            ensure(i.step >= 1 && i.step <= steps && i.particle < n, || {
                 format!("{i:?}")
             })?;
+            ensure(solver.steps_taken() == i.step, || {
+                format!(
+                    "{} steps taken, unstable at {}",
+                    solver.steps_taken(),
+                    i.step
+                )
+            })?;
+            ensure(
+                (i.time - i.step as f64 * scene.simulation.dt).abs() < 1e-12,
+                || format!("{i:?}"),
+            )?;
             let st = solver.state().map_err(|e| e.to_string())?;
             let p = i.particle as usize;
-            ensure(!(st.x[p].is_finite() && st.v[p].is_finite()), || format!("{i:?}"))?;
+            ensure(!(st.x[p].is_finite() && st.v[p].is_finite()), || {
+                format!("{i:?}")
+            })?;
             if !backend.is_gpu() {
                 ensure(
                     st.x[..p]
@@ -193,7 +202,9 @@ fn explicit_euler_on_the_stiff_cube_is_reported_unstable(backend: &Backend) -> R
     match run::run(solver.as_mut(), None, &mut sink, &mut |_, _| {}) {
         Err(RunError::Unstable(i)) => {
             println!("run: {i}; {} frames written", sink.steps.len());
-            ensure(i.step >= 1 && i.step <= steps && i.particle < n, || format!("{i:?}"))?;
+            ensure(i.step >= 1 && i.step <= steps && i.particle < n, || {
+                format!("{i:?}")
+            })?;
             ensure(sink.header, || "no header written".into())?;
             ensure(!sink.steps.is_empty() && sink.steps[0] == 0, || {
                 "frame 0 is not written".into()

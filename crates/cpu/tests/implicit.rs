@@ -326,7 +326,6 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
     );
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // Momentum.
 

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use wgpu::util::DeviceExt;
 
+use crate::GpuError;
 use crate::buffers::ModelBuffers;
 use crate::chunks::Chunking;
 use crate::chunks::SpringChunks;
@@ -15,7 +16,6 @@ use crate::grid::Grid;
 use crate::kernel::{self, Call, Kernel, Module, Resources};
 use crate::shaders::Stage;
 use crate::terrain::{SurfaceGpu, TerrainBuffers};
-use crate::GpuError;
 
 /// Makes buffers and kernel calls for one solver.
 pub(crate) struct Builder {

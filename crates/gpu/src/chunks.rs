@@ -11,8 +11,8 @@
 //! buffers and its [`SpringChunk`] uniform (first spring, count, first energy partial). The
 //! per-particle gathers bind all K chunks of what they gather and pick spring s's chunk as
 //! `s >> k` (accessors generated per K by [`crate::shaders`]): the same reads in the same order,
-//! so a chunked run is bit-identical to an unchunked one. What bounds K is checked in
-//! [`crate::limits`].
+//! so a chunked run is bit-identical to an unchunked one. What bounds K is checked against
+//! the adapter's limits when the solver is built.
 
 use wgpu::util::DeviceExt;
 

@@ -5,12 +5,14 @@
 //! twin in `softbody-cpu` and stating the equation it implements; they are compiled into the
 //! binary and composed per stage by [`shaders`]. [`GpuSolver`] implements the same
 //! [`Solver`](softbody_scene::Solver) trait as the CPU solver, so the CLI and the run driver do not
-//! know which one runs. See [`solver`] for the per-step dispatch sequence, the instability record
-//! and the read-backs.
+//! know which one runs. The crate is laid out by stage like `softbody-cpu` (`spring_forces`,
+//! `forces`, `collision_response`, `check_finite`, `energy`, `integrators/…`); `solver` wires
+//! them into the per-step dispatch sequence (see ARCHITECTURE.md for the table of both
+//! backends).
 //!
 //! Everything is a gather or an element-wise update, with no float atomics, and reductions add
 //! per-workgroup partial sums in order (on the host for the energies, on the device for implicit
-//! Euler's CG): a run repeats bit for bit on one adapter. Implicit Euler ([`implicit`]) solves to
+//! Euler's CG): a run repeats bit for bit on one adapter. Implicit Euler solves to
 //! [`CG_TOLERANCE_F32`] instead of the CPU's 1e-8.
 //! Results differ from the CPU's f64 by f32 rounding (see the adapter tests for the measured
 //! agreement).

@@ -7,8 +7,8 @@
 //! query the terrain, then `contact.wgsl` for `forces.wgsl`.
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
-//! point's bindings (name, number, access) from the composed module with naga
-//! ([`crate::kernel`]) and binds buffers by name.
+//! point's bindings (name, number, access) from the composed module with naga and binds
+//! buffers by name.
 //!
 //! Per-spring arrays may be split into chunks ([`crate::chunks`]): the per-particle gathers
 //! (`forces.wgsl`, `system.wgsl`) then read every chunk, through `per_spring_at` and

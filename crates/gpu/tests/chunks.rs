@@ -4,33 +4,31 @@
 //! boundaries inside particles' spring runs. Chunking changes where the gathers read a
 //! per-spring value, not what they add or in which order, so every integrator's run is
 //! bit-identical to the unchunked run on the same adapter.
-//!
-//! The harness of every GPU test binary (`harness/mod.rs`, libtest-mimic): without an adapter the tests report themselves
-//! ignored, unless `SOFTBODY_REQUIRE_GPU=1`.
 
-mod harness;
+mod common;
 
 use std::process::ExitCode;
+use std::sync::Arc;
 
-use harness::{BOUNCY_PLANE, SLOPE, Test};
+use common::{BOUNCY_PLANE, SLOPE, step_error};
 
-use libtest_mimic::Failed;
-use softbody_gpu::{GpuOptions, GpuSolver};
-use softbody_scene::{Energies, Integrator, Model, Scene, Solver, State, StepError};
+use softbody_gpu::{Gpu, GpuOptions, GpuSolver};
+use softbody_scene::{Energies, Integrator, Model, Scene, Solver, State};
+use softbody_testkit::{Failed, GpuTest};
 
 fn main() -> ExitCode {
-    let tests: Vec<(&str, Test)> = vec![
-        ("chunked_explicit_euler_is_bit_identical", || {
-            chunked_run(Integrator::ExplicitEuler, 150)
+    let tests: &[(&str, GpuTest)] = &[
+        ("chunked_explicit_euler_is_bit_identical", |gpu| {
+            chunked_run(gpu, Integrator::ExplicitEuler, 150)
         }),
-        ("chunked_symplectic_euler_is_bit_identical", || {
-            chunked_run(Integrator::SymplecticEuler, 150)
+        ("chunked_symplectic_euler_is_bit_identical", |gpu| {
+            chunked_run(gpu, Integrator::SymplecticEuler, 150)
         }),
-        ("chunked_midpoint_is_bit_identical", || {
-            chunked_run(Integrator::Midpoint, 120)
+        ("chunked_midpoint_is_bit_identical", |gpu| {
+            chunked_run(gpu, Integrator::Midpoint, 120)
         }),
-        ("chunked_rk4_is_bit_identical", || {
-            chunked_run(Integrator::Rk4, 100)
+        ("chunked_rk4_is_bit_identical", |gpu| {
+            chunked_run(gpu, Integrator::Rk4, 100)
         }),
         ("chunked_implicit_euler_is_bit_identical", chunked_implicit),
         (
@@ -43,7 +41,7 @@ fn main() -> ExitCode {
         ),
         ("a_binding_too_small_is_refused_with_the_figures", too_small),
     ];
-    harness::run("GPU chunk tests", tests)
+    softbody_testkit::run_gpu("GPU chunk tests", tests.iter().copied())
 }
 
 /// Bindings of 64 KiB: 2,048 springs per chunk (20-byte records, 32-byte implicit blocks), and
@@ -82,13 +80,13 @@ bending = {{ stiffness = 200.0, damping = 0.5 }}
     Model::build(&scene)
 }
 
-fn step_error(e: StepError) -> Failed {
-    e.to_string().into()
-}
-
-fn open(model: &Model, state: &State, options: GpuOptions) -> Result<GpuSolver, Failed> {
-    let gpu = softbody_gpu::Gpu::open().map_err(|e| e.to_string())?;
-    GpuSolver::with_options(&gpu, model.clone(), state.clone(), options)
+fn open(
+    gpu: &Arc<Gpu>,
+    model: &Model,
+    state: &State,
+    options: GpuOptions,
+) -> Result<GpuSolver, Failed> {
+    GpuSolver::with_options(gpu, model.clone(), state.clone(), options)
         .map_err(|e| e.to_string().into())
 }
 
@@ -157,10 +155,13 @@ fn same_bits(what: &str, a: &(State, Energies), b: &(State, Energies)) -> Result
 
 /// An explicit integrator's run with and without chunks, on the bouncy plane (contacts and
 /// collision response act within the steps).
-fn chunked_run(integrator: Integrator, steps: u64) -> Result<(), Failed> {
+fn chunked_run(gpu: &Arc<Gpu>, integrator: Integrator, steps: u64) -> Result<(), Failed> {
     let (model, state) = cube(integrator, 2e-4, BOUNCY_PLANE);
-    let whole = run(&mut open(&model, &state, GpuOptions::default())?, steps)?;
-    let mut g = open(&model, &state, capped())?;
+    let whole = run(
+        &mut open(gpu, &model, &state, GpuOptions::default())?,
+        steps,
+    )?;
+    let mut g = open(gpu, &model, &state, capped())?;
     check_split(&g, &model)?;
     let chunked = run(&mut g, steps)?;
     let lowest = |s: &State| s.x.iter().map(|x| x.y).fold(f64::INFINITY, f64::min);
@@ -176,12 +177,12 @@ fn chunked_run(integrator: Integrator, steps: u64) -> Result<(), Failed> {
 /// Implicit Euler with and without chunks (blocks and per-spring vectors chunked; the
 /// assembly's and the CG products' gathers read every chunk): the same steps, energies and CG
 /// iteration counts, bit for bit.
-fn chunked_implicit() -> Result<(), Failed> {
+fn chunked_implicit(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::ImplicitEuler, 2e-3, SLOPE);
     let steps = 10;
     let mut results = Vec::new();
     for options in [GpuOptions::default(), capped()] {
-        let mut g = open(&model, &state, options)?;
+        let mut g = open(gpu, &model, &state, options)?;
         if options.max_binding_size.is_some() {
             check_split(&g, &model)?;
         }
@@ -205,12 +206,12 @@ fn chunked_implicit() -> Result<(), Failed> {
 }
 
 /// The per-spring forces of every chunk, read back and concatenated, are the unchunked ones.
-fn chunked_spring_forces() -> Result<(), Failed> {
+fn chunked_spring_forces(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 5e-4, "");
-    let whole = open(&model, &state, GpuOptions::default())?
+    let whole = open(gpu, &model, &state, GpuOptions::default())?
         .debug_spring_forces()
         .map_err(step_error)?;
-    let chunked = open(&model, &state, capped())?
+    let chunked = open(gpu, &model, &state, capped())?
         .debug_spring_forces()
         .map_err(step_error)?;
     if chunked.len() != model.springs.len() || chunked != whole {
@@ -221,26 +222,25 @@ fn chunked_spring_forces() -> Result<(), Failed> {
 
 /// Chunks dispatched on 2-D grids (grids forced one workgroup wide: each chunk of 2,048 springs
 /// is 1 × 8 workgroups, the last 1 × 1): the same bits as one chunk on 1-D grids.
-fn chunked_two_dimensional() -> Result<(), Failed> {
+fn chunked_two_dimensional(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 2e-4, BOUNCY_PLANE);
-    let whole = run(&mut open(&model, &state, GpuOptions::default())?, 40)?;
+    let whole = run(&mut open(gpu, &model, &state, GpuOptions::default())?, 40)?;
     let options = GpuOptions {
         grid_width: Some(1),
         ..capped()
     };
-    let narrow = run(&mut open(&model, &state, options)?, 40)?;
+    let narrow = run(&mut open(gpu, &model, &state, options)?, 40)?;
     same_bits("2-D chunked", &whole, &narrow)
 }
 
 /// Bindings too small for a workgroup's springs: refused, naming the limit and the figures.
-fn too_small() -> Result<(), Failed> {
+fn too_small(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 5e-4, "");
     let options = GpuOptions {
         max_binding_size: Some(4096),
         ..GpuOptions::default()
     };
-    let gpu = softbody_gpu::Gpu::open().map_err(|e| e.to_string())?;
-    let e = match GpuSolver::with_options(&gpu, model, state, options) {
+    let e = match GpuSolver::with_options(gpu, model, state, options) {
         Ok(_) => return Err("a 4 KiB binding was accepted".into()),
         Err(e) => e.to_string(),
     };

@@ -21,16 +21,17 @@
 //!
 //! Without an adapter the tests are reported ignored, unless `SOFTBODY_REQUIRE_GPU=1`.
 
+use std::process::ExitCode;
 use std::sync::{Arc, OnceLock};
 
 use glam::{DVec3, Vec4};
-use libtest_mimic::{Arguments, Failed, Trial};
 use softbody_gpu::Gpu;
 use softbody_gpu::terrain::{
     HF_MAX_HALF_WINDOW, KIND_HEIGHTFIELD, KIND_MESH, TerrainBuffers, pack,
 };
 use softbody_scene::{FrictionModel, Heightfield, Terrain, TerrainShape, TriangleMesh};
 use softbody_terrain::{CellTriangle, Contact, Surface};
+use softbody_testkit::{Failed, Rng};
 
 /// φ tolerance, relative to s.
 const PHI_TOL: f64 = 1e-5;
@@ -38,36 +39,6 @@ const PHI_TOL: f64 = 1e-5;
 const ANGLE_TOL: f64 = 1e-3;
 /// Distances closer than this (relative to s) are ties to f32: either normal is right.
 const TIE_TOL: f64 = 1e-6;
-
-/// xorshift64*: reproducible pseudo-random numbers in [0, 1).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-    fn in_box(&mut self, lo: DVec3, hi: DVec3) -> DVec3 {
-        DVec3::new(
-            self.range(lo.x, hi.x),
-            self.range(lo.y, hi.y),
-            self.range(lo.z, hi.z),
-        )
-    }
-    fn unit(&mut self) -> DVec3 {
-        loop {
-            let v = self.in_box(DVec3::splat(-1.0), DVec3::ONE);
-            let l = v.length();
-            if l > 0.1 && l <= 1.0 {
-                return v / l;
-            }
-        }
-    }
-}
 
 /// One terrain shape under test.
 struct Case {
@@ -117,8 +88,8 @@ fn heightfield_surface_points(h: &Heightfield, rng: &mut Rng, count: usize) -> V
     let [dx, dz] = h.cell_size;
     (0..count)
         .map(|_| {
-            let r = ((rng.next() * (rows - 1) as f64) as usize).min(rows - 2);
-            let c = ((rng.next() * (cols - 1) as f64) as usize).min(cols - 2);
+            let r = ((rng.unit() * (rows - 1) as f64) as usize).min(rows - 2);
+            let c = ((rng.unit() * (cols - 1) as f64) as usize).min(cols - 2);
             let (mut u, mut v) = (rng.range(0.02, 0.96), rng.range(0.02, 0.96));
             if (u + v - 1.0).abs() < 0.02 {
                 u *= 0.9;
@@ -136,7 +107,7 @@ fn mesh_surface_points(m: &TriangleMesh, rng: &mut Rng, count: usize) -> Vec<DVe
     (0..count)
         .map(|_| {
             let t = m.triangles
-                [((rng.next() * m.triangles.len() as f64) as usize).min(m.triangles.len() - 1)];
+                [((rng.unit() * m.triangles.len() as f64) as usize).min(m.triangles.len() - 1)];
             let [a, b, c] = t.map(|k| m.vertices[k as usize]);
             let (mut u, mut v) = (rng.range(0.05, 0.9), rng.range(0.05, 0.9));
             if u + v > 0.95 {
@@ -153,7 +124,7 @@ fn cube_mesh(lo: DVec3, size: f64) -> TriangleMesh {
 }
 
 fn cases() -> Vec<Case> {
-    let mut rng = Rng(0x5eed);
+    let mut rng = Rng::new(0x5eed);
     let mut cases = Vec::new();
 
     // Planes: points on the plane from two tangents.
@@ -188,13 +159,13 @@ fn cases() -> Vec<Case> {
     let rot = glam::DMat3::from_quat(softbody_scene::rotation_from_degrees(deg));
     let surface_points = (0..300)
         .map(|_| {
-            let axis = (rng.next() * 3.0) as usize % 3;
+            let axis = (rng.unit() * 3.0) as usize % 3;
             let mut p = DVec3::new(
                 rng.range(-0.95, 0.95) * half.x,
                 rng.range(-0.95, 0.95) * half.y,
                 rng.range(-0.95, 0.95) * half.z,
             );
-            p[axis] = if rng.next() < 0.5 {
+            p[axis] = if rng.unit() < 0.5 {
                 -half[axis]
             } else {
                 half[axis]
@@ -219,7 +190,9 @@ fn cases() -> Vec<Case> {
         ("sphere", DVec3::new(-1.0, 0.5, 2.0), 0.8),
         ("bowl", DVec3::new(0.2, 1.5, -0.7), 1.3),
     ] {
-        let surface_points = (0..300).map(|_| center + radius * rng.unit()).collect();
+        let surface_points = (0..300)
+            .map(|_| center + radius * rng.direction())
+            .collect();
         let shape = if name == "sphere" {
             TerrainShape::Sphere { center, radius }
         } else {
@@ -236,12 +209,12 @@ fn cases() -> Vec<Case> {
 
     // Heightfields: bumps with noise on 0.25 × 0.2 m cells; a fine rough one (0.05 × 0.04 m
     // cells) whose points 1 m above lie beyond the search window cap (8 cells = 0.32 m).
-    let noise = std::cell::RefCell::new(Rng(17));
+    let noise = std::cell::RefCell::new(Rng::new(17));
     let bumps = heightfield(13, 17, [0.25, 0.2], DVec3::new(-1.5, 0.3, -1.7), |x, z| {
         0.12 * (std::f64::consts::TAU * x / 1.5).cos() * (std::f64::consts::TAU * z / 1.2).cos()
             + noise.borrow_mut().range(-0.05, 0.05)
     });
-    let noise = std::cell::RefCell::new(Rng(23));
+    let noise = std::cell::RefCell::new(Rng::new(23));
     let fine = heightfield(50, 40, [0.05, 0.04], DVec3::new(2.0, -0.5, 1.0), |_, _| {
         noise.borrow_mut().range(-0.1, 0.1)
     });
@@ -331,7 +304,7 @@ fn round32(x: DVec3) -> DVec3 {
 }
 
 fn make_points(cases: &[Case], cpu: &[Surface]) -> Vec<Point> {
-    let mut rng = Rng(99);
+    let mut rng = Rng::new(99);
     let mut points = Vec::new();
     let mut push = |x: DVec3, on_surface: Option<usize>, rng: &mut Rng| {
         points.push(Point {
@@ -354,7 +327,7 @@ fn make_points(cases: &[Case], cpu: &[Surface]) -> Vec<Point> {
             };
             let on = x - c.phi * c.normal;
             let offset =
-                10f64.powf(rng.range(-4.0, -0.5)) * if rng.next() < 0.5 { -1.0 } else { 1.0 };
+                10f64.powf(rng.range(-4.0, -0.5)) * if rng.unit() < 0.5 { -1.0 } else { 1.0 };
             let y = on
                 + offset
                     * cpu[k]
@@ -742,32 +715,21 @@ fn check(p: &Probe, k: usize) -> Result<String, Failed> {
     }
 }
 
+/// The probe runs once, on the binary's device; every test checks one surface's column.
 static PROBE: OnceLock<Result<Probe, String>> = OnceLock::new();
-static DEVICE: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
 
-fn main() {
-    let args = Arguments::from_args();
-    let require = std::env::var("SOFTBODY_REQUIRE_GPU").is_ok_and(|v| v == "1");
-    let device = DEVICE.get_or_init(|| Gpu::open().map_err(|e| e.to_string()));
-    if let Err(e) = device {
-        eprintln!("terrain_twin: {e}");
-    }
-    let names: Vec<&'static str> = cases().iter().map(|c| c.name).collect();
-    let trials = names
+/// One surface's column of the probe against the CPU.
+fn surface(gpu: &Arc<Gpu>, k: usize) -> Result<(), Failed> {
+    let p = PROBE.get_or_init(|| probe(gpu)).as_ref()?;
+    let summary = check(p, k)?;
+    println!("{summary}");
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let tests = cases()
         .into_iter()
         .enumerate()
-        .map(|(k, name)| {
-            Trial::test(name, move || {
-                let dev = DEVICE.get().unwrap().as_ref().map_err(|e| {
-                    Failed::from(format!("{e} (SOFTBODY_REQUIRE_GPU=1 makes this a failure)"))
-                })?;
-                let p = PROBE.get_or_init(|| probe(dev)).as_ref()?;
-                let summary = check(p, k)?;
-                eprintln!("{summary}");
-                Ok(())
-            })
-            .with_ignored_flag(device.is_err() && !require)
-        })
-        .collect();
-    libtest_mimic::run(&args, trials).exit();
+        .map(|(k, case)| (case.name, move |gpu: &Arc<Gpu>| surface(gpu, k)));
+    softbody_testkit::run_gpu("terrain twin tests", tests)
 }

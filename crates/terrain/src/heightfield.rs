@@ -318,7 +318,7 @@ mod tests {
 
     #[test]
     fn split_rule_is_parrys() {
-        let mut rng = Rng(5);
+        let mut rng = Rng::new(5);
         let (rows, cols) = (3, 4);
         let h = Heightfield {
             heights: (0..rows)
@@ -365,7 +365,7 @@ mod tests {
 
     #[test]
     fn heightfield_matches_brute_force() {
-        let mut rng = Rng(7);
+        let mut rng = Rng::new(7);
         let (rows, cols) = (4, 6);
         let heights: Vec<Vec<f64>> = (0..rows)
             .map(|_| (0..cols).map(|_| rng.range(-0.6, 0.6)).collect())

@@ -267,7 +267,7 @@ mod tests {
             let cpu = surface(TerrainShape::Mesh(mesh));
             let values = grid.bake(&cpu);
             let [nx, ny, nz] = grid.dims;
-            let mut rng = Rng(3);
+            let mut rng = Rng::new(3);
             for n in 0..3000 {
                 // The eight corners of the grid, then random nodes.
                 let (i, j, k) = if n < 8 {
@@ -277,8 +277,7 @@ mod tests {
                         (n >> 2) * (nz - 1),
                     )
                 } else {
-                    let r = |rng: &mut Rng, n: usize| ((rng.next() * n as f64) as usize).min(n - 1);
-                    (r(&mut rng, nx), r(&mut rng, ny), r(&mut rng, nz))
+                    (rng.index(nx), rng.index(ny), rng.index(nz))
                 };
                 let x = grid.node(i, j, k);
                 let phi = cpu.query(x, f64::INFINITY).unwrap().phi;
@@ -326,17 +325,17 @@ mod tests {
             .map(|[a, b, c]| 0.5 * (*b - *a).cross(*c - *a).length())
             .collect();
         let total: f64 = areas.iter().sum();
-        let mut rng = Rng(seed);
+        let mut rng = Rng::new(seed);
         let mut st = Agreement::default();
         for _ in 0..count {
-            let mut pick = rng.next() * total;
+            let mut pick = rng.unit() * total;
             let mut k = 0;
             while k + 1 < tris.len() && pick >= areas[k] {
                 pick -= areas[k];
                 k += 1;
             }
             let [a, bb, c] = tris[k];
-            let (mut u, mut v) = (rng.next(), rng.next());
+            let (mut u, mut v) = (rng.unit(), rng.unit());
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }

@@ -5,6 +5,8 @@ use softbody_scene::{FrictionModel, Heightfield, Terrain, TerrainShape, Triangle
 
 use crate::{Contact, Surface};
 
+pub(crate) use softbody_testkit::Rng;
+
 pub(crate) fn terrain(shape: TerrainShape) -> Terrain {
     Terrain {
         shape,
@@ -76,20 +78,6 @@ pub(crate) fn cube_mesh() -> TriangleMesh {
     TriangleMesh::cube(DVec3::ZERO, 1.0)
 }
 
-/// xorshift64*: reproducible pseudo-random numbers in [0, 1) without a dependency.
-pub(crate) struct Rng(pub(crate) u64);
-impl Rng {
-    pub(crate) fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub(crate) fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-}
-
 /// Checks `s` against an independent φ at random points: the value, the push-back landing
 /// on the surface, and bit-identical answers for every reach that lets the contact through.
 pub(crate) fn against_reference(
@@ -99,13 +87,9 @@ pub(crate) fn against_reference(
     hi: DVec3,
     seed: u64,
 ) {
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     for _ in 0..3000 {
-        let x = DVec3::new(
-            rng.range(lo.x, hi.x),
-            rng.range(lo.y, hi.y),
-            rng.range(lo.z, hi.z),
-        );
+        let x = rng.in_box(lo, hi);
         let c = at(s, x);
         close(c.phi, reference(x), 1e-12);
         unit(c.normal);

@@ -199,7 +199,10 @@ fn gpu_required() -> bool {
 
 /// A trial that needs the GPU: run when there is one; without, ignored, or failed when
 /// required.
-fn gpu_trial(name: String, test: impl FnOnce(&Arc<Gpu>) -> Result<(), Failed> + Send + 'static) -> Trial {
+fn gpu_trial(
+    name: String,
+    test: impl FnOnce(&Arc<Gpu>) -> Result<(), Failed> + Send + 'static,
+) -> Trial {
     match shared_gpu() {
         Ok(_) => Trial::test(name, move || {
             let gpu = shared_gpu().as_ref().map_err(|e| Failed::from(e.clone()))?;
@@ -241,13 +244,18 @@ pub fn run(suite: &str, tests: &[(&'static str, Test)]) -> ExitCode {
 }
 
 /// Runs GPU-only tests (each given the binary's shared context) under the command line's
-/// libtest arguments.
-pub fn run_gpu(suite: &str, tests: &[(&'static str, GpuTest)]) -> ExitCode {
+/// libtest arguments: `(name, test)` pairs, plain [`GpuTest`] functions or closures (one test
+/// per case of a table, say).
+pub fn run_gpu<N, F>(suite: &str, tests: impl IntoIterator<Item = (N, F)>) -> ExitCode
+where
+    N: Into<String>,
+    F: FnOnce(&Arc<Gpu>) -> Result<(), Failed> + Send + 'static,
+{
     let args = Arguments::from_args();
     announce(suite);
     let trials = tests
-        .iter()
-        .map(|&(name, test)| gpu_trial(name.to_owned(), test))
+        .into_iter()
+        .map(|(name, test)| gpu_trial(name.into(), test))
         .collect();
     libtest_mimic::run(&args, trials).exit_code()
 }
@@ -291,6 +299,31 @@ impl Rng {
     /// Each coordinate uniform in [−s, s).
     pub fn vec(&mut self, s: f64) -> DVec3 {
         DVec3::new(self.signed(), self.signed(), self.signed()) * s
+    }
+
+    /// Uniform in the box [lo, hi).
+    pub fn in_box(&mut self, lo: DVec3, hi: DVec3) -> DVec3 {
+        DVec3::new(
+            self.range(lo.x, hi.x),
+            self.range(lo.y, hi.y),
+            self.range(lo.z, hi.z),
+        )
+    }
+
+    /// A uniformly distributed unit vector (rejection sampling in the unit ball).
+    pub fn direction(&mut self) -> DVec3 {
+        loop {
+            let v = self.vec(1.0);
+            let l = v.length();
+            if l > 0.1 && l <= 1.0 {
+                return v / l;
+            }
+        }
+    }
+
+    /// Uniform index in 0..n (n > 0).
+    pub fn index(&mut self, n: usize) -> usize {
+        ((self.unit() * n as f64) as usize).min(n - 1)
     }
 }
 
