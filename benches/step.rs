@@ -29,6 +29,10 @@ fn step(c: &mut Criterion) {
                 b.iter(|| solver.advance(1).expect("stable"))
             });
             let stats = solver.statistics();
+            eprintln!(
+                "  {n}^3 {integrator}, where the time went:\n{}",
+                stats.timings
+            );
             if stats.cg_solves > 0 {
                 eprintln!(
                     "  {n}^3 implicit: {:.1} CG iterations per solve, {:.2} solves per step, worst relative residual {:.1e}",

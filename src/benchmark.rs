@@ -12,11 +12,11 @@ use std::time::Instant;
 
 use glam::DVec3;
 use softbody_scene::{
-    Body, BodyShape, Cuboid, FrictionModel, Integrator, Model, Scene, Simulation, Solver,
-    SpringParams, StepError, Terrain, TerrainShape,
+    Body, BodyShape, Cuboid, FrictionModel, Integrator, Scene, Simulation, Solver, SpringParams,
+    StepError, Terrain, TerrainShape,
 };
 
-use crate::{Backend, CpuSolver, GpuSolver, OpenError};
+use crate::{Backend, OpenError};
 
 /// Spring stiffness of the benchmark cube, N/m.
 pub const STIFFNESS: f64 = 2000.0;
@@ -142,9 +142,9 @@ pub struct Measurement {
     pub steps: u64,
     /// Wall-clock seconds of the timed steps (GPU: until the queue is done).
     pub seconds: f64,
-    /// What the solver holds (state, masses, springs, adjacency, integrator scratch) per
-    /// particle, where the backend says (the CPU does; the GPU does not).
-    pub bytes_per_particle: Option<f64>,
+    /// What the solver holds per particle ([`Solver::memory_bytes`]: state, masses, springs,
+    /// adjacency, integrator scratch; device buffers on the GPU).
+    pub bytes_per_particle: f64,
     /// Implicit Euler: conjugate-gradient iterations per timed step.
     pub cg_iterations_per_step: Option<f64>,
     /// Implicit Euler: CG solves per timed step (more than one when contacts change).
@@ -170,7 +170,7 @@ impl Measurement {
     }
 
     /// One JSON object: `particles`, `springs`, `steps`, `seconds`, `particle_steps_per_s`,
-    /// `spring_steps_per_s`, `bytes_per_particle` (null where the backend does not say), and
+    /// `spring_steps_per_s`, `bytes_per_particle`, and
     /// `cg_iterations_per_step` for implicit Euler, plus what was run (`n`, `backend`,
     /// `device`, `integrator`, `dt`, `stiffness`, `warmup_steps`).
     pub fn to_json(&self, options: &Options) -> serde_json::Value {
@@ -234,7 +234,8 @@ pub enum BenchError {
 /// quarter of a second of steps, which also estimates the time per step), times
 /// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps, at most
 /// [`MAX_SECONDS`]) with nothing else in the loop, and checks that the final state is finite.
-/// GPU timings end when the queue is done (reading the state back waits for it).
+/// Timings end when the solver has computed every step ([`Solver::sync`]: on the GPU, when
+/// the queue is done).
 /// `progress` hears (timed steps done, timed steps in all) about a hundred times.
 pub fn measure(
     n: u32,
@@ -250,24 +251,8 @@ pub fn measure(
         key: e.key.to_string(),
         message: e.message.to_string(),
     })?;
-    let (model, state) = Model::build(&scene);
-    match options.backend {
-        Backend::Cpu => {
-            let mut solver = CpuSolver::new(model, state, options.threads).map_err(|source| {
-                OpenError::Threads {
-                    threads: options.threads.unwrap_or(0),
-                    source,
-                }
-            })?;
-            let mut m = time(&mut solver, n, dt, options, progress)?;
-            m.bytes_per_particle = Some(solver.memory_bytes() as f64 / m.particles as f64);
-            Ok(m)
-        }
-        Backend::Gpu => {
-            let mut solver = GpuSolver::new(model, state).map_err(OpenError::from)?;
-            time(&mut solver, n, dt, options, progress)
-        }
-    }
+    let mut solver = crate::open(&scene, options.backend, options.threads)?;
+    time(solver.as_mut(), n, dt, options, progress)
 }
 
 /// The warm-up and the timed steps of [`measure`].
@@ -284,7 +269,7 @@ fn time(
     let run = |solver: &mut dyn Solver, steps: u64| -> Result<f64, BenchError> {
         let started = Instant::now();
         solver.advance(steps).map_err(step_error)?;
-        solver.state().map_err(step_error)?; // waits for the GPU's queue
+        solver.sync().map_err(step_error)?;
         Ok(started.elapsed().as_secs_f64())
     };
     let first = run(solver, 1)?;
@@ -307,7 +292,7 @@ fn time(
         done += k;
         progress(done, steps);
     }
-    solver.state().map_err(step_error)?;
+    solver.sync().map_err(step_error)?;
     let seconds = started.elapsed().as_secs_f64();
     let after = solver.statistics();
     let state = solver.state().map_err(step_error)?;
@@ -324,7 +309,7 @@ fn time(
         warmup_steps: 1 + pilot,
         steps,
         seconds,
-        bytes_per_particle: None,
+        bytes_per_particle: solver.memory_bytes() as f64 / particles as f64,
         cg_iterations_per_step: implicit
             .then(|| per_step(after.cg_iterations - before.cg_iterations)),
         cg_solves_per_step: implicit.then(|| per_step(after.cg_solves - before.cg_solves)),

@@ -210,13 +210,7 @@ impl Header {
                     .display()
                     .to_string()
             }),
-            springs: model
-                .springs
-                .a
-                .iter()
-                .zip(&model.springs.b)
-                .map(|(&a, &b)| [a, b])
-                .collect(),
+            springs: model.springs.pairs(),
             rest: model.springs.rest.clone(),
             surface: model.surface.clone(),
         }

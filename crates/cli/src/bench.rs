@@ -116,8 +116,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                 m.seconds,
                 m.particle_steps_per_s() / 1e6,
                 m.spring_steps_per_s() / 1e6,
-                m.bytes_per_particle
-                    .map_or("-".to_owned(), |b| format!("{b:.0}")),
+                format!("{:.0}", m.bytes_per_particle),
                 m.cg_iterations_per_step
                     .map_or(String::new(), |c| format!(" {c:>11.1}"))
             ));

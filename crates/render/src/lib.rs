@@ -307,13 +307,7 @@ impl Renderer {
             base,
             surface: model.surface.clone(),
             surface_color,
-            springs: model
-                .springs
-                .a
-                .iter()
-                .zip(&model.springs.b)
-                .map(|(&a, &b)| [a, b])
-                .collect(),
+            springs: model.springs.pairs(),
             rest: model.springs.rest.clone(),
             dots,
             particles: model.len(),

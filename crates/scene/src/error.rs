@@ -123,8 +123,9 @@ impl SceneError {
     }
 }
 
-/// An unlocated validation failure: a key path and a message.
-#[derive(Debug, Clone, PartialEq)]
+/// An unlocated validation failure: a key path and a message (`key: message` when displayed).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{key}: {message}")]
 pub struct Invalid {
     /// Which value.
     pub key: KeyPath,

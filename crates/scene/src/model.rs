@@ -62,6 +62,10 @@ impl Springs {
     pub fn is_empty(&self) -> bool {
         self.a.is_empty()
     }
+    /// The end points [a, b] of every spring, in order.
+    pub fn pairs(&self) -> Vec<[u32; 2]> {
+        self.a.iter().zip(&self.b).map(|(&a, &b)| [a, b]).collect()
+    }
     fn push(&mut self, a: u32, b: u32, rest: f64, stiffness: f64, damping: f64) {
         self.a.push(a);
         self.b.push(b);

@@ -44,16 +44,11 @@ impl Midpoint {
         state: &mut State,
     ) -> Option<usize> {
         let h = model.simulation.dt;
-        let Passes {
-            plan,
-            kernel,
-            next_x,
-            next_v,
-        } = &mut self.passes;
+        let (plan, kernel, next_x, next_v) = self.passes.parts();
         let (x, v) = (&state.x[..], &state.v[..]);
         pass(
             plan,
-            *kernel,
+            kernel,
             model,
             x,
             v,
@@ -68,7 +63,7 @@ impl Midpoint {
         let (xm, vm) = (&self.mid_x[..], &self.mid_v[..]);
         let bad = pass(
             plan,
-            *kernel,
+            kernel,
             model,
             xm,
             vm,

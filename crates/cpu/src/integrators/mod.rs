@@ -31,10 +31,10 @@ use crate::vec_bytes;
 
 /// The integrator of a run with its scratch.
 pub enum Stepper {
-    /// [`explicit_euler`].
-    ExplicitEuler(explicit_euler::ExplicitEuler),
-    /// [`symplectic_euler`].
-    SymplecticEuler(symplectic_euler::SymplecticEuler),
+    /// [`explicit_euler`]: its scratch is the passes'.
+    ExplicitEuler(Passes),
+    /// [`symplectic_euler`]: its scratch is the passes'.
+    SymplecticEuler(Passes),
     /// [`midpoint`].
     Midpoint(midpoint::Midpoint),
     /// [`rk4`].
@@ -51,12 +51,8 @@ impl Stepper {
     /// passes split the particles by its thread count.
     pub fn new(model: &Model) -> Stepper {
         match model.simulation.integrator {
-            Integrator::ExplicitEuler => {
-                Stepper::ExplicitEuler(explicit_euler::ExplicitEuler::new(model))
-            }
-            Integrator::SymplecticEuler => {
-                Stepper::SymplecticEuler(symplectic_euler::SymplecticEuler::new(model))
-            }
+            Integrator::ExplicitEuler => Stepper::ExplicitEuler(Passes::new(model)),
+            Integrator::SymplecticEuler => Stepper::SymplecticEuler(Passes::new(model)),
             Integrator::Midpoint => Stepper::Midpoint(midpoint::Midpoint::new(model)),
             Integrator::Rk4 => Stepper::Rk4(rk4::Rk4::new(model)),
             Integrator::ImplicitEuler => {
@@ -78,10 +74,12 @@ impl Stepper {
             timings.time(EXPLICIT_STAGE, step)
         };
         let bad = match self {
-            Stepper::ExplicitEuler(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
-            Stepper::SymplecticEuler(s) => {
-                explicit(timings, &mut || s.step(model, surfaces, state))
-            }
+            Stepper::ExplicitEuler(p) => explicit(timings, &mut || {
+                explicit_euler::step(p, model, surfaces, state)
+            }),
+            Stepper::SymplecticEuler(p) => explicit(timings, &mut || {
+                symplectic_euler::step(p, model, surfaces, state)
+            }),
             Stepper::Midpoint(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
             Stepper::Rk4(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
             Stepper::ImplicitEuler(s) => {
@@ -95,8 +93,7 @@ impl Stepper {
     /// Bytes of scratch held on the heap.
     pub fn memory_bytes(&self) -> u64 {
         match self {
-            Stepper::ExplicitEuler(s) => s.passes.memory_bytes(),
-            Stepper::SymplecticEuler(s) => s.passes.memory_bytes(),
+            Stepper::ExplicitEuler(p) | Stepper::SymplecticEuler(p) => p.memory_bytes(),
             Stepper::Midpoint(s) => s.memory_bytes(),
             Stepper::Rk4(s) => s.memory_bytes(),
             Stepper::ImplicitEuler(s) => s.memory_bytes(),
@@ -116,10 +113,10 @@ impl Stepper {
 /// What every explicit integrator holds: the fused passes' plan for the model and the second
 /// state buffer a pass writes the next state into (the buffers are then swapped).
 pub struct Passes {
-    pub(super) plan: Plan,
-    pub(super) kernel: Kernel,
-    pub(super) next_x: Vec<DVec3>,
-    pub(super) next_v: Vec<DVec3>,
+    plan: Plan,
+    kernel: Kernel,
+    next_x: Vec<DVec3>,
+    next_v: Vec<DVec3>,
 }
 
 impl Passes {
@@ -170,6 +167,17 @@ impl Passes {
         );
         self.swap_into(state);
         bad
+    }
+
+    /// The plan, the kernel and the second state buffer, apart: the stages of a multi-stage
+    /// method run their own passes (RK4 alternates the buffer with its stage buffer).
+    pub(crate) fn parts(&mut self) -> (&mut Plan, Kernel, &mut Vec<DVec3>, &mut Vec<DVec3>) {
+        (
+            &mut self.plan,
+            self.kernel,
+            &mut self.next_x,
+            &mut self.next_v,
+        )
     }
 
     /// Makes the second state buffer the state.

@@ -55,18 +55,13 @@ impl Rk4 {
         state: &mut State,
     ) -> Option<usize> {
         let h = model.simulation.dt;
-        let Passes {
-            plan,
-            kernel,
-            next_x,
-            next_v,
-        } = &mut self.passes;
+        let (plan, kernel, next_x, next_v) = self.passes.parts();
         let (x, v) = (&state.x[..], &state.v[..]);
 
         // k1 at y.
         pass(
             plan,
-            *kernel,
+            kernel,
             model,
             x,
             v,
@@ -90,7 +85,7 @@ impl Rk4 {
             let (xs, vs) = (&self.stage_x[..], &self.stage_v[..]);
             pass(
                 plan,
-                *kernel,
+                kernel,
                 model,
                 xs,
                 vs,
@@ -117,7 +112,7 @@ impl Rk4 {
         let (sum_x, sum_v) = (&self.sum_x[..], &self.sum_v[..]);
         let bad = pass(
             plan,
-            *kernel,
+            kernel,
             model,
             xs,
             vs,

@@ -32,7 +32,7 @@
 //!   out);
 //! - whether it became unstable, and at which step and time: a non-finite state
 //!   ([`StepError::Unstable`]) or the energy guard of [`run`](crate::run::run) (total energy more
-//!   than [`ENERGY_GROWTH_BOUND`] energy scales above the
+//!   than [`ENERGY_GROWTH_BOUND`](run::ENERGY_GROWTH_BOUND) energy scales above the
 //!   start). An unstable run is a result: its figures cover the frames before it;
 //! - the largest position error, max over frames and particles of |x − x_ref|, and its time;
 //! - the energy drift max |E − E₀| / E_s over the frames, with E_s the energy scale of the
@@ -80,14 +80,17 @@
 
 use std::time::{Duration, Instant};
 
-use glam::DVec3;
-use serde_json::{Value, json};
 use softbody_scene::{Instability, Integrator, Scene, Solver, StepError};
 use softbody_terrain::Surface;
 
 use crate::output::{Frame, FrameSink, Header};
-use crate::run::{self, ENERGY_GROWTH_BOUND, RunError};
+use crate::run::{self, RunError};
 use crate::{Backend, OpenError};
+
+mod reference;
+mod report;
+
+use reference::{ReferenceStates, frame_times, reference_states};
 
 /// The reference's default refinement: dt_ref = min(dts) / 16.
 pub const REFINEMENT: u32 = 16;
@@ -97,9 +100,6 @@ pub const REST_SPEED: f64 = 0.01;
 
 /// Steps advanced between progress reports at most, for the reference.
 const PROGRESS_STEPS: u64 = 256;
-
-/// A reference time within this fraction of a step of a whole step takes that step's state.
-const WHOLE_STEP: f64 = 1e-9;
 
 /// What to compare.
 #[derive(Debug, Clone)]
@@ -420,144 +420,6 @@ impl Study {
     }
 }
 
-/// The frame times of a run of `scene`, computed exactly as [`run::run`] stamps its frames.
-fn frame_times(scene: &Scene) -> Vec<f64> {
-    let sim = scene.simulation;
-    (0..sim.frame_count())
-        .map(|k| sim.frame_step(k) as f64 * sim.dt)
-        .collect()
-}
-
-/// The reference's positions at the frame times (ascending, exact f64 keys).
-struct ReferenceStates {
-    times: Vec<f64>,
-    states: Vec<Vec<DVec3>>,
-}
-
-impl ReferenceStates {
-    fn at(&self, time: f64) -> Option<&[DVec3]> {
-        self.times
-            .binary_search_by(|t| t.total_cmp(&time))
-            .ok()
-            .map(|i| self.states[i].as_slice())
-    }
-}
-
-/// Runs the reference scene and records its positions at each of `times` (ascending); returns
-/// them with the steps taken and the wall time. `progress` hears the steps done.
-fn reference_states(
-    scene: &Scene,
-    threads: Option<usize>,
-    times: &[f64],
-    progress: &mut dyn FnMut(u64),
-) -> Result<(Vec<Vec<DVec3>>, u64, f64), StudyError> {
-    let started = Instant::now();
-    let dt = scene.simulation.dt;
-    let mut solver = crate::open(scene, Backend::Cpu, threads)?;
-    let unstable = |instability| StudyError::ReferenceUnstable { dt, instability };
-    let step_error = |e: StepError| match e {
-        StepError::Unstable(i) => unstable(i),
-        StepError::Device(d) | StepError::Invalid(d) => StudyError::Device(d),
-    };
-    let e0 = solver.energies().map_err(step_error)?;
-    let scale = run::energy_scale(solver.as_mut(), &e0).map_err(step_error)?;
-
-    // The states at the last two steps visited: an interpolation needs the steps on both sides
-    // of a time, and the next time may need the upper one again as its lower one.
-    type Snapshot = (u64, Vec<DVec3>, Vec<DVec3>);
-    let mut recent: Vec<Snapshot> = Vec::with_capacity(2);
-    let mut snapshot = |step: u64,
-                        solver: &mut dyn Solver,
-                        recent: &mut Vec<Snapshot>|
-     -> Result<usize, StudyError> {
-        if let Some(i) = recent.iter().position(|s| s.0 == step) {
-            return Ok(i);
-        }
-        // Requests never go back further than the snapshots kept (the times ascend).
-        while solver.steps_taken() < step {
-            let n = (step - solver.steps_taken()).min(PROGRESS_STEPS);
-            solver.advance(n).map_err(step_error)?;
-            progress(solver.steps_taken());
-        }
-        // The energy guard of `run::run`, at the states the comparison uses.
-        let e = solver.energies().map_err(step_error)?;
-        if e.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
-            // Named by its fastest particle, as `run::run` does.
-            let (fastest, speed) = solver
-                .state()
-                .map_err(step_error)?
-                .v
-                .iter()
-                .enumerate()
-                .map(|(i, v)| (i, v.length()))
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .unwrap_or((0, 0.0));
-            return Err(unstable(Instability {
-                step,
-                time: step as f64 * dt,
-                particle: fastest as u32,
-                what: format!(
-                    "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, more than \
-                     {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above its initial {:.3e} J",
-                    e.total(),
-                    e0.total()
-                ),
-            }));
-        }
-        let state = solver.state().map_err(step_error)?;
-        if recent.len() == 2 {
-            recent.remove(0);
-        }
-        recent.push((step, state.x.clone(), state.v.clone()));
-        Ok(recent.len() - 1)
-    };
-
-    let mut states = Vec::with_capacity(times.len());
-    for &t in times {
-        let s = t / dt;
-        let whole = s.round();
-        if (s - whole).abs() <= WHOLE_STEP * whole.max(1.0) {
-            let i = snapshot(whole as u64, solver.as_mut(), &mut recent)?;
-            states.push(recent[i].1.clone());
-            continue;
-        }
-        let lower = s.floor() as u64;
-        let theta = s - s.floor();
-        // Two snapshot calls may shift `recent`: take the lower one's index after both.
-        snapshot(lower, solver.as_mut(), &mut recent)?;
-        let hi = snapshot(lower + 1, solver.as_mut(), &mut recent)?;
-        // Always kept (the times ascend, so only these two are ever needed at once); an error
-        // rather than a panic if that ever stopped being true.
-        let lo = recent.iter().position(|r| r.0 == lower).ok_or_else(|| {
-            StudyError::Device(format!("internal: reference step {lower} no longer kept"))
-        })?;
-        states.push(hermite(&recent[lo], &recent[hi], theta, dt));
-    }
-    Ok((
-        states,
-        solver.steps_taken(),
-        started.elapsed().as_secs_f64(),
-    ))
-}
-
-/// Cubic Hermite interpolation of positions between two consecutive steps `h` apart, at the
-/// fraction `theta` of the step.
-fn hermite(
-    a: &(u64, Vec<DVec3>, Vec<DVec3>),
-    b: &(u64, Vec<DVec3>, Vec<DVec3>),
-    theta: f64,
-    h: f64,
-) -> Vec<DVec3> {
-    let (t, t2, t3) = (theta, theta * theta, theta * theta * theta);
-    let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
-    let h10 = t3 - 2.0 * t2 + t;
-    let h01 = -2.0 * t3 + 3.0 * t2;
-    let h11 = t3 - t2;
-    (0..a.1.len())
-        .map(|i| h00 * a.1[i] + h10 * h * a.2[i] + h01 * b.1[i] + h11 * h * b.2[i])
-        .collect()
-}
-
 /// Runs `solver` to the end of its scene with [`run::run`] (its frame schedule and energy guard)
 /// and measures each frame against the reference.
 fn measure_run(
@@ -691,151 +553,5 @@ impl FrameSink for CompareSink<'_> {
 
     fn finish(&mut self) -> std::io::Result<()> {
         Ok(())
-    }
-}
-
-impl Report {
-    /// The report as one JSON object (keys in the README, "Comparing integrators").
-    pub fn to_json(&self, scene: &str) -> Value {
-        json!({
-            "scene": scene,
-            "particles": self.particles,
-            "duration": self.duration,
-            "frame_rate": self.frame_rate,
-            "backend": self.backend.name(),
-            "device": self.device,
-            "energy_scale": self.energy_scale,
-            "rest_speed": self.rest_speed,
-            "reference": {
-                "integrator": self.reference.integrator.name(),
-                "dt": self.reference.dt,
-                "steps": self.reference.steps,
-                "seconds": self.reference.seconds,
-                "check_dt": self.reference.check_dt,
-                "error_estimate": self.reference.error_estimate,
-            },
-            "runs": self.runs.iter().map(|r| json!({
-                "integrator": r.integrator.name(),
-                "dt": r.dt,
-                "steps": r.steps,
-                "planned_steps": r.planned_steps,
-                "seconds": r.seconds,
-                "steps_per_second": r.steps_per_second(),
-                "unstable": r.instability.as_ref().map(|i| json!({
-                    "step": i.step,
-                    "time": i.time,
-                    "particle": i.particle,
-                    "what": i.what,
-                })),
-                "max_error": r.max_error,
-                "max_error_time": r.max_error_time,
-                "energy_drift": r.energy_drift,
-                "deepest_penetration": r.deepest_penetration,
-                "final_max_speed": r.final_max_speed,
-                "final_kinetic_energy": r.final_kinetic,
-                "at_rest": r.at_rest,
-                "series": {
-                    "time": r.samples.iter().map(|s| s.time).collect::<Vec<_>>(),
-                    "error": r.samples.iter().map(|s| s.error).collect::<Vec<_>>(),
-                    "energy": r.samples.iter().map(|s| s.energy).collect::<Vec<_>>(),
-                },
-            })).collect::<Vec<_>>(),
-        })
-    }
-
-    /// The report as text: a heading with the reference, an aligned table with one line per
-    /// run, and what the columns mean.
-    pub fn table(&self, scene: &str) -> String {
-        let mut out = format!(
-            "{scene}: {} particles, {} s at {} frames/s, on {} ({})\n",
-            self.particles, self.duration, self.frame_rate, self.backend, self.device
-        );
-        let r = &self.reference;
-        out.push_str(&format!(
-            "reference: {} at dt = {:.4e} s ({} steps, {:.2} s)\n\
-             reference error: at most {:.2e} m ({} at dt = {:.4e} s differs from it by that much)\n\n",
-            r.integrator, r.dt, r.steps, r.seconds, r.error_estimate, r.integrator, r.check_dt
-        ));
-        let header = [
-            "integrator",
-            "dt [s]",
-            "steps",
-            "wall [s]",
-            "steps/s",
-            "unstable at",
-            "max error [m]",
-            "energy drift",
-            "min phi [m]",
-            "end speed [m/s]",
-            "at rest",
-        ];
-        let rows: Vec<[String; 11]> = self
-            .runs
-            .iter()
-            .map(|r| {
-                [
-                    r.integrator.name().to_owned(),
-                    format!("{:.3e}", r.dt),
-                    r.steps.to_string(),
-                    format!("{:.3}", r.seconds),
-                    format!("{:.0}", r.steps_per_second()),
-                    r.instability.as_ref().map_or("-".to_owned(), |i| {
-                        format!("step {} ({:.4} s)", i.step, i.time)
-                    }),
-                    format!("{:.3e}", r.max_error),
-                    format!("{:.3e}", r.energy_drift),
-                    r.deepest_penetration
-                        .map_or("-".to_owned(), |d| format!("{d:.3e}")),
-                    format!("{:.3e}", r.final_max_speed),
-                    match r.at_rest {
-                        Some(true) => "yes",
-                        Some(false) => "no",
-                        None => "-",
-                    }
-                    .to_owned(),
-                ]
-            })
-            .collect();
-        let widths: Vec<usize> = (0..header.len())
-            .map(|c| {
-                rows.iter()
-                    .map(|row| row[c].chars().count())
-                    .chain([header[c].chars().count()])
-                    .max()
-                    .unwrap_or(0)
-            })
-            .collect();
-        let line = |cells: &[&str]| {
-            let mut s = String::new();
-            for (c, cell) in cells.iter().enumerate() {
-                let pad = widths[c] - cell.chars().count();
-                if c == 0 {
-                    // Names left-aligned, numbers right-aligned.
-                    s.push_str(cell);
-                    s.push_str(&" ".repeat(pad));
-                } else {
-                    s.push_str("  ");
-                    s.push_str(&" ".repeat(pad));
-                    s.push_str(cell);
-                }
-            }
-            s.push('\n');
-            s
-        };
-        out.push_str(&line(&header));
-        for row in &rows {
-            out.push_str(&line(&row.iter().map(String::as_str).collect::<Vec<_>>()));
-        }
-        out.push_str(&format!(
-            "\nmax error: max over frames and particles of |x - x_ref|.\n\
-             energy drift: max |E - E0| / E_s over the frames, E_s = {:.4e} J (the energy scale of the\n  \
-             instability guard); it measures the integrator only in undamped scenes: damping,\n  \
-             friction and contacts remove energy on purpose.\n\
-             min phi: the smallest signed distance of any particle to the terrain at the frames\n  \
-             (< 0: the deepest penetration; - : no terrain).\n\
-             at rest: the fastest particle slower than {} m/s at the last frame (end speed).\n",
-            self.energy_scale, self.rest_speed
-        ));
-        out
     }
 }
