@@ -1,6 +1,6 @@
 //! Contact laws on a plane, for every integrator on every backend: restitution of a bounce, the
 //! stopping distance of Coulomb friction, static friction on a shallow slope and kinetic friction
-//! on a steep one.
+//! on a steep one, and a bouncy cube coming to rest.
 //!
 //! Each test runs all five integrators and collects every failure before reporting, so one run
 //! shows the numbers of all of them. Where the CPU holds a quantity to 1e-9 or 1e-12, the bound
@@ -11,6 +11,7 @@ use std::process::ExitCode;
 
 use glam::DVec3;
 use softbody::Integrator;
+use softbody::scene::SpringParams;
 use softbody_testkit::scenes::*;
 use softbody_testkit::{Backend, Failed, all};
 
@@ -30,6 +31,7 @@ fn main() -> ExitCode {
                 "static_friction_holds_on_a_shallow_slope_and_kinetic_friction_on_a_steep_one",
                 static_friction_holds_on_a_shallow_slope_and_kinetic_friction_on_a_steep_one,
             ),
+            ("a_bouncy_cube_comes_to_rest", a_bouncy_cube_comes_to_rest),
         ],
     )
 }
@@ -287,6 +289,75 @@ fn static_friction_holds_on_a_shallow_slope_and_kinetic_friction_on_a_steep_one(
                     "{integrator}, {degrees}°: left the plane by up to {worst_phi} m"
                 ));
             }
+        }
+    }
+    all(failures)
+}
+
+/// A 1 kg jelly cube (20 cm, 5³ particles, k_s = 2000 N/m, k_d = 5 N·s/m) dropped from 10 cm
+/// onto a plane with restitution 0.5 and friction 0.5 comes to rest: its kinetic energy falls
+/// below 1e-9 J by t = 2 s and stays there at every 10 ms up to t = 3 s, for every integrator
+/// (h = 1e-4 s; implicit Euler 1e-3 s).
+///
+/// Restitution acts on fresh impacts only: a particle that starts a step in the contact band
+/// (ε = 1 mm) and ends it approaching the plane just stops approaching. Were restitution applied
+/// on every entry into the band, a resting particle's micrometre penetrations would be answered
+/// with k_r times their speed, and the bottom layer would keep bouncing at the band's edge with
+/// a kinetic energy floor near 1e-6 J.
+///
+/// Measured: the CPU's bodies come to rest at 1e-27 J (f64 round-off of a standing body). The
+/// GPU's f32 runs settle at a steady 2e-10 to 1.2e-9 J (midpoint, RK4 highest) instead: a slow
+/// creep whose cause is not yet found (ARCHITECTURE.md, "What is left"); its bound is 1e-8 J,
+/// still two orders below the 1e-6 J floor of restitution on every band entry.
+fn a_bouncy_cube_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
+    // J, for the 1 kg cube.
+    let rest = if backend.epsilon() > 1e-10 {
+        1e-8
+    } else {
+        1e-9
+    };
+    let mut failures = Vec::new();
+    for integrator in Integrator::ALL {
+        let h = if integrator == Integrator::ImplicitEuler {
+            1e-3
+        } else {
+            1e-4
+        };
+        let params = SpringParams {
+            stiffness: 2000.0,
+            damping: 5.0,
+        };
+        let cube = cuboid(
+            DVec3::splat(0.2),
+            [5, 5, 5],
+            DVec3::new(0.0, 0.2, 0.0),
+            1.0,
+            params,
+        );
+        let mut sim = simulation(integrator, h);
+        sim.duration = 3.0;
+        let floor = plane(DVec3::ZERO, DVec3::Y, 0.5, 0.5);
+        let mut solver = backend.solver(&scene(sim, vec![cuboid_body(cube)], vec![floor]))?;
+        let per_frame = (0.01 / h).round() as u64;
+        let mut worst_after_2s = 0.0f64;
+        let mut at_2s = f64::NAN;
+        for frame in 1..=300u64 {
+            solver.advance(per_frame)?;
+            if frame >= 200 {
+                let kinetic = solver.energies()?.kinetic;
+                if frame == 200 {
+                    at_2s = kinetic;
+                }
+                worst_after_2s = worst_after_2s.max(kinetic);
+            }
+        }
+        println!(
+            "{integrator}: kinetic energy {at_2s:.2e} J at 2 s, at most {worst_after_2s:.2e} J from 2 s to 3 s"
+        );
+        if worst_after_2s >= rest || worst_after_2s.is_nan() {
+            failures.push(format!(
+                "{integrator}: kinetic energy up to {worst_after_2s:.3e} J between 2 s and 3 s (rest: < {rest:e} J)"
+            ));
         }
     }
     all(failures)

@@ -87,10 +87,32 @@ impl GpuSolver {
     }
 
     /// Runs `collision_response` alone on the current state.
-    pub fn debug_collision_response(&mut self) -> Result<(), StepError> {
+    ///
+    /// The step is taken to have started at `x_start` with the state's velocities: which bands
+    /// held it, and the velocity change since, decide which impacts are fresh.
+    pub fn debug_collision_response(&mut self, x_start: &[DVec3]) -> Result<(), StepError> {
         let response = CollisionResponse::new(self.setup()).map_err(setup_error)?;
+        let x = self.buffers.x.clone();
+        let kept = self.builder.storage("kept x", x.size() / VEC4, VEC4);
         let submitter = self.stage_submitter()?;
-        let encoder = submitter.encode_pass("collision response", |pass| response.encode(pass));
+        // The start record of x_start, then the response of the current positions.
+        let mut copy = submitter.encoder("keep x");
+        copy.copy_buffer_to_buffer(&x, 0, &kept, 0, x.size());
+        submitter.submit(copy);
+        submitter
+            .queue()
+            .write_buffer(&x, 0, bytemuck::cast_slice(&vec4s(x_start)));
+        let band = submitter.encode_pass("band", |pass| response.encode_band(pass));
+        submitter.submit(band);
+        let mut encoder = submitter.encoder("collision response");
+        encoder.copy_buffer_to_buffer(&kept, 0, &x, 0, x.size());
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("collision response"),
+                timestamp_writes: None,
+            });
+            response.encode(&mut pass);
+        }
         submitter.submit_and_read(encoder, &[])?;
         submitter.healthy()
     }

@@ -88,6 +88,9 @@ pub struct GpuSolver {
     /// Host copy of the state, valid while `state_fresh`.
     state: State,
     pub(crate) state_fresh: bool,
+    /// Whether the collision response's band masks must be computed from the state before the
+    /// next step (no response has left them: the first step, and after `set_state`).
+    band_stale: bool,
     steps: u64,
     timings: Timings,
 }
@@ -241,6 +244,7 @@ impl GpuSolver {
             energy,
             state,
             state_fresh: true,
+            band_stale: true,
             steps: 0,
             timings: Timings::default(),
         })
@@ -274,7 +278,11 @@ impl GpuSolver {
         let encoder = match &mut self.stepper {
             Stepper::Explicit(stepper) => {
                 let (collision, check) = (&self.collision_response, &self.check);
+                let band_stale = std::mem::take(&mut self.band_stale);
                 let encoder = self.submitter.encode_pass("steps", |pass| {
+                    if let (Some(c), true) = (collision, band_stale) {
+                        c.encode_band(pass);
+                    }
                     for k in 0..batch {
                         stepper.encode(pass);
                         if let Some(c) = collision {
@@ -434,6 +442,7 @@ impl Solver for GpuSolver {
             queue.write_buffer(&self.buffers.v, 0, bytemuck::cast_slice(&vec4s(&state.v)));
         }
         self.state_fresh = false;
+        self.band_stale = true;
         Ok(())
     }
 

@@ -294,27 +294,52 @@ fn stage_accelerations(gpu: &Arc<Gpu>, friction_model: &str) -> Result<(), Faile
     )
 }
 
+/// The response on the bouncy plane, from step starts some of which lie in the contact band
+/// (no restitution: v_n ← 0) and some above it (a fresh impact: v_n ← −k_r v_n).
 fn stage_collision_response(gpu: &Arc<Gpu>) -> Result<(), Failed> {
-    let scene = cube_scene(Integrator::SymplecticEuler, 1e-3, 0.1, PLANE);
+    let scene = cube_scene(Integrator::SymplecticEuler, 1e-3, 0.1, BOUNCY_PLANE);
     let (model, state) = Model::build(&scene);
     let mut state = perturbed(&state, 3, 0.01, 1.0);
     let lowest = state.x.iter().map(|x| x.y).fold(f64::INFINITY, f64::min);
     for x in &mut state.x {
         x.y = f32_exact(*x - DVec3::new(0.0, lowest + 0.05, 0.0)).y;
     }
+    // Band edge ε = 1 mm: starts 0.25 mm or 4 mm above the end position, alternately (clear
+    // of the f32 rounding of the band test).
+    let x_start: Vec<DVec3> = (0..model.len())
+        .map(|i| {
+            let up = if i % 2 == 0 { 2.5e-4 } else { 4e-3 };
+            f32_exact(state.x[i].max(DVec3::new(f64::MIN, 0.0, f64::MIN)) + DVec3::Y * up)
+        })
+        .collect();
     let mut g = open(gpu, &model, &state)?;
-    g.debug_collision_response().map_err(step_error)?;
+    g.debug_collision_response(&x_start).map_err(step_error)?;
     let got = g.state().map_err(step_error)?.clone();
     let surfaces: Vec<Surface> = model.terrain.iter().map(Surface::new).collect();
     let mut want = state.clone();
-    collision_response::respond(&model, &surfaces, &mut want.x, &mut want.v);
+    let start = State {
+        x: x_start.clone(),
+        v: state.v.clone(),
+    };
+    collision_response::respond(&model, &surfaces, &start, &mut want.x, &mut want.v);
     let moved = (0..model.len())
         .filter(|&i| want.x[i] != state.x[i])
         .count();
+    let eps = model.simulation.contact_distance;
+    let responded = |fresh: bool| {
+        (0..model.len())
+            .filter(|&i| want.v[i] != state.v[i] && (x_start[i].y >= eps) == fresh)
+            .count()
+    };
     println!(
-        "{moved} of {} particles moved back onto the plane",
-        model.len()
+        "{moved} of {} particles moved back onto the plane; {} fresh impacts, {} in the band",
+        model.len(),
+        responded(true),
+        responded(false)
     );
+    if responded(true) == 0 || responded(false) == 0 {
+        return Err("the case does not exercise both fresh and resting contacts".into());
+    }
     let (rx, ax) = max_errors(
         got.x.iter().copied(),
         want.x.iter().copied(),

@@ -72,7 +72,7 @@ impl Midpoint {
                 let a = acceleration_with(model, surfaces, i, xm[i], vm[i], springs);
                 *xn = x[i] + h * vm[i];
                 *vn = v[i] + h * a;
-                finish(model, surfaces, i, xn, vn)
+                finish(model, surfaces, i, (x[i], v[i]), xn, vn)
             },
         );
         self.passes.swap_into(state);

@@ -162,7 +162,7 @@ impl Passes {
             |i, springs, (xn, vn)| {
                 let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
                 (*xn, *vn) = update(x[i], v[i], a, h);
-                finish(model, surfaces, i, xn, vn)
+                finish(model, surfaces, i, (x[i], v[i]), xn, vn)
             },
         );
         self.swap_into(state);
@@ -187,20 +187,21 @@ impl Passes {
     }
 }
 
-/// The end of an explicit step for particle i: its collision response (unless it is pinned),
-/// then whether its position and velocity are finite.
+/// The end of an explicit step for particle i, which started it at `x_start`: its collision
+/// response (unless it is pinned), then whether its position and velocity are finite.
 #[inline(always)]
 pub(crate) fn finish(
     model: &Model,
     surfaces: &[Surface],
     i: usize,
+    start: (DVec3, DVec3),
     x: &mut DVec3,
     v: &mut DVec3,
 ) -> bool {
     let eps = model.simulation.contact_distance;
     // Clear of every surface (and with none): the response would change nothing.
     if !surfaces.iter().all(|s| s.clear_of(*x, eps)) && model.inv_mass[i] != 0.0 {
-        respond_one(surfaces, eps, x, v);
+        respond_one(surfaces, eps, model.simulation.dt, start, x, v);
     }
     all_finite(*x, *v)
 }

@@ -123,7 +123,7 @@ impl Rk4 {
                 let sv = sum_v[i] + 1.0 * a;
                 *xn = x[i] + h / 6.0 * sx;
                 *vn = v[i] + h / 6.0 * sv;
-                finish(model, surfaces, i, xn, vn)
+                finish(model, surfaces, i, (x[i], v[i]), xn, vn)
             },
         );
         self.passes.swap_into(state);
