@@ -30,6 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             gravity: DVec3::new(0.0, -9.81, 0.0),
             drag: 0.0,
             contact_distance: 1e-3,
+            body_contact: Default::default(),
         },
         bodies: vec![Body {
             name: "pendulum".into(),
@@ -40,6 +41,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 springs,
             }),
             pinned: vec![0],
+            contact_radius: None,
+            self_contact: false,
         }],
         terrain: Vec::new(),
     };

@@ -57,6 +57,7 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             gravity: DVec3::new(0.0, -9.81, 0.0),
             drag: 0.0,
             contact_distance: 0.0,
+            body_contact: Default::default(),
         },
         bodies: vec![Body {
             name: "cube".into(),
@@ -72,6 +73,8 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
                 bending: springs,
             }),
             pinned: Vec::new(),
+            contact_radius: None,
+            self_contact: false,
         }],
         terrain: vec![Terrain {
             shape: TerrainShape::Plane {

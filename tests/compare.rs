@@ -289,6 +289,8 @@ fn deepest_penetration_is_the_hand_computed_depth() {
     sim.duration = 0.5;
     let body = Body {
         pinned: vec![0, 1],
+        contact_radius: None,
+        self_contact: false,
         ..particles(
             vec![
                 DVec3::new(0.0, -0.05, 0.0),

@@ -623,3 +623,21 @@ fn unknown_subcommand_is_refused() {
     sb.run(&["simulate", "scene.toml"])
         .expect_status(EXIT_BAD_INPUT);
 }
+
+#[test]
+fn negative_contact_radius_is_refused() {
+    let text = format!("{SIM}{CUBE}contact_radius = -0.01\n");
+    assert_refused(&text, "body[0].contact_radius", "contact_radius");
+}
+
+#[test]
+fn body_restitution_above_one_is_refused() {
+    let text = SIM.replace("duration", "body_restitution = 1.5\nduration") + CUBE;
+    assert_refused(&text, "simulation.body_restitution", "body_restitution");
+}
+
+#[test]
+fn negative_body_friction_is_refused() {
+    let text = SIM.replace("duration", "body_friction = -0.2\nduration") + CUBE;
+    assert_refused(&text, "simulation.body_friction", "body_friction");
+}

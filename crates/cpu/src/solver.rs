@@ -8,6 +8,7 @@ use softbody_scene::{
     solver::check_state_len,
 };
 
+use crate::body_contact::BodyContact;
 use crate::integrators::Stepper;
 use crate::{energy, vec_bytes};
 use softbody_terrain::Surface;
@@ -17,12 +18,15 @@ use softbody_terrain::Surface;
 /// Its timings ([`Statistics::timings`]) have the stages "fused passes" (the explicit
 /// integrators: spring forces, forces, update, collision response and the finiteness check in
 /// one sweep per stage), or "assemble", "contacts", "cg", "update" and "finiteness" (implicit
-/// Euler), and "energies".
+/// Euler), then "body contact" (scenes whose bodies touch), and "energies".
 pub struct CpuSolver {
     model: Model,
     /// One query object per terrain shape.
     surfaces: Vec<Surface>,
     stepper: Stepper,
+    /// The contact between bodies and the state at the start of the step it needs, for a model
+    /// whose bodies can touch.
+    body_contact: Option<(BodyContact, State)>,
     state: State,
     pool: Arc<rayon::ThreadPool>,
     steps: u64,
@@ -77,10 +81,15 @@ impl CpuSolver {
     pub fn in_pool(model: Model, state: State, pool: Arc<rayon::ThreadPool>) -> CpuSolver {
         // The passes split the particles by the pool's thread count.
         let stepper = pool.install(|| Stepper::new(&model));
+        let body_contact = model
+            .contact
+            .enabled()
+            .then(|| (BodyContact::new(), state.clone()));
         CpuSolver {
             surfaces: model.terrain.iter().map(Surface::new).collect(),
             model,
             stepper,
+            body_contact,
             state,
             pool,
             steps: 0,
@@ -119,11 +128,20 @@ impl Solver for CpuSolver {
             &mut self.state,
             &mut self.timings,
         );
+        let body_contact = &mut self.body_contact;
         let dt = model.simulation.dt;
         let done = &mut self.steps;
         self.pool.install(|| {
             for _ in 0..steps {
-                let bad = stepper.step(model, surfaces, state, timings);
+                if let Some((_, start)) = body_contact {
+                    start.clone_from(state);
+                }
+                let mut bad = stepper.step(model, surfaces, state, timings);
+                if let (Some((contact, start)), None) = (body_contact.as_mut(), bad) {
+                    timings.time("body contact", || contact.respond(model, start, state));
+                    // Finite in, finite out, unless an impulse overflows.
+                    bad = timings.time("finiteness", || crate::first_non_finite(state));
+                }
                 *done += 1;
                 if let Some((i, what)) = bad {
                     return Err(StepError::Unstable(Instability {
@@ -185,6 +203,13 @@ impl Solver for CpuSolver {
             + vec_bytes(&s.damping)
             + vec_bytes(&m.adjacency.offsets)
             + vec_bytes(&m.adjacency.entries);
-        vec_bytes(&self.state.x) + vec_bytes(&self.state.v) + model + self.stepper.memory_bytes()
+        let contact = self.body_contact.as_ref().map_or(0, |(c, start)| {
+            c.memory_bytes() + vec_bytes(&start.x) + vec_bytes(&start.v)
+        });
+        vec_bytes(&self.state.x)
+            + vec_bytes(&self.state.v)
+            + model
+            + self.stepper.memory_bytes()
+            + contact
     }
 }

@@ -101,10 +101,26 @@ const _: fn() = || {
     send::<GpuSolver>();
 };
 
+/// Refuses what the GPU solver does not do yet: contact between bodies (ARCHITECTURE.md, "What
+/// is left").
+fn supported(model: &Model) -> Result<(), GpuError> {
+    if model.contact.enabled() {
+        return Err(GpuError::Unsupported(
+            "contact between bodies (two bodies with a contact radius, or self_contact) runs on \
+             the CPU only for now: run with --backend cpu, or set contact_radius = 0 on the \
+             bodies"
+                .to_owned(),
+        ));
+    }
+    Ok(())
+}
+
 impl GpuSolver {
     /// Opens a device of its own and uploads `model` and `state`: [`GpuSolver::on`] with
     /// [`Gpu::open`].
     pub fn new(model: Model, state: State) -> Result<GpuSolver, GpuError> {
+        // Refused before a device is opened for it.
+        supported(&model)?;
         GpuSolver::on(&Gpu::open()?, model, state)
     }
 
@@ -127,6 +143,7 @@ impl GpuSolver {
         mut state: State,
         options: GpuOptions,
     ) -> Result<GpuSolver, GpuError> {
+        supported(&model)?;
         let integrator = model.simulation.integrator;
         let implicit = integrator == softbody_scene::Integrator::ImplicitEuler;
         let mut limits = gpu.limits.clone();

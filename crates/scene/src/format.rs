@@ -30,6 +30,12 @@ pub struct SimulationFile {
     pub drag: f64,
     #[serde(default = "default_contact_distance")]
     pub contact_distance: f64,
+    #[serde(default)]
+    pub body_restitution: f64,
+    #[serde(default)]
+    pub body_friction: f64,
+    #[serde(default)]
+    pub body_friction_model: FrictionModel,
 }
 
 fn default_integrator() -> Integrator {
@@ -82,6 +88,9 @@ pub struct BodyFile {
     pub kind: BodyKind,
     #[serde(default)]
     pub pinned: Vec<u64>,
+    pub contact_radius: Option<f64>,
+    #[serde(default)]
+    pub self_contact: bool,
     // cuboid
     pub size: Option<[f64; 3]>,
     pub resolution: Option<[u64; 3]>,

@@ -36,10 +36,11 @@ use std::str::FromStr;
 
 pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
 pub use format::FrictionModel;
-pub use model::{Adjacency, BodyRange, Model, Springs, State};
+pub use model::{Adjacency, BodyRange, Contacts, Model, Springs, State};
 pub use scene::{
-    Body, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene, Simulation,
-    SpringCounts, SpringParams, Terrain, TerrainShape, TriangleMesh, rotation_from_degrees,
+    Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene,
+    Simulation, SpringCounts, SpringParams, Terrain, TerrainShape, TriangleMesh,
+    rotation_from_degrees,
 };
 pub use solver::{Energies, Instability, Solver, Statistics, StepError, Timer, Timings};
 

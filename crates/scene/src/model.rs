@@ -8,7 +8,7 @@
 
 use glam::DVec3;
 
-use crate::scene::{BodyShape, Scene, Simulation, SpringCounts, Terrain};
+use crate::scene::{BodyContact, BodyShape, Scene, Simulation, SpringCounts, Terrain};
 use crate::topology::{self, SpringKind};
 
 /// Most particles a scene may hold (indices are u32).
@@ -157,6 +157,66 @@ pub struct Model {
     pub surface: Vec<[u32; 3]>,
     /// Terrain shapes.
     pub terrain: Vec<Terrain>,
+    /// Who touches whom between and within bodies.
+    pub contact: Contacts,
+}
+
+/// Contact between particles of bodies: each particle's radius and place, and the rule that
+/// decides which pairs may touch (docs/physics.md, "Contact between bodies").
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Contacts {
+    /// r_i, metres; 0 touches no particle.
+    pub radius: Vec<f64>,
+    /// The body of each particle (an index into `Model::bodies`).
+    pub body: Vec<u32>,
+    /// Lattice coordinates of each particle of a cuboid; `None` for a `particles` body.
+    pub lattice: Vec<Option<[i32; 3]>>,
+    /// Whether each body's particles touch each other.
+    pub self_contact: Vec<bool>,
+    /// The laws of the contact.
+    pub laws: BodyContact,
+}
+
+/// Self-contact ignores pairs of a cuboid this close on the lattice (Chebyshev distance, in
+/// cells): the particles a spring joins (up to two cells apart) and their neighbours at rest.
+pub const SELF_CONTACT_EXCLUSION: i32 = 2;
+
+impl Contacts {
+    /// Whether any pair can ever touch: a particle with a radius in a body with
+    /// `self_contact`, or in two different bodies.
+    pub fn enabled(&self) -> bool {
+        let mut with_radius = self
+            .radius
+            .iter()
+            .zip(&self.body)
+            .filter(|(r, _)| **r > 0.0)
+            .map(|(_, b)| *b);
+        let Some(first) = with_radius.next() else {
+            return false;
+        };
+        self.self_contact.iter().any(|&s| s) || with_radius.any(|b| b != first)
+    }
+
+    /// Whether particles i and j may touch: different bodies, or one body with `self_contact`
+    /// where they are not rest neighbours — on a cuboid's lattice more than
+    /// [`SELF_CONTACT_EXCLUSION`] cells apart along some axis, in a `particles` body not joined
+    /// by a spring.
+    pub fn admits(&self, adjacency: &Adjacency, springs: &Springs, i: usize, j: usize) -> bool {
+        let body = self.body[i];
+        if body != self.body[j] {
+            return true;
+        }
+        if !self.self_contact[body as usize] {
+            return false;
+        }
+        match (self.lattice[i], self.lattice[j]) {
+            (Some(a), Some(b)) => (0..3).any(|k| (a[k] - b[k]).abs() > SELF_CONTACT_EXCLUSION),
+            _ => !adjacency.of(i).iter().any(|&e| {
+                let s = (e >> 1) as usize;
+                springs.a[s] as usize + springs.b[s] as usize - i == j
+            }),
+        }
+    }
 }
 
 impl Model {
@@ -173,10 +233,18 @@ impl Model {
         let mut bodies = Vec::with_capacity(scene.bodies.len());
         let mut pinned = vec![false; n];
         let mut surface = Vec::new();
-        for body in &scene.bodies {
+        let mut contact = Contacts {
+            laws: scene.simulation.body_contact,
+            ..Contacts::default()
+        };
+        for (b, body) in scene.bodies.iter().enumerate() {
             let first = state.x.len() as u32;
             match &body.shape {
                 BodyShape::Cuboid(c) => {
+                    let [nx, ny, _] = c.resolution.map(|r| r as i32);
+                    let cells = (0..body.particle_count() as i32)
+                        .map(|p| Some([p % nx, p / nx % ny, p / (nx * ny)]));
+                    contact.lattice.extend(cells);
                     let x = topology::cuboid_positions(c);
                     let m = c.mass / x.len() as f64;
                     state.v.extend(std::iter::repeat_n(c.velocity, x.len()));
@@ -200,6 +268,9 @@ impl Model {
                     );
                 }
                 BodyShape::Particles(p) => {
+                    contact
+                        .lattice
+                        .extend(std::iter::repeat_n(None, p.positions.len()));
                     state.x.extend(&p.positions);
                     state.v.extend(&p.velocities);
                     mass.extend(&p.masses);
@@ -212,6 +283,14 @@ impl Model {
                 }
             }
             let count = state.x.len() as u32 - first;
+            let radius = body.contact_radius();
+            contact
+                .radius
+                .extend(std::iter::repeat_n(radius, count as usize));
+            contact
+                .body
+                .extend(std::iter::repeat_n(b as u32, count as usize));
+            contact.self_contact.push(body.self_contact);
             for &p in &body.pinned {
                 pinned[(first + p) as usize] = true;
             }
@@ -242,6 +321,7 @@ impl Model {
             bodies,
             surface,
             terrain: scene.terrain.clone(),
+            contact,
         };
         (model, state)
     }

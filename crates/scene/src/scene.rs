@@ -29,6 +29,21 @@ pub struct Simulation {
     pub drag: f64,
     /// Contact distance ε, metres: a particle closer than this to a surface is in contact.
     pub contact_distance: f64,
+    /// The laws of contact between particles of bodies (`body_restitution`, `body_friction`,
+    /// `body_friction_model`).
+    pub body_contact: BodyContact,
+}
+
+/// The laws of contact between particles of bodies: the same as a terrain surface's, one set for
+/// every pair of bodies (and a body with `self_contact`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BodyContact {
+    /// k_r in [0, 1]: the fraction of the relative normal approach speed kept on a fresh impact.
+    pub restitution: f64,
+    /// μ (Coulomb) or k_f (viscous), ≥ 0.
+    pub friction: f64,
+    /// How the pair resists sliding.
+    pub friction_model: FrictionModel,
 }
 
 impl Simulation {
@@ -134,9 +149,40 @@ pub struct Body {
     pub shape: BodyShape,
     /// Indices (within the body) of particles that never move.
     pub pinned: Vec<u32>,
+    /// Contact radius r of each particle, metres: two particles of different bodies (or of a
+    /// body with `self_contact`) closer than r_a + r_b touch. `None`: half the smallest lattice
+    /// spacing of a cuboid, 0 (no body contact) for a `particles` body.
+    pub contact_radius: Option<f64>,
+    /// Whether the body's own particles touch each other (beyond the rest neighbourhood: see
+    /// docs/physics.md, "Contact between bodies").
+    pub self_contact: bool,
 }
 
 impl Body {
+    /// The contact radius of the body's particles: the given one, or the default (half the
+    /// smallest lattice spacing of a cuboid, 0 for a `particles` body).
+    pub fn contact_radius(&self) -> f64 {
+        self.contact_radius.unwrap_or(match &self.shape {
+            BodyShape::Cuboid(c) => {
+                let spacing = |axis: usize| {
+                    let r = c.resolution[axis];
+                    if r > 1 {
+                        c.size[axis] / f64::from(r - 1)
+                    } else {
+                        f64::INFINITY
+                    }
+                };
+                let smallest = spacing(0).min(spacing(1)).min(spacing(2));
+                if smallest.is_finite() {
+                    0.5 * smallest
+                } else {
+                    0.0
+                }
+            }
+            BodyShape::Particles(_) => 0.0,
+        })
+    }
+
     /// Number of particles, saturating (validation refuses scenes where it saturates).
     pub fn particle_count(&self) -> u64 {
         match &self.shape {
@@ -378,6 +424,11 @@ fn convert(file: SceneFile, base: &Path) -> Result<Scene, Invalid> {
         gravity: s.gravity.into(),
         drag: s.drag,
         contact_distance: s.contact_distance,
+        body_contact: BodyContact {
+            restitution: s.body_restitution,
+            friction: s.body_friction,
+            friction_model: s.body_friction_model,
+        },
     };
     let bodies = file
         .bodies
@@ -519,6 +570,8 @@ fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
         name,
         shape,
         pinned,
+        contact_radius: b.contact_radius,
+        self_contact: b.self_contact,
     })
 }
 

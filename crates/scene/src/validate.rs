@@ -51,6 +51,15 @@ fn non_negative(at: KeyPath, x: f64) -> Check {
     }
 }
 
+fn unit_interval(at: KeyPath, x: f64) -> Check {
+    finite(at.clone(), x)?;
+    if (0.0..=1.0).contains(&x) {
+        Ok(())
+    } else {
+        Err(Invalid::new(at, format!("must lie in [0, 1], not {x}")))
+    }
+}
+
 fn spring_params(at: KeyPath, p: &SpringParams) -> Check {
     non_negative(at.key("stiffness"), p.stiffness)?;
     non_negative(at.key("damping"), p.damping)
@@ -65,6 +74,8 @@ pub(crate) fn scene(scene: &Scene) -> Check {
     finite3(s.key("gravity"), sim.gravity)?;
     non_negative(s.key("drag"), sim.drag)?;
     non_negative(s.key("contact_distance"), sim.contact_distance)?;
+    unit_interval(s.key("body_restitution"), sim.body_contact.restitution)?;
+    non_negative(s.key("body_friction"), sim.body_contact.friction)?;
     if sim.duration / sim.dt > 1e15 {
         return Err(Invalid::new(
             s.key("duration"),
@@ -100,6 +111,9 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             ));
         }
         body_values(&at, &body.shape)?;
+        if let Some(r) = body.contact_radius {
+            non_negative(at.key("contact_radius"), r)?;
+        }
         let count = body.particle_count();
         for (j, &p) in body.pinned.iter().enumerate() {
             if p as u64 >= count {
@@ -163,13 +177,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
 
     for (i, t) in scene.terrain.iter().enumerate() {
         let at = KeyPath::root().key("terrain").index(i);
-        finite(at.key("restitution"), t.restitution)?;
-        if !(0.0..=1.0).contains(&t.restitution) {
-            return Err(Invalid::new(
-                at.key("restitution"),
-                format!("must lie in [0, 1], not {}", t.restitution),
-            ));
-        }
+        unit_interval(at.key("restitution"), t.restitution)?;
         non_negative(at.key("friction"), t.friction)?;
         terrain_values(&at, &t.shape)?;
     }

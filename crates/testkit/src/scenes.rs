@@ -29,6 +29,7 @@ pub fn simulation(integrator: Integrator, dt: f64) -> Simulation {
         gravity: gravity(),
         drag: 0.0,
         contact_distance: 0.001,
+        body_contact: Default::default(),
     }
 }
 
@@ -59,6 +60,8 @@ pub fn particles(
             springs,
         }),
         pinned: Vec::new(),
+        contact_radius: None,
+        self_contact: false,
     }
 }
 
@@ -94,6 +97,8 @@ pub fn cuboid_body(c: Cuboid) -> Body {
         name: "cube".into(),
         shape: BodyShape::Cuboid(c),
         pinned: Vec::new(),
+        contact_radius: None,
+        self_contact: false,
     }
 }
 

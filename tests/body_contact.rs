@@ -1,0 +1,222 @@
+//! Contact between bodies (`softbody_cpu::body_contact`), for every integrator: momentum in a
+//! head-on collision, the restitution law of two particles, and the same bits for any thread
+//! count. The GPU does not run body contact yet: there each test checks that such a scene is
+//! refused before a step, with a message that names the CPU backend.
+
+use std::process::ExitCode;
+
+use glam::DVec3;
+use softbody::scene::{BodyContact, SpringParams};
+use softbody::{CpuSolver, Integrator, Model, Scene, Solver};
+use softbody_testkit::scenes::*;
+use softbody_testkit::{Backend, Failed, all, ensure};
+
+fn main() -> ExitCode {
+    softbody_testkit::run(
+        "body contact",
+        &[
+            (
+                "a_head_on_collision_conserves_momentum",
+                a_head_on_collision_conserves_momentum,
+            ),
+            (
+                "two_particles_rebound_at_the_restitution",
+                two_particles_rebound_at_the_restitution,
+            ),
+            (
+                "body_contact_gives_the_same_bits_for_any_thread_count",
+                same_bits_for_any_thread_count,
+            ),
+        ],
+    )
+}
+
+/// The step of `integrator` in these tests: implicit Euler takes 10× larger steps.
+fn step_for(integrator: Integrator) -> f64 {
+    if integrator == Integrator::ImplicitEuler {
+        1e-3
+    } else {
+        1e-4
+    }
+}
+
+/// A solver, or on the GPU the check that the scene is refused (`None`).
+fn open(backend: &Backend, scene: &Scene) -> Result<Option<Box<dyn Solver>>, Failed> {
+    match backend.solver(scene) {
+        Ok(solver) if !backend.is_gpu() => Ok(Some(solver)),
+        Ok(_) => Err("the GPU accepted a scene with contact between bodies".into()),
+        Err(e) if backend.is_gpu() => {
+            let message = e.message().unwrap_or_default().to_owned();
+            ensure(message.contains("--backend cpu"), || {
+                format!("the GPU's refusal does not name the CPU backend: {message}")
+            })?;
+            Ok(None)
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// Two jelly cubes (10 cm, 4³ particles, contact radius 1.67 cm, 1 kg and 2 kg) 6 cm apart
+/// (beyond the 3.3 cm the radii reach), thrown at each other at 1 m/s each, off-centre by 2 cm,
+/// with no gravity and no terrain; body restitution 0.5, friction 0.3.
+fn head_on(integrator: Integrator) -> Scene {
+    let params = SpringParams {
+        stiffness: 500.0,
+        damping: 1.0,
+    };
+    let mut sim = simulation(integrator, step_for(integrator));
+    sim.gravity = DVec3::ZERO;
+    sim.duration = 0.3;
+    sim.body_contact = BodyContact {
+        restitution: 0.5,
+        friction: 0.3,
+        ..BodyContact::default()
+    };
+    let mut a = cuboid(
+        DVec3::splat(0.1),
+        [4, 4, 4],
+        DVec3::new(-0.08, 0.0, 0.0),
+        1.0,
+        params,
+    );
+    a.velocity = DVec3::X;
+    let mut b = cuboid(
+        DVec3::splat(0.1),
+        [4, 4, 4],
+        DVec3::new(0.08, 0.02, 0.0),
+        2.0,
+        params,
+    );
+    b.velocity = -DVec3::X;
+    let mut body_b = cuboid_body(b);
+    body_b.name = "b".into();
+    scene(sim, vec![cuboid_body(a), body_b], Vec::new())
+}
+
+/// Head-on: the total linear momentum Σ m v stays what it was to 1e-12 of Σ m|v| at every
+/// 10 ms (the impulses are equal and opposite; only rounding changes the sum; implicit Euler
+/// solves its springs' internal forces to the CG tolerance, 1e-8, which bounds its drift
+/// instead), and the cubes do
+/// collide: their centres stay more than 5 cm apart along x (passing through each other, the
+/// difference would turn negative), and they end moving apart (v_a < v_b).
+fn a_head_on_collision_conserves_momentum(backend: &Backend) -> Result<(), Failed> {
+    let mut failures = Vec::new();
+    for integrator in Integrator::ALL {
+        let scene = head_on(integrator);
+        let Some(mut solver) = open(backend, &scene)? else {
+            continue;
+        };
+        let (model, initial) = Model::build(&scene);
+        let p0 = momentum(&model, &initial);
+        let scale: f64 = model
+            .mass
+            .iter()
+            .zip(&initial.v)
+            .map(|(m, v)| m * v.length())
+            .sum();
+        let per_frame = (0.01 / scene.simulation.dt).round() as u64;
+        let mut worst = 0.0f64;
+        let centre = |x: &[DVec3], range: std::ops::Range<usize>| {
+            range.clone().map(|i| x[i]).sum::<DVec3>() / range.len() as f64
+        };
+        let mut closest = f64::INFINITY;
+        for _ in 0..30 {
+            solver.advance(per_frame)?;
+            let state = solver.state()?;
+            worst = worst.max((momentum(&model, state) - p0).length() / scale);
+            closest = closest.min(centre(&state.x, 64..128).x - centre(&state.x, 0..64).x);
+        }
+        let state = solver.state()?.clone();
+        let va = state.v[..64].iter().sum::<DVec3>() / 64.0;
+        let vb = state.v[64..].iter().sum::<DVec3>() / 64.0;
+        println!(
+            "{integrator}: momentum drift {worst:.2e} of Σm|v|, closest centres {closest:.4} m, \
+             final velocities a {:.3} m/s, b {:.3} m/s",
+            va.x, vb.x
+        );
+        let bound = if integrator == Integrator::ImplicitEuler {
+            backend.cg_tolerance()
+        } else {
+            1e-12
+        };
+        if worst > bound {
+            failures.push(format!(
+                "{integrator}: momentum drifted by {worst:e} of Σm|v|"
+            ));
+        }
+        // Through each other, the centres would pass (difference < 0); touching, they stay a
+        // cube's width minus the squeeze apart, and separate afterwards (va < vb).
+        if !(0.05..=0.155).contains(&closest) || va.x >= vb.x {
+            failures.push(format!(
+                "{integrator}: the cubes did not bounce apart (closest centres {closest} m, \
+                 velocities {} and {})",
+                va.x, vb.x
+            ));
+        }
+    }
+    all(failures)
+}
+
+/// Two 1 kg particles of radius 5 cm approaching at 1 m/s each, no gravity: after they touch,
+/// the relative speed is k_r times the approach speed, for k_r = 0.5 and 0.8, within 1%.
+fn two_particles_rebound_at_the_restitution(backend: &Backend) -> Result<(), Failed> {
+    let mut failures = Vec::new();
+    for integrator in Integrator::ALL {
+        for kr in [0.5, 0.8] {
+            let mut sim = simulation(integrator, step_for(integrator));
+            sim.gravity = DVec3::ZERO;
+            sim.duration = 0.2;
+            sim.body_contact.restitution = kr;
+            let mut a = particle(DVec3::new(-0.1, 0.0, 0.0), DVec3::X);
+            a.contact_radius = Some(0.05);
+            let mut b = particle(DVec3::new(0.1, 0.0, 0.0), -DVec3::X);
+            b.contact_radius = Some(0.05);
+            b.name = "b".into();
+            let Some(mut solver) = open(backend, &scene(sim, vec![a, b], Vec::new()))? else {
+                break;
+            };
+            solver.advance((0.2 / sim.dt).round() as u64)?;
+            let v = &solver.state()?.v;
+            let ratio = (v[1].x - v[0].x) / 2.0;
+            println!("{integrator}, k_r = {kr}: separation speed / approach speed = {ratio:.6}");
+            if (ratio - kr).abs() > 0.01 * kr {
+                failures.push(format!(
+                    "{integrator}, k_r = {kr}: rebound ratio {ratio} (expected {kr} within 1%)"
+                ));
+            }
+        }
+    }
+    all(failures)
+}
+
+/// The head-on collision's final state is bit-identical on 1, 2 and 3 threads.
+fn same_bits_for_any_thread_count(backend: &Backend) -> Result<(), Failed> {
+    let mut failures = Vec::new();
+    for integrator in Integrator::ALL {
+        let scene = head_on(integrator);
+        if open(backend, &scene)?.is_none() {
+            return Ok(());
+        }
+        let runs: Vec<Vec<u64>> = [1, 2, 3]
+            .into_iter()
+            .map(|threads| {
+                let (model, state) = Model::build(&scene);
+                let mut solver = CpuSolver::new(model, state, Some(threads)).expect("a pool");
+                solver.advance(scene.simulation.steps())?;
+                let s = solver.state()?;
+                Ok(s.x
+                    .iter()
+                    .chain(&s.v)
+                    .flat_map(|p| p.to_array())
+                    .map(f64::to_bits)
+                    .collect())
+            })
+            .collect::<Result<_, Failed>>()?;
+        if runs[0] != runs[1] || runs[0] != runs[2] {
+            failures.push(format!(
+                "{integrator}: the thread counts give different bits"
+            ));
+        }
+    }
+    all(failures)
+}
