@@ -7,12 +7,14 @@
 //! power of two ≥ 2n buckets (a particle far from the others costs nothing), and the particles
 //! are counting-sorted by bucket: a count per bucket, an exclusive prefix sum, a scatter in
 //! ascending particle order. Particle i then reads the buckets of the 27 cells around its own
-//! (each bucket once: two cells may hash to one bucket) and keeps the j > i that pass the
-//! distance test and the rule. Pairs come out sorted by (i, j) — a function of the positions
-//! alone, the order the contact forces are gathered in — and the buffers are reused from step to
-//! step, so a step allocates nothing once they have grown.
+//! (a bucket two of them share, once) and keeps the j > i that pass the
+//! distance test and the rule, in parallel over ranges of particles whose pairs are then joined
+//! in range order. Pairs come out sorted by (i, j) — a function of the positions alone, the
+//! order the contact forces are gathered in, whatever the thread count — and the buffers are
+//! reused from step to step, so a step allocates nothing once they have grown.
 
 use glam::{DVec3, IVec3};
+use rayon::prelude::*;
 
 /// The grid and its buffers.
 #[derive(Debug, Default)]
@@ -25,10 +27,16 @@ pub struct BroadPhase {
     bucket_of: Vec<u32>,
     /// Each particle's cell.
     cell_of: Vec<IVec3>,
-    /// The candidate partners of the particle being scanned.
-    partners: Vec<u32>,
-    /// The pairs found, sorted by (i, j).
+    /// Per range of particles (one rayon task each): the candidate partners of the particle
+    /// being scanned, and the range's pairs.
+    ranges: Vec<(Vec<u32>, Vec<[u32; 2]>)>,
+    /// The pairs found, sorted by (i, j): the ranges' pairs in range order.
     pairs: Vec<[u32; 2]>,
+}
+
+/// Particles per task of the pair search: about four tasks per thread, at least 256 particles.
+fn range_len(n: usize) -> usize {
+    n.div_ceil(4 * rayon::current_num_threads()).max(256)
 }
 
 impl BroadPhase {
@@ -43,7 +51,7 @@ impl BroadPhase {
         &mut self,
         x: &[DVec3],
         radius: &[f64],
-        admit: impl Fn(usize, usize) -> bool,
+        admit: impl Fn(usize, usize) -> bool + Sync,
     ) -> &[[u32; 2]] {
         assert_eq!(x.len(), radius.len());
         self.pairs.clear();
@@ -54,30 +62,42 @@ impl BroadPhase {
         let cell = 2.0 * r_max;
         let buckets = (2 * x.len()).next_power_of_two();
         self.sort(x, cell, buckets);
-        for i in 0..x.len() {
-            if radius[i] <= 0.0 {
-                continue;
-            }
-            self.partners.clear();
-            let mut seen = [u32::MAX; 27];
-            for (k, d) in NEIGHBOURS.iter().enumerate() {
-                let b = bucket(self.cell_of[i] + *d, buckets);
-                if seen[..k].contains(&b) {
-                    continue;
+        let len = range_len(x.len());
+        self.ranges
+            .resize_with(x.len().div_ceil(len), Default::default);
+        let (starts, sorted, cell_of) = (&self.starts[..], &self.sorted[..], &self.cell_of[..]);
+        self.ranges
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(r, (partners, pairs))| {
+                pairs.clear();
+                for i in r * len..((r + 1) * len).min(x.len()) {
+                    if radius[i] <= 0.0 {
+                        continue;
+                    }
+                    partners.clear();
+                    for d in NEIGHBOURS {
+                        let b = bucket(cell_of[i] + d, buckets) as usize;
+                        let run = starts[b] as usize..starts[b + 1] as usize;
+                        partners.extend(sorted[run].iter().copied().filter(|&j| j as usize > i));
+                    }
+                    // Two of the cells may share a bucket: its particles then come twice.
+                    partners.sort_unstable();
+                    partners.dedup();
+                    for &j in partners.iter() {
+                        let j = j as usize;
+                        let reach = radius[i] + radius[j];
+                        if radius[j] > 0.0
+                            && x[i].distance_squared(x[j]) < reach * reach
+                            && admit(i, j)
+                        {
+                            pairs.push([i as u32, j as u32]);
+                        }
+                    }
                 }
-                seen[k] = b;
-                let run = self.starts[b as usize] as usize..self.starts[b as usize + 1] as usize;
-                self.partners
-                    .extend(self.sorted[run].iter().copied().filter(|&j| j as usize > i));
-            }
-            self.partners.sort_unstable();
-            for &j in &self.partners {
-                let j = j as usize;
-                let reach = radius[i] + radius[j];
-                if radius[j] > 0.0 && x[i].distance_squared(x[j]) < reach * reach && admit(i, j) {
-                    self.pairs.push([i as u32, j as u32]);
-                }
-            }
+            });
+        for (_, pairs) in &self.ranges {
+            self.pairs.extend_from_slice(pairs);
         }
         &self.pairs
     }
@@ -119,8 +139,12 @@ impl BroadPhase {
             + self.sorted.capacity() * 4
             + self.bucket_of.capacity() * 4
             + self.cell_of.capacity() * 12
-            + self.partners.capacity() * 4
             + self.pairs.capacity() * 8) as u64
+            + self
+                .ranges
+                .iter()
+                .map(|(c, p)| (c.capacity() * 4 + p.capacity() * 8) as u64)
+                .sum::<u64>()
     }
 }
 
