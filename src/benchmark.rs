@@ -104,6 +104,9 @@ pub struct Options {
     pub stiffness: f64,
     /// Time step; `None` is half [`dt_max_symplectic_with`] for the size and stiffness.
     pub dt: Option<f64>,
+    /// Whether the cube touches itself (`self_contact`, its default contact radius): what
+    /// contact between particles costs when nothing is in contact but everything is checked.
+    pub self_contact: bool,
 }
 
 impl Default for Options {
@@ -115,6 +118,7 @@ impl Default for Options {
             steps: None,
             stiffness: STIFFNESS,
             dt: None,
+            self_contact: false,
         }
     }
 }
@@ -183,6 +187,7 @@ impl Measurement {
             "device": self.device,
             "integrator": options.integrator.name(),
             "stiffness": options.stiffness,
+            "self_contact": options.self_contact,
             "dt": self.dt,
             "particles": self.particles,
             "springs": self.springs,
@@ -248,7 +253,8 @@ pub fn measure(
     let dt = options
         .dt
         .unwrap_or_else(|| 0.5 * dt_max_symplectic_with(n, options.stiffness));
-    let scene = cube(n, options.stiffness, options.integrator, dt);
+    let mut scene = cube(n, options.stiffness, options.integrator, dt);
+    scene.bodies[0].self_contact = options.self_contact;
     scene.validate().map_err(|e| BenchError::Invalid {
         n,
         key: e.key.to_string(),

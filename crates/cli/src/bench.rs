@@ -33,6 +33,10 @@ pub struct BenchArgs {
     /// symplectic-Euler step for the size and stiffness).
     #[arg(long, value_parser = time_step, allow_negative_numbers = true)]
     dt: Option<f64>,
+    /// Time each size twice, without and with self-contact (every particle checked against
+    /// the others; nothing touches), and report the cost of the contact checks.
+    #[arg(long)]
+    contact: bool,
     /// One JSON object per line and size instead of a table.
     #[arg(long)]
     json: bool,
@@ -43,21 +47,44 @@ pub struct BenchArgs {
 
 pub fn bench(args: BenchArgs) -> Result<(), Failure> {
     use softbody::benchmark::{self, BenchError, Options};
-    let options = Options {
+    let plain = Options {
         backend: args.backend,
         integrator: args.integrator,
         threads: args.threads.map(usize::from),
         steps: args.steps,
         stiffness: args.stiffness.unwrap_or(benchmark::STIFFNESS),
         dt: args.dt,
+        self_contact: false,
+    };
+    let with_contact = Options {
+        self_contact: true,
+        ..plain
+    };
+    let variants: &[&Options] = if args.contact {
+        &[&plain, &with_contact]
+    } else {
+        &[&plain]
     };
     let started = std::time::Instant::now();
     let mut out = std::io::stdout().lock();
     let mut header = false;
-    for &n in &args.sizes {
+    // The rate of the size's run without contact, for the overhead of the run with it.
+    let mut plain_rate = None;
+    for (&n, options) in args
+        .sizes
+        .iter()
+        .flat_map(|n| variants.iter().map(move |&o| (n, o)))
+    {
         let bar = progress::bar(0, "steps", args.quiet);
-        bar.set_message(format!("{n}³ cube"));
-        let m = benchmark::measure(n, &options, &mut |done, total| {
+        bar.set_message(format!(
+            "{n}³ cube{}",
+            if options.self_contact {
+                ", self-contact"
+            } else {
+                ""
+            }
+        ));
+        let m = benchmark::measure(n, options, &mut |done, total| {
             bar.set_length(total);
             bar.set_position(done);
         });
@@ -79,7 +106,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
         })?;
         // One write per size, as it completes, so that a long run shows its progress.
         let text = if args.json {
-            format!("{}\n", m.to_json(&options))
+            format!("{}\n", m.to_json(options))
         } else {
             let mut text = String::new();
             if !header {
@@ -89,7 +116,8 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                     options.integrator, options.backend, m.device, options.stiffness
                 ));
                 text.push_str(&format!(
-                    "{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}\n",
+                    "{}{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}\n",
+                    if args.contact { "contact " } else { "" },
                     "n",
                     "particles",
                     "springs",
@@ -106,8 +134,22 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                     }
                 ));
             }
+            let contact = match (args.contact, options.self_contact) {
+                (false, _) => String::new(),
+                (true, false) => format!("{:<8}", "off"),
+                (true, true) => format!("{:<8}", "on"),
+            };
+            let overhead = match (options.self_contact, plain_rate) {
+                (true, Some(rate)) => {
+                    format!(
+                        "  {:+.1}% time",
+                        100.0 * (rate / m.particle_steps_per_s() - 1.0)
+                    )
+                }
+                _ => String::new(),
+            };
             text.push_str(&format!(
-                "{:>5} {:>10} {:>11} {:>7} {:>10.3e} {:>8.3} {:>14.3} {:>13.2} {:>9}{}\n",
+                "{contact}{:>5} {:>10} {:>11} {:>7} {:>10.3e} {:>8.3} {:>14.3} {:>13.2} {:>9}{}{}\n",
                 m.n,
                 m.particles,
                 m.springs,
@@ -118,10 +160,12 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                 m.spring_steps_per_s() / 1e6,
                 format!("{:.0}", m.bytes_per_particle),
                 m.cg_iterations_per_step
-                    .map_or(String::new(), |c| format!(" {c:>11.1}"))
+                    .map_or(String::new(), |c| format!(" {c:>11.1}")),
+                overhead
             ));
             text
         };
+        plain_rate = (!options.self_contact).then(|| m.particle_steps_per_s());
         match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
             Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
             r => r?,

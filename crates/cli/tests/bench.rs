@@ -138,3 +138,30 @@ fn an_unstable_step_is_exit_status_3() {
     out.expect_status(EXIT_UNSTABLE);
     assert!(out.stderr.contains("4³ cube"), "{}", out.stderr);
 }
+
+/// `--contact` times each size without and then with self-contact; the run with it holds the
+/// broad phase's buffers too.
+#[test]
+fn contact_times_each_size_without_and_with_self_contact() {
+    let sandbox = Sandbox::new();
+    let out = sandbox.run(&[
+        "bench",
+        "--sizes",
+        "4",
+        "--steps",
+        "10",
+        "--contact",
+        "--json",
+    ]);
+    out.expect_status(EXIT_OK);
+    let lines = json_lines(&out);
+    assert_eq!(lines.len(), 2);
+    assert_eq!(lines[0]["self_contact"], false);
+    assert_eq!(lines[1]["self_contact"], true);
+    let bytes = |v: &Value| positive_number(v, "bytes_per_particle");
+    assert!(bytes(&lines[1]) > bytes(&lines[0]), "{lines:?}");
+    let table = sandbox.run(&["bench", "--sizes", "4", "--steps", "10", "--contact"]);
+    table.expect_status(EXIT_OK);
+    let text = table.stdout_text();
+    assert!(text.contains("% time"), "{text}");
+}

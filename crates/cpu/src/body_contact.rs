@@ -42,8 +42,9 @@ impl BodyContact {
     }
 
     /// The response of the state `now` at the end of a step that started at `start`; returns
-    /// how many pairs touched.
-    pub fn respond(&mut self, model: &Model, start: &State, now: &mut State) -> usize {
+    /// the lowest particle it left with a non-finite position or velocity (only the particles
+    /// of touching pairs change).
+    pub fn respond(&mut self, model: &Model, start: &State, now: &mut State) -> Option<usize> {
         let c = &model.contact;
         let pairs = self.broad.pairs(&now.x, &c.radius, |i, j| {
             c.admits(&model.adjacency, &model.springs, i, j)
@@ -77,7 +78,12 @@ impl BodyContact {
             x[i] += w[i] * d;
             x[j] -= w[j] * d;
         }
-        self.pairs.len()
+        self.pairs
+            .iter()
+            .flatten()
+            .map(|&p| p as usize)
+            .filter(|&p| !x[p].is_finite() || !v[p].is_finite())
+            .min()
     }
 
     /// Bytes held on the heap.

@@ -2,8 +2,11 @@
 //! of their contact radii, |x_i − x_j| < r_i + r_j, and admitted by the caller's rule (different
 //! bodies, or self-contact beyond the rest neighbourhood).
 //!
-//! A uniform grid of cell size c = 2·r_max, rebuilt each step: two particles in contact lie at
-//! most r_i + r_j ≤ c apart, so in the same or adjacent cells. Cells are hashed into a table of a
+//! A uniform grid of cell size c = 2·r_max + s, searched for the admitted pairs closer than
+//! r_i + r_j + s (s, the skin, is r_max): they lie in the same or adjacent cells. Each call
+//! keeps the candidates in contact now, and searches the grid again only once some particle
+//! has moved more than s/2 since the last search (a Verlet list), which a body at rest never
+//! does. Cells are hashed into a table of a
 //! power of two ≥ 2n buckets (a particle far from the others costs nothing), and the particles
 //! are counting-sorted by bucket: a count per bucket, an exclusive prefix sum, a scatter in
 //! ascending particle order. Particle i then reads the buckets of the 27 cells around its own
@@ -30,9 +33,21 @@ pub struct BroadPhase {
     /// Per range of particles (one rayon task each): the candidate partners of the particle
     /// being scanned, and the range's pairs.
     ranges: Vec<(Vec<u32>, Vec<[u32; 2]>)>,
-    /// The pairs found, sorted by (i, j): the ranges' pairs in range order.
+    /// The admitted pairs within r_i + r_j + skin at the last search, sorted by (i, j): the
+    /// ranges' pairs in range order.
+    candidates: Vec<[u32; 2]>,
+    /// The positions and the largest radius of the last search.
+    reference: Vec<DVec3>,
+    reference_radius: f64,
+    /// Searches so far.
+    searches: u64,
+    /// The pairs in contact now, sorted by (i, j).
     pairs: Vec<[u32; 2]>,
 }
+
+/// The skin, as a fraction of the largest radius: the grid is searched again only when some
+/// particle has moved more than half of it since the last search.
+const SKIN: f64 = 1.0;
 
 /// Particles per task of the pair search: about four tasks per thread, at least 256 particles.
 fn range_len(n: usize) -> usize {
@@ -46,7 +61,13 @@ impl BroadPhase {
     }
 
     /// The pairs (i, j), i < j, sorted, with |x_i − x_j| < r_i + r_j and `admit(i, j)`.
-    /// Particles of radius 0 touch nothing. Positions must be finite.
+    /// Particles of radius 0 touch nothing. Positions must be finite; `radius` and `admit` must
+    /// be the same at every call (they are the model's).
+    ///
+    /// The grid is searched only when the candidates may be stale: first, or when a particle
+    /// has moved more than half the skin s since the last search. A pair in contact now,
+    /// d < R, was then closer than R + 2·(s/2), so it is among the candidates of that search,
+    /// which kept every admitted pair within R + s; this call filters them by d < R.
     pub fn pairs(
         &mut self,
         x: &[DVec3],
@@ -59,7 +80,47 @@ impl BroadPhase {
         if r_max <= 0.0 || x.len() < 2 {
             return &self.pairs;
         }
-        let cell = 2.0 * r_max;
+        let skin = SKIN * r_max;
+        let moved = || {
+            x.par_iter()
+                .zip(&self.reference)
+                .map(|(a, b)| a.distance_squared(*b))
+                .reduce(|| 0.0, f64::max)
+        };
+        let stale = self.reference.len() != x.len()
+            || self.reference_radius != r_max
+            || moved() > 0.25 * skin * skin;
+        if stale {
+            self.search(x, radius, skin, admit);
+            self.reference.clear();
+            self.reference.extend_from_slice(x);
+            self.reference_radius = r_max;
+            self.searches += 1;
+        }
+        self.pairs
+            .extend(self.candidates.iter().copied().filter(|&[i, j]| {
+                let (i, j) = (i as usize, j as usize);
+                let reach = radius[i] + radius[j];
+                x[i].distance_squared(x[j]) < reach * reach
+            }));
+        &self.pairs
+    }
+
+    /// How many times the grid has been searched.
+    pub fn searches(&self) -> u64 {
+        self.searches
+    }
+
+    /// The admitted pairs closer than r_i + r_j + `margin`, into `candidates`.
+    fn search(
+        &mut self,
+        x: &[DVec3],
+        radius: &[f64],
+        margin: f64,
+        admit: impl Fn(usize, usize) -> bool + Sync,
+    ) {
+        let r_max = radius.iter().copied().fold(0.0, f64::max);
+        let cell = 2.0 * r_max + margin;
         let buckets = (2 * x.len()).next_power_of_two();
         self.sort(x, cell, buckets);
         let len = range_len(x.len());
@@ -86,7 +147,7 @@ impl BroadPhase {
                     partners.dedup();
                     for &j in partners.iter() {
                         let j = j as usize;
-                        let reach = radius[i] + radius[j];
+                        let reach = radius[i] + radius[j] + margin;
                         if radius[j] > 0.0
                             && x[i].distance_squared(x[j]) < reach * reach
                             && admit(i, j)
@@ -96,10 +157,10 @@ impl BroadPhase {
                     }
                 }
             });
+        self.candidates.clear();
         for (_, pairs) in &self.ranges {
-            self.pairs.extend_from_slice(pairs);
+            self.candidates.extend_from_slice(pairs);
         }
-        &self.pairs
     }
 
     /// The counting sort of the particles by bucket.
@@ -139,7 +200,9 @@ impl BroadPhase {
             + self.sorted.capacity() * 4
             + self.bucket_of.capacity() * 4
             + self.cell_of.capacity() * 12
-            + self.pairs.capacity() * 8) as u64
+            + self.pairs.capacity() * 8
+            + self.candidates.capacity() * 8
+            + self.reference.capacity() * 24) as u64
             + self
                 .ranges
                 .iter()
@@ -242,6 +305,32 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Particles moving in small random steps, some beyond half the skin: every call's pairs
+    /// are the brute force's, and the grid is searched again only on some calls.
+    #[test]
+    fn moving_particles_keep_their_pairs_exact() {
+        let mut bp = BroadPhase::new();
+        let (mut x, r) = cloud(600, 0.3, 5);
+        let mut rng = Rng::new(6);
+        let admit = |i: usize, j: usize| !(i + j).is_multiple_of(7);
+        for call in 0..60 {
+            let step = if call % 20 == 19 { 0.02 } else { 0.001 };
+            for p in &mut x {
+                *p += rng.vec(step);
+            }
+            assert_eq!(
+                bp.pairs(&x, &r, admit).to_vec(),
+                brute_force(&x, &r, admit),
+                "call {call}"
+            );
+        }
+        let searches = bp.searches();
+        assert!(
+            (3..60).contains(&searches),
+            "{searches} searches in 60 calls"
+        );
     }
 
     #[test]

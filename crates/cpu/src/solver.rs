@@ -138,9 +138,9 @@ impl Solver for CpuSolver {
                 }
                 let mut bad = stepper.step(model, surfaces, state, timings);
                 if let (Some((contact, start)), None) = (body_contact.as_mut(), bad) {
-                    timings.time("body contact", || contact.respond(model, start, state));
-                    // Finite in, finite out, unless an impulse overflows.
-                    bad = timings.time("finiteness", || crate::first_non_finite(state));
+                    bad = timings
+                        .time("body contact", || contact.respond(model, start, state))
+                        .map(|i| (i, crate::non_finite_what(state, i)));
                 }
                 *done += 1;
                 if let Some((i, what)) = bad {
