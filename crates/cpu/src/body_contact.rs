@@ -1,18 +1,35 @@
-//! Contact between particles of bodies, applied after each step (every integrator): pairs (i, j)
-//! of different bodies, or of one body with `self_contact` beyond its rest neighbourhood
-//! ([`Contacts::admits`]), closer than the sum of their radii, d = |x_i − x_j| < R = r_i + r_j.
+//! Contact between particles of bodies: pairs (i, j) of different bodies, or of one body with
+//! `self_contact` beyond its rest neighbourhood ([`Contacts::admits`]), closer than the sum of
+//! their radii, d = |x_i − x_j| < R = r_i + r_j.
 //!
-//! For each pair, with n = (x_i − x_j)/d, w = 1/m, and the relative velocity u = v_i − v_j:
+//! Within the explicit integrators' stages, each pair that was in contact at the start of the
+//! step pushes apart with a penalty force ([`Partners`]), so that a resting stack is held by
+//! forces, as terrain holds a body (a pair that meets within the step is an impact, left to the
+//! response): a critically damped spring along n = (x_i − x_j)/d,
+//!
+//!   F = max(0, k (R − d) − c (u·n)) n,   k = κ m_red / h²,   c = 2 √(k m_red),
+//!
+//! with m_red = 1/(w_i + w_j) and κ = [`PENALTY`]: the pair's own oscillation is ω h = √κ, well
+//! inside every explicit integrator's stability, and its overlap under a load L is L h²/(κ m_red)
+//! (micrometres for a body resting on another at h = 1e-4 s). It is +F on i and −F on j,
+//! computed for the pair (min, max) by both particles, so the two are bit-equal and opposite.
+//!
+//! After each step (every integrator), the response; for each pair, with w = 1/m and the
+//! relative velocity u = v_i − v_j:
 //!
 //! - if u·n < 0 (approaching), a normal impulse J_n = (u_n' − u·n)/(w_i + w_j) takes the
 //!   relative normal velocity to u_n' = −k_r·u·n on a fresh impact and to 0 otherwise; a fresh
 //!   impact is what it is against terrain (docs/physics.md): the pair started the step apart
 //!   (d_start ≥ R) and approaches faster than a fall from rest through the contact distance ε
 //!   at the step's own relative normal acceleration a_n, (u·n)² > 2·a_n·ε;
-//! - friction on the relative tangential velocity u_t: Coulomb, the impulse that stops the slip,
-//!   |u_t|/(w_i + w_j), if it is at most μ·J_n (static), else μ·J_n against u_t (kinetic);
-//!   viscous, k_f·J_n·|u_t| against u_t, capped at the impulse that stops the slip;
-//! - if d < R, the pair is pushed apart to d = R, each particle by its share w/(w_i + w_j).
+//! - friction on the relative tangential velocity u_t, with the pair pressed by
+//!   J = J_n + h·|F| (the impulse and the penalty force over the step): Coulomb, the impulse that
+//!   stops the slip, |u_t|/(w_i + w_j), if it is at most μ·J (static), else μ·J against u_t
+//!   (kinetic); viscous, k_f·J·|u_t| against u_t, capped at the impulse that stops the slip;
+//! - if d < (1 − [`SLOP`])·R, the pair is pushed apart to that distance, each particle by its
+//!   share w/(w_i + w_j): the penalty force holds overlaps far smaller, and a push within the
+//!   slop would move particles with no force, which their springs answer with a chatter.
+//!   Implicit Euler has no penalty force in its solve (yet): there the push goes to d = R.
 //!
 //! Every pair's impulse and push is computed from the state after the step, before any is
 //! applied (one Jacobi sweep), then added to i and subtracted from j in pair order: equal and
@@ -21,15 +38,117 @@
 
 use glam::DVec3;
 use rayon::prelude::*;
-use softbody_scene::{Contacts, FrictionModel, Model, State};
+use softbody_scene::{FrictionModel, Integrator, Model, State};
 
 use crate::broad_phase::BroadPhase;
 use crate::vec_bytes;
 
-/// The broad phase and the per-pair results of the response.
+/// κ: the penalty's stiffness in units of m_red/h² (ω h = √κ ≈ 0.32).
+pub const PENALTY: f64 = 0.1;
+
+/// The overlap, as a fraction of R, that the response leaves to the penalty force.
+pub const SLOP: f64 = 0.1;
+
+/// Forces between particles that the explicit stages add to the springs' (a generic parameter
+/// of the integrators, so that a model whose bodies cannot touch pays nothing).
+pub trait PairForces: Sync {
+    /// The force on particle i at the stage state (x, v).
+    fn force(&self, model: &Model, i: usize, x: &[DVec3], v: &[DVec3]) -> DVec3;
+}
+
+/// No forces between particles.
+pub struct NoPairs;
+
+impl PairForces for NoPairs {
+    #[inline(always)]
+    fn force(&self, _: &Model, _: usize, _: &[DVec3], _: &[DVec3]) -> DVec3 {
+        DVec3::ZERO
+    }
+}
+
+/// Each particle's partners in contact at the start of the step (both directions, ascending),
+/// and their penalty forces.
+#[derive(Debug, Default)]
+pub struct Partners {
+    offsets: Vec<u32>,
+    entries: Vec<u32>,
+}
+
+impl Partners {
+    /// The CSR of `pairs` (sorted by (i, j)): particle p's partners are the k of pairs
+    /// (k, p), which come first and ascending, then the j of pairs (p, j), ascending.
+    fn rebuild(&mut self, n: usize, pairs: &[[u32; 2]]) {
+        self.offsets.clear();
+        self.offsets.resize(n + 1, 0);
+        for &[i, j] in pairs {
+            self.offsets[i as usize + 1] += 1;
+            self.offsets[j as usize + 1] += 1;
+        }
+        for k in 0..n {
+            self.offsets[k + 1] += self.offsets[k];
+        }
+        self.entries.clear();
+        self.entries.resize(2 * pairs.len(), 0);
+        // offsets[p] walks to p's end, then is restored below.
+        for &[i, j] in pairs {
+            for (p, q) in [(i, j), (j, i)] {
+                let slot = &mut self.offsets[p as usize];
+                self.entries[*slot as usize] = q;
+                *slot += 1;
+            }
+        }
+        for k in (1..=n).rev() {
+            self.offsets[k] = self.offsets[k - 1];
+        }
+        self.offsets[0] = 0;
+    }
+}
+
+impl PairForces for Partners {
+    /// The penalty forces on particle i at the stage state (x, v), summed over its partners in
+    /// ascending order.
+    #[inline(always)]
+    fn force(&self, model: &Model, i: usize, x: &[DVec3], v: &[DVec3]) -> DVec3 {
+        let run = self.offsets[i] as usize..self.offsets[i + 1] as usize;
+        self.entries[run].iter().fold(DVec3::ZERO, |f, &j| {
+            let j = j as usize;
+            if i < j {
+                f + penalty(model, [i, j], x, v)
+            } else {
+                f - penalty(model, [j, i], x, v)
+            }
+        })
+    }
+}
+
+/// The penalty force on a of the pair [a, b] (a < b), 0 unless they overlap.
+#[inline(never)]
+fn penalty(model: &Model, [a, b]: [usize; 2], x: &[DVec3], v: &[DVec3]) -> DVec3 {
+    let reach = model.contact.radius[a] + model.contact.radius[b];
+    let offset = x[a] - x[b];
+    let d2 = offset.length_squared();
+    let w = model.inv_mass[a] + model.inv_mass[b];
+    if d2 >= reach * reach || d2 == 0.0 || w == 0.0 {
+        return DVec3::ZERO;
+    }
+    let d = d2.sqrt();
+    let n = offset / d;
+    let (k, c) = penalty_coefficients(model.simulation.dt, 1.0 / w);
+    let un = (v[a] - v[b]).dot(n);
+    (k * (reach - d) - c * un).max(0.0) * n
+}
+
+/// (k, c) of the penalty for a pair of reduced mass `m_red` at step `h`.
+fn penalty_coefficients(h: f64, m_red: f64) -> (f64, f64) {
+    let k = PENALTY * m_red / (h * h);
+    (k, 2.0 * (k * m_red).sqrt())
+}
+
+/// The broad phase, the stages' partners and the per-pair results of the response.
 #[derive(Debug, Default)]
 pub struct BodyContact {
     broad: BroadPhase,
+    partners: Partners,
     /// (velocity impulse P, position push Δ) of each pair: i gets +w_i·(P, Δ), j −w_j·(P, Δ).
     results: Vec<(DVec3, DVec3)>,
     pairs: Vec<[u32; 2]>,
@@ -39,6 +158,21 @@ impl BodyContact {
     /// Empty: the buffers grow on the first step.
     pub fn new() -> BodyContact {
         BodyContact::default()
+    }
+
+    /// Makes the partners of the step that starts at `state` ready: the pairs in contact
+    /// there.
+    pub fn prepare(&mut self, model: &Model, state: &State) {
+        let c = &model.contact;
+        let pairs = self.broad.pairs(&state.x, &c.radius, |i, j| {
+            c.admits(&model.adjacency, &model.springs, i, j)
+        });
+        self.partners.rebuild(model.len(), pairs);
+    }
+
+    /// The partners the stages' penalty forces act between.
+    pub fn partners(&self) -> &Partners {
+        &self.partners
     }
 
     /// The response of the state `now` at the end of a step that started at `start`; returns
@@ -53,22 +187,10 @@ impl BodyContact {
         self.pairs.extend_from_slice(pairs);
         let (x, v) = (&now.x[..], &now.v[..]);
         let w = &model.inv_mass[..];
-        let sim = &model.simulation;
         self.results.clear();
         self.pairs
             .par_iter()
-            .map(|&[i, j]| {
-                let (i, j) = (i as usize, j as usize);
-                pair(
-                    c,
-                    sim.dt,
-                    sim.contact_distance,
-                    (w[i], w[j]),
-                    [i, j],
-                    (x, v),
-                    start,
-                )
-            })
+            .map(|&[i, j]| pair(model, [i as usize, j as usize], (x, v), start))
             .collect_into_vec(&mut self.results);
         let (x, v) = (&mut now.x, &mut now.v);
         for (&[i, j], &(p, d)) in self.pairs.iter().zip(&self.results) {
@@ -88,21 +210,26 @@ impl BodyContact {
 
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
-        self.broad.memory_bytes() + vec_bytes(&self.results) + vec_bytes(&self.pairs)
+        self.broad.memory_bytes()
+            + vec_bytes(&self.results)
+            + vec_bytes(&self.pairs)
+            + vec_bytes(&self.partners.offsets)
+            + vec_bytes(&self.partners.entries)
     }
 }
 
 /// The impulse P and push Δ of one pair, per unit of inverse mass (see the module doc).
 fn pair(
-    c: &Contacts,
-    h: f64,
-    eps: f64,
-    (wi, wj): (f64, f64),
+    model: &Model,
     [i, j]: [usize; 2],
     (x, v): (&[DVec3], &[DVec3]),
     start: &State,
 ) -> (DVec3, DVec3) {
-    let w = wi + wj;
+    let c = &model.contact;
+    let sim = &model.simulation;
+    let (h, eps) = (sim.dt, sim.contact_distance);
+    let implicit = sim.integrator == Integrator::ImplicitEuler;
+    let w = model.inv_mass[i] + model.inv_mass[j];
     let reach = c.radius[i] + c.radius[j];
     let offset = x[i] - x[j];
     let d = offset.length();
@@ -111,12 +238,15 @@ fn pair(
         return (DVec3::ZERO, DVec3::ZERO);
     }
     let n = offset / d;
-    let push = (reach - d).max(0.0) / w * n;
+    let slop = if implicit { 0.0 } else { SLOP };
+    let push = ((1.0 - slop) * reach - d).max(0.0) / w * n;
     let u = v[i] - v[j];
     let un = u.dot(n);
     if un >= 0.0 {
         return (DVec3::ZERO, push);
     }
+    let (k, c_damp) = penalty_coefficients(h, 1.0 / w);
+    let pressed = h * (k * (reach - d).max(0.0) - c_damp * un).max(0.0);
     let laws = &c.laws;
     let u0 = start.v[i] - start.v[j];
     let a_n = (-(u - u0).dot(n) / h).max(0.0);
@@ -126,12 +256,13 @@ fn pair(
     let jn = (target - un) / w;
     let ut = u - un * n;
     let slip = ut.length();
+    let press = jn + pressed;
     let jt = if slip > 0.0 {
         let stop = slip / w;
         let jt = match laws.friction_model {
-            FrictionModel::Coulomb if stop <= laws.friction * jn => stop,
-            FrictionModel::Coulomb => laws.friction * jn,
-            FrictionModel::Viscous => (laws.friction * jn * slip).min(stop),
+            FrictionModel::Coulomb if stop <= laws.friction * press => stop,
+            FrictionModel::Coulomb => laws.friction * press,
+            FrictionModel::Viscous => (laws.friction * press * slip).min(stop),
         };
         -jt / slip * ut
     } else {

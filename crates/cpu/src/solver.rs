@@ -133,10 +133,12 @@ impl Solver for CpuSolver {
         let done = &mut self.steps;
         self.pool.install(|| {
             for _ in 0..steps {
-                if let Some((_, start)) = body_contact {
+                if let Some((contact, start)) = body_contact.as_mut() {
                     start.clone_from(state);
+                    timings.time("body contact", || contact.prepare(model, state));
                 }
-                let mut bad = stepper.step(model, surfaces, state, timings);
+                let pairs = body_contact.as_ref().map(|(contact, _)| contact.partners());
+                let mut bad = stepper.step(model, surfaces, pairs, state, timings);
                 if let (Some((contact, start)), None) = (body_contact.as_mut(), bad) {
                     bad = timings
                         .time("body contact", || contact.respond(model, start, state))

@@ -4,13 +4,17 @@ use softbody_scene::{Model, State};
 use softbody_terrain::Surface;
 
 use super::Passes;
+use crate::body_contact::PairForces;
 
 /// One step, collision response included; returns the first particle that is not finite.
 pub fn step(
     passes: &mut Passes,
     model: &Model,
     surfaces: &[Surface],
+    pairs: &impl PairForces,
     state: &mut State,
 ) -> Option<usize> {
-    passes.euler_step(model, surfaces, state, |x, v, a, h| (x + h * v, v + h * a))
+    passes.euler_step(model, surfaces, pairs, state, |x, v, a, h| {
+        (x + h * v, v + h * a)
+    })
 }

@@ -8,6 +8,7 @@ use glam::DVec3;
 use softbody_scene::{Model, State};
 
 use super::{Passes, finish};
+use crate::body_contact::PairForces;
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
 use crate::vec_bytes;
@@ -41,6 +42,7 @@ impl Midpoint {
         &mut self,
         model: &Model,
         surfaces: &[Surface],
+        pairs: &impl PairForces,
         state: &mut State,
     ) -> Option<usize> {
         let h = model.simulation.dt;
@@ -54,7 +56,14 @@ impl Midpoint {
             v,
             (&mut self.mid_x[..], &mut self.mid_v[..]),
             |i, springs, (xm, vm)| {
-                let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+                let a = acceleration_with(
+                    model,
+                    surfaces,
+                    i,
+                    x[i],
+                    v[i],
+                    springs + pairs.force(model, i, x, v),
+                );
                 *xm = x[i] + 0.5 * h * v[i];
                 *vm = v[i] + 0.5 * h * a;
                 true
@@ -69,7 +78,14 @@ impl Midpoint {
             vm,
             (&mut next_x[..], &mut next_v[..]),
             |i, springs, (xn, vn)| {
-                let a = acceleration_with(model, surfaces, i, xm[i], vm[i], springs);
+                let a = acceleration_with(
+                    model,
+                    surfaces,
+                    i,
+                    xm[i],
+                    vm[i],
+                    springs + pairs.force(model, i, xm, vm),
+                );
                 *xn = x[i] + h * vm[i];
                 *vn = v[i] + h * a;
                 finish(model, surfaces, i, (x[i], v[i]), xn, vn)

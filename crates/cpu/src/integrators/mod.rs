@@ -23,6 +23,7 @@ use glam::DVec3;
 use softbody_scene::{Integrator, Model, State, Statistics, Timings};
 use softbody_terrain::Surface;
 
+use crate::body_contact::{NoPairs, PairForces, Partners};
 use crate::collision_response::respond_one;
 use crate::forces::acceleration_with;
 use crate::pipeline::{Plan, pass};
@@ -67,21 +68,38 @@ impl Stepper {
         &mut self,
         model: &Model,
         surfaces: &[Surface],
+        pairs: Option<&Partners>,
         state: &mut State,
         timings: &mut Timings,
     ) -> Option<(usize, &'static str)> {
+        // Each integrator once without forces between particles and once with them.
+        macro_rules! with_pairs {
+            (|$q:ident| $body:expr) => {
+                match pairs {
+                    None => {
+                        let $q = &NoPairs;
+                        $body
+                    }
+                    Some($q) => $body,
+                }
+            };
+        }
         let explicit = |timings: &mut Timings, step: &mut dyn FnMut() -> Option<usize>| {
             timings.time(EXPLICIT_STAGE, step)
         };
         let bad = match self {
             Stepper::ExplicitEuler(p) => explicit(timings, &mut || {
-                explicit_euler::step(p, model, surfaces, state)
+                with_pairs!(|q| explicit_euler::step(p, model, surfaces, q, state))
             }),
             Stepper::SymplecticEuler(p) => explicit(timings, &mut || {
-                symplectic_euler::step(p, model, surfaces, state)
+                with_pairs!(|q| symplectic_euler::step(p, model, surfaces, q, state))
             }),
-            Stepper::Midpoint(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
-            Stepper::Rk4(s) => explicit(timings, &mut || s.step(model, surfaces, state)),
+            Stepper::Midpoint(s) => explicit(timings, &mut || {
+                with_pairs!(|q| s.step(model, surfaces, q, state))
+            }),
+            Stepper::Rk4(s) => explicit(timings, &mut || {
+                with_pairs!(|q| s.step(model, surfaces, q, state))
+            }),
             Stepper::ImplicitEuler(s) => {
                 s.step(model, surfaces, state, timings);
                 return timings.time("finiteness", || crate::first_non_finite(state));
@@ -144,6 +162,7 @@ impl Passes {
         &mut self,
         model: &Model,
         surfaces: &[Surface],
+        pairs: &impl PairForces,
         state: &mut State,
         update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
     ) -> Option<usize> {
@@ -160,7 +179,8 @@ impl Passes {
             // update.
             #[inline(always)]
             |i, springs, (xn, vn)| {
-                let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+                let f = springs + pairs.force(model, i, x, v);
+                let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
                 (*xn, *vn) = update(x[i], v[i], a, h);
                 finish(model, surfaces, i, (x[i], v[i]), xn, vn)
             },

@@ -11,6 +11,7 @@ use glam::DVec3;
 use softbody_scene::{Model, State};
 
 use super::{Passes, finish};
+use crate::body_contact::PairForces;
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
 use crate::vec_bytes;
@@ -52,6 +53,7 @@ impl Rk4 {
         &mut self,
         model: &Model,
         surfaces: &[Surface],
+        pairs: &impl PairForces,
         state: &mut State,
     ) -> Option<usize> {
         let h = model.simulation.dt;
@@ -72,7 +74,14 @@ impl Rk4 {
                 &mut self.sum_v[..],
             ),
             |i, springs, (xs, vs, sum_x, sum_v)| {
-                let a = acceleration_with(model, surfaces, i, x[i], v[i], springs);
+                let a = acceleration_with(
+                    model,
+                    surfaces,
+                    i,
+                    x[i],
+                    v[i],
+                    springs + pairs.force(model, i, x, v),
+                );
                 *sum_x = v[i];
                 *sum_v = a;
                 *xs = x[i] + 0.5 * h * v[i];
@@ -96,7 +105,14 @@ impl Rk4 {
                     &mut self.sum_v[..],
                 ),
                 |i, springs, (xn, vn, sum_x, sum_v)| {
-                    let a = acceleration_with(model, surfaces, i, xs[i], vs[i], springs);
+                    let a = acceleration_with(
+                        model,
+                        surfaces,
+                        i,
+                        xs[i],
+                        vs[i],
+                        springs + pairs.force(model, i, xs, vs),
+                    );
                     *sum_x += weight * vs[i];
                     *sum_v += weight * a;
                     *xn = x[i] + next * vs[i];
@@ -118,7 +134,14 @@ impl Rk4 {
             vs,
             (&mut next_x[..], &mut next_v[..]),
             |i, springs, (xn, vn)| {
-                let a = acceleration_with(model, surfaces, i, xs[i], vs[i], springs);
+                let a = acceleration_with(
+                    model,
+                    surfaces,
+                    i,
+                    xs[i],
+                    vs[i],
+                    springs + pairs.force(model, i, xs, vs),
+                );
                 let sx = sum_x[i] + 1.0 * vs[i];
                 let sv = sum_v[i] + 1.0 * a;
                 *xn = x[i] + h / 6.0 * sx;
