@@ -272,7 +272,11 @@ fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
             ..BodyContact::default()
         };
         let floor = plane(DVec3::ZERO, DVec3::Y, 0.3, 0.5);
-        let scene = scene(sim, vec![cuboid_body(lower.clone()), upper.clone()], vec![floor]);
+        let scene = scene(
+            sim,
+            vec![cuboid_body(lower.clone()), upper.clone()],
+            vec![floor],
+        );
         let Some(mut solver) = open(backend, &scene)? else {
             return Ok(());
         };
