@@ -1,6 +1,6 @@
 //! Contact between particles of bodies: pairs (i, j) of different bodies, or of one body with
-//! `self_contact` beyond its rest neighbourhood ([`Contacts::admits`]), closer than the sum of
-//! their radii, d = |x_i − x_j| < R = r_i + r_j.
+//! `self_contact` beyond its rest neighbourhood ([`softbody_scene::Contacts::admits`]), closer
+//! than the sum of their radii, d = |x_i − x_j| < R = r_i + r_j.
 //!
 //! Within the explicit integrators' stages, each pair that was in contact at the start of the
 //! step pushes apart with a penalty force ([`Partners`]), so that a resting stack is held by
