@@ -32,7 +32,7 @@ fn main() -> ExitCode {
 const SIMULATED: f64 = 0.5;
 
 /// The scenes the README's table lists.
-const DOCUMENTED: [&str; 9] = [
+const DOCUMENTED: [&str; 10] = [
     "jelly-on-ground",
     "jelly-on-slope",
     "jelly-on-slope-sticky",
@@ -42,6 +42,7 @@ const DOCUMENTED: [&str; 9] = [
     "jelly-on-mesh",
     "stiff-cube-implicit",
     "two-cubes-head-on",
+    "pile-in-bowl",
 ];
 
 fn scene_files() -> Vec<PathBuf> {
