@@ -31,6 +31,10 @@ fn main() -> ExitCode {
                 "a_stack_of_two_cubes_comes_to_rest_without_interpenetrating",
                 a_stack_comes_to_rest,
             ),
+            (
+                "self_contact_keeps_a_folding_bar_from_passing_through_itself",
+                self_contact_keeps_a_folding_bar_apart,
+            ),
         ],
     )
 }
@@ -308,6 +312,71 @@ fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
                 "{integrator}: kinetic energy up to {resting:e} J after 2.5 s (rest: < {} J)",
                 1e-9 * MASS
             ));
+        }
+    }
+    all(failures)
+}
+
+/// `scenes/bar-folding.toml` (a soft bar thrown down on its end, which buckles and folds onto
+/// itself), 1.6 s: with self-contact no two of its particles more than two lattice cells apart
+/// come closer than 90% of the sum of their radii (4 cm) at any 10 ms; without it the folds
+/// pass through each other (closer than half of it) — so the case does test something.
+/// Symplectic Euler (the scene's), midpoint and RK4. Measured: 0.040 m with, 0.003 m without.
+fn self_contact_keeps_a_folding_bar_apart(backend: &Backend) -> Result<(), Failed> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/bar-folding.toml");
+    let base = Scene::from_file(&path).map_err(|e| e.to_string())?;
+    let mut failures = Vec::new();
+    for integrator in [
+        Integrator::SymplecticEuler,
+        Integrator::Midpoint,
+        Integrator::Rk4,
+    ] {
+        for self_contact in [true, false] {
+            let mut scene = base.clone();
+            scene.simulation.integrator = integrator;
+            scene.simulation.duration = 1.6;
+            scene.bodies[0].self_contact = self_contact;
+            let (model, _) = Model::build(&scene);
+            let reach = 2.0 * model.contact.radius[0];
+            let lattice = &model.contact.lattice;
+            let apart = |i: usize, j: usize| match (lattice[i], lattice[j]) {
+                (Some(a), Some(b)) => (0..3).any(|k| (a[k] - b[k]).abs() > 2),
+                _ => true,
+            };
+            let solver = if self_contact {
+                open(backend, &scene)?
+            } else {
+                Some(backend.solver(&scene)?)
+            };
+            let Some(mut solver) = solver else {
+                return Ok(());
+            };
+            let mut closest = f64::INFINITY;
+            for _ in 0..160 {
+                solver.advance(100)?;
+                let x = &solver.state()?.x;
+                for i in 0..x.len() {
+                    for j in i + 1..x.len() {
+                        if apart(i, j) {
+                            closest = closest.min(x[i].distance(x[j]));
+                        }
+                    }
+                }
+            }
+            println!(
+                "{integrator}, self_contact = {self_contact}: closest {closest:.4} m (R = {reach} m)"
+            );
+            if self_contact && closest < 0.9 * reach {
+                failures.push(format!(
+                    "{integrator}: with self-contact two parts of the bar came to {closest} m (R = {reach} m)"
+                ));
+            }
+            if !self_contact && closest >= 0.5 * reach {
+                failures.push(format!(
+                    "{integrator}: without self-contact the bar did not fold through itself \
+                     (closest {closest} m): the case tests nothing"
+                ));
+            }
         }
     }
     all(failures)

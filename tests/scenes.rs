@@ -32,7 +32,7 @@ fn main() -> ExitCode {
 const SIMULATED: f64 = 0.5;
 
 /// The scenes the README's table lists.
-const DOCUMENTED: [&str; 10] = [
+const DOCUMENTED: [&str; 11] = [
     "jelly-on-ground",
     "jelly-on-slope",
     "jelly-on-slope-sticky",
@@ -43,6 +43,7 @@ const DOCUMENTED: [&str; 10] = [
     "stiff-cube-implicit",
     "two-cubes-head-on",
     "pile-in-bowl",
+    "bar-folding",
 ];
 
 fn scene_files() -> Vec<PathBuf> {
