@@ -12,8 +12,8 @@ use std::time::Instant;
 
 use glam::DVec3;
 use softbody_scene::{
-    Body, BodyShape, Cuboid, FrictionModel, Integrator, Scene, Simulation, Solver, SpringParams,
-    StepError, Terrain, TerrainShape,
+    Body, BodyContact, BodyShape, Cuboid, FrictionModel, Integrator, Scene, Simulation, Solver,
+    SpringParams, StepError, Terrain, TerrainShape,
 };
 
 use crate::{Backend, OpenError};
@@ -86,6 +86,72 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             friction_model: FrictionModel::Coulomb,
         }],
     }
+}
+
+/// The multi-body benchmark: 27 jelly cubes of n³ particles (20 cm, 8 kg, k_s = 2000 N/m) in
+/// a 3×3×3 block with 2 cm gaps, the lowest layer 2 cm above a bowl of radius 1 m, touching
+/// each other (body restitution 0.2, friction 0.4), stepped by symplectic Euler at half the
+/// stable estimate of `softbody check`. The bench times its steps once the cubes have landed on
+/// each other.
+pub fn pile(n: u32) -> Scene {
+    let springs = Some(SpringParams {
+        stiffness: STIFFNESS,
+        damping: DAMPING,
+    });
+    let mut bodies = Vec::new();
+    for k in 0..27 {
+        let (i, j, l) = (k % 3, k / 3 % 3, k / 9);
+        let at = |c: u32| 0.22 * (f64::from(c) - 1.0);
+        bodies.push(Body {
+            name: format!("cube{k}"),
+            shape: BodyShape::Cuboid(Cuboid {
+                size: DVec3::splat(0.2),
+                resolution: [n; 3],
+                center: DVec3::new(at(i), 0.22 + 0.22 * f64::from(l), at(j)),
+                rotation: DVec3::new(5.0 * f64::from(i), 7.0 * f64::from(j), 3.0 * f64::from(l)),
+                velocity: DVec3::ZERO,
+                mass: 8.0,
+                structural: springs,
+                shear: springs,
+                bending: springs,
+            }),
+            pinned: Vec::new(),
+            contact_radius: None,
+            self_contact: false,
+        });
+    }
+    let mut scene = Scene {
+        simulation: Simulation {
+            integrator: Integrator::SymplecticEuler,
+            dt: 1e-4,
+            duration: 1.0,
+            frame_rate: 30.0,
+            gravity: DVec3::new(0.0, -9.81, 0.0),
+            drag: 0.0,
+            contact_distance: 1e-3,
+            body_contact: BodyContact {
+                restitution: 0.2,
+                friction: 0.4,
+                friction_model: FrictionModel::Coulomb,
+            },
+        },
+        bodies,
+        terrain: vec![Terrain {
+            shape: TerrainShape::Bowl {
+                center: DVec3::new(0.0, 1.0, 0.0),
+                radius: 1.0,
+            },
+            restitution: 0.2,
+            friction: 0.4,
+            friction_model: FrictionModel::Coulomb,
+        }],
+    };
+    let (model, _) = softbody_scene::Model::build(&scene);
+    if let Some(limit) = model.stable_dt() {
+        scene.simulation.dt = 0.5 * limit;
+        scene.simulation.frame_rate = 30.0f64.min(1.0 / scene.simulation.dt);
+    }
+    scene
 }
 
 /// How [`measure`] runs one size.
