@@ -59,23 +59,13 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             contact_distance: 0.0,
             body_contact: Default::default(),
         },
-        bodies: vec![Body {
-            name: "cube".into(),
-            shape: BodyShape::Cuboid(Cuboid {
-                size: DVec3::ONE,
-                resolution: [n; 3],
-                center: DVec3::new(0.5, 1.0, 0.5),
-                rotation: DVec3::ZERO,
-                velocity: DVec3::ZERO,
-                mass: 1.0,
-                structural: springs,
-                shear: springs,
-                bending: springs,
-            }),
-            pinned: Vec::new(),
-            contact_radius: None,
-            self_contact: false,
-        }],
+        bodies: vec![jelly(
+            "cube".into(),
+            (DVec3::ONE, n),
+            (DVec3::new(0.5, 1.0, 0.5), DVec3::ZERO),
+            1.0,
+            springs,
+        )],
         terrain: vec![Terrain {
             shape: TerrainShape::Plane {
                 point: DVec3::ZERO,
@@ -85,6 +75,34 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             friction: 0.0,
             friction_model: FrictionModel::Coulomb,
         }],
+    }
+}
+
+/// A cuboid body at rest of n³ particles, `(size, n)`, placed at `(center, rotation)`, with
+/// `springs` on all three families.
+fn jelly(
+    name: String,
+    (size, n): (DVec3, u32),
+    (center, rotation): (DVec3, DVec3),
+    mass: f64,
+    springs: Option<SpringParams>,
+) -> Body {
+    Body {
+        name,
+        shape: BodyShape::Cuboid(Cuboid {
+            size,
+            resolution: [n; 3],
+            center,
+            rotation,
+            velocity: DVec3::ZERO,
+            mass,
+            structural: springs,
+            shear: springs,
+            bending: springs,
+        }),
+        pinned: Vec::new(),
+        contact_radius: None,
+        self_contact: false,
     }
 }
 
@@ -102,23 +120,16 @@ pub fn pile(n: u32) -> Scene {
     for k in 0..27 {
         let (i, j, l) = (k % 3, k / 3 % 3, k / 9);
         let at = |c: u32| 0.22 * (f64::from(c) - 1.0);
-        bodies.push(Body {
-            name: format!("cube{k}"),
-            shape: BodyShape::Cuboid(Cuboid {
-                size: DVec3::splat(0.2),
-                resolution: [n; 3],
-                center: DVec3::new(at(i), 0.22 + 0.22 * f64::from(l), at(j)),
-                rotation: DVec3::new(5.0 * f64::from(i), 7.0 * f64::from(j), 3.0 * f64::from(l)),
-                velocity: DVec3::ZERO,
-                mass: 8.0,
-                structural: springs,
-                shear: springs,
-                bending: springs,
-            }),
-            pinned: Vec::new(),
-            contact_radius: None,
-            self_contact: false,
-        });
+        bodies.push(jelly(
+            format!("cube{k}"),
+            (DVec3::splat(0.2), n),
+            (
+                DVec3::new(at(i), 0.22 + 0.22 * f64::from(l), at(j)),
+                DVec3::new(5.0 * f64::from(i), 7.0 * f64::from(j), 3.0 * f64::from(l)),
+            ),
+            8.0,
+            springs,
+        ));
     }
     let mut scene = Scene {
         simulation: Simulation {

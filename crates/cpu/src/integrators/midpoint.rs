@@ -56,14 +56,8 @@ impl Midpoint {
             v,
             (&mut self.mid_x[..], &mut self.mid_v[..]),
             |i, springs, (xm, vm)| {
-                let a = acceleration_with(
-                    model,
-                    surfaces,
-                    i,
-                    x[i],
-                    v[i],
-                    springs + pairs.force(model, i, x, v),
-                );
+                let f = springs + pairs.force(model, i, x, v);
+                let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
                 *xm = x[i] + 0.5 * h * v[i];
                 *vm = v[i] + 0.5 * h * a;
                 true
@@ -78,14 +72,8 @@ impl Midpoint {
             vm,
             (&mut next_x[..], &mut next_v[..]),
             |i, springs, (xn, vn)| {
-                let a = acceleration_with(
-                    model,
-                    surfaces,
-                    i,
-                    xm[i],
-                    vm[i],
-                    springs + pairs.force(model, i, xm, vm),
-                );
+                let f = springs + pairs.force(model, i, xm, vm);
+                let a = acceleration_with(model, surfaces, i, xm[i], vm[i], f);
                 *xn = x[i] + h * vm[i];
                 *vn = v[i] + h * a;
                 finish(model, surfaces, i, (x[i], v[i]), xn, vn)

@@ -74,14 +74,8 @@ impl Rk4 {
                 &mut self.sum_v[..],
             ),
             |i, springs, (xs, vs, sum_x, sum_v)| {
-                let a = acceleration_with(
-                    model,
-                    surfaces,
-                    i,
-                    x[i],
-                    v[i],
-                    springs + pairs.force(model, i, x, v),
-                );
+                let f = springs + pairs.force(model, i, x, v);
+                let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
                 *sum_x = v[i];
                 *sum_v = a;
                 *xs = x[i] + 0.5 * h * v[i];
@@ -105,14 +99,8 @@ impl Rk4 {
                     &mut self.sum_v[..],
                 ),
                 |i, springs, (xn, vn, sum_x, sum_v)| {
-                    let a = acceleration_with(
-                        model,
-                        surfaces,
-                        i,
-                        xs[i],
-                        vs[i],
-                        springs + pairs.force(model, i, xs, vs),
-                    );
+                    let f = springs + pairs.force(model, i, xs, vs);
+                    let a = acceleration_with(model, surfaces, i, xs[i], vs[i], f);
                     *sum_x += weight * vs[i];
                     *sum_v += weight * a;
                     *xn = x[i] + next * vs[i];
@@ -134,14 +122,8 @@ impl Rk4 {
             vs,
             (&mut next_x[..], &mut next_v[..]),
             |i, springs, (xn, vn)| {
-                let a = acceleration_with(
-                    model,
-                    surfaces,
-                    i,
-                    xs[i],
-                    vs[i],
-                    springs + pairs.force(model, i, xs, vs),
-                );
+                let f = springs + pairs.force(model, i, xs, vs);
+                let a = acceleration_with(model, surfaces, i, xs[i], vs[i], f);
                 let sx = sum_x[i] + 1.0 * vs[i];
                 let sv = sum_v[i] + 1.0 * a;
                 *xn = x[i] + h / 6.0 * sx;
