@@ -116,12 +116,7 @@ fn a_head_on_collision_conserves_momentum(backend: &Backend) -> Result<(), Faile
         };
         let (model, initial) = Model::build(&scene);
         let p0 = momentum(&model, &initial);
-        let scale: f64 = model
-            .mass
-            .iter()
-            .zip(&initial.v)
-            .map(|(m, v)| m * v.length())
-            .sum();
+        let scale = momentum_scale(&model, &initial);
         let per_frame = (0.01 / scene.simulation.dt).round() as u64;
         let mut worst = 0.0f64;
         let centre = |x: &[DVec3], range: std::ops::Range<usize>| {

@@ -11,9 +11,9 @@ use std::process::ExitCode;
 use glam::DVec3;
 use softbody::cpu::integrators::implicit_euler::system::System;
 use softbody::scene::ExplicitSpring;
-use softbody::{Integrator, Model, State};
+use softbody::{Integrator, State};
 use softbody_testkit::scenes::*;
-use softbody_testkit::{Backend, Failed, Rng, ensure};
+use softbody_testkit::{Backend, Failed, ensure};
 
 fn main() -> ExitCode {
     softbody_testkit::run(
@@ -333,29 +333,10 @@ fn measured_orders_of_convergence(backend: &Backend) -> Result<(), Failed> {
 /// `crates/cpu/tests`.)
 fn internal_springs_conserve_linear_momentum(backend: &Backend) -> Result<(), Failed> {
     for integrator in Integrator::ALL {
-        let mut sim = simulation(integrator, 1e-3);
-        sim.gravity = DVec3::ZERO;
-        let params = softbody::scene::SpringParams {
-            stiffness: 50.0,
-            damping: 0.1,
-        };
-        let cube = cuboid(DVec3::splat(0.3), [3, 3, 3], DVec3::ZERO, 1.0, params);
-        let scene = scene(sim, vec![cuboid_body(cube)], vec![]);
-        let (mut model, mut state) = Model::build(&scene);
-        model.simulation.dt = 0.25 * model.stable_dt().unwrap();
+        let (model, state) = tumbling_cube(integrator);
         let h = model.simulation.dt;
-        let mut rng = Rng::new(7);
-        for (x, v) in state.x.iter_mut().zip(&mut state.v) {
-            *x += rng.vec(0.03);
-            *v = DVec3::new(0.3, -0.2, 0.1) + rng.vec(0.5);
-        }
         let p0 = momentum(&model, &state);
-        let scale: f64 = model
-            .mass
-            .iter()
-            .zip(&state.v)
-            .map(|(m, v)| m * v.length())
-            .sum();
+        let scale = momentum_scale(&model, &state);
         let n = model.len();
         let mut system = System::new(&model);
         let mut b = vec![DVec3::ZERO; n];

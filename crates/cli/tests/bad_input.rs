@@ -641,3 +641,14 @@ fn negative_body_friction_is_refused() {
     let text = SIM.replace("duration", "body_friction = -0.2\nduration") + CUBE;
     assert_refused(&text, "simulation.body_friction", "body_friction");
 }
+
+#[test]
+fn contact_radius_beyond_the_lattice_spacing_is_refused() {
+    // The cube's spacing is 1 m (2 particles per 1 m edge).
+    let text = format!("{SIM}{CUBE}contact_radius = 1.5\n");
+    let message = assert_refused(&text, "body[0].contact_radius", "contact_radius");
+    assert!(
+        message.contains("smallest lattice spacing, 1 m"),
+        "{message}"
+    );
+}

@@ -336,26 +336,8 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
 /// allows is bounded by the CG tolerance in `tests/integrators.rs`, on every backend.)
 #[test]
 fn implicit_steps_change_momentum_by_minus_the_residual_sum() {
-    let mut sim = simulation(Integrator::ImplicitEuler, 1e-3);
-    sim.gravity = DVec3::ZERO;
-    let params = SpringParams {
-        stiffness: 50.0,
-        damping: 0.1,
-    };
-    let cube = cuboid(DVec3::splat(0.3), [3, 3, 3], DVec3::ZERO, 1.0, params);
-    let (mut model, mut state) = Model::build(&scene(sim, vec![cuboid_body(cube)], vec![]));
-    model.simulation.dt = 0.25 * model.stable_dt().unwrap();
-    let mut rng = Rng::new(7);
-    for (x, v) in state.x.iter_mut().zip(&mut state.v) {
-        *x += rng.vec(0.03);
-        *v = DVec3::new(0.3, -0.2, 0.1) + rng.vec(0.5);
-    }
-    let scale: f64 = model
-        .mass
-        .iter()
-        .zip(&state.v)
-        .map(|(m, v)| m * v.length())
-        .sum();
+    let (model, state) = tumbling_cube(Integrator::ImplicitEuler);
+    let scale = momentum_scale(&model, &state);
     let n = model.len();
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];

@@ -32,7 +32,7 @@ use common::{BOUNCY_PLANE, PLANE, SLOPE, step_error};
 use glam::DVec3;
 use softbody_cpu::{CpuSolver, collision_response, energy, forces, spring_forces};
 use softbody_gpu::{Gpu, GpuSolver};
-use softbody_scene::{Integrator, Model, Scene, Solver, State, StepError};
+use softbody_scene::{Integrator, Model, Scene, Solver, State, Statistics, StepError};
 use softbody_terrain::Surface;
 use softbody_testkit::{Failed, GpuTest, Rng};
 
@@ -479,7 +479,33 @@ fn run_against_cpu(gpu: &Arc<Gpu>, integrator: Integrator, terrain: &str) -> Res
         _ => ("bouncy plane", BOUNCY),
     };
     let scene = cube_scene(integrator, 2.5e-4, 0.5, terrain);
-    let (model, state) = Model::build(&scene);
+    let run = side_by_side(gpu, &scene)?;
+    let name = format!("{integrator} on the {terrain_name}");
+    println!("{name}: {run}");
+    bounds.check(&name, &run)
+}
+
+/// A scene run on the GPU and on the CPU (one thread), compared at every frame.
+struct SideBySide {
+    steps: u64,
+    /// Seconds each took, energies included.
+    seconds: (f64, f64),
+    /// The largest particle position and velocity differences, m and m/s.
+    dx: f64,
+    dv: f64,
+    /// The CPU's peak particle speed, m/s.
+    peak: f64,
+    /// The largest centre-of-mass difference, m.
+    dc: f64,
+    /// The largest total-energy difference, J, and the run driver's energy scale.
+    de: f64,
+    scale: f64,
+    /// The solvers' counters at the end.
+    statistics: (Statistics, Statistics),
+}
+
+fn side_by_side(gpu: &Arc<Gpu>, scene: &Scene) -> Result<SideBySide, Failed> {
+    let (model, state) = Model::build(scene);
     let sim = model.simulation;
     let total_mass: f64 = model.mass.iter().sum();
     let mut g = open(gpu, &model, &state)?;
@@ -487,16 +513,17 @@ fn run_against_cpu(gpu: &Arc<Gpu>, integrator: Integrator, terrain: &str) -> Res
     let e0 = cpu.energies().map_err(step_error)?;
     let scale = softbody_scale(&mut cpu, &e0)?;
     let (mut dx, mut dv, mut dc, mut peak, mut de) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
-    let started = std::time::Instant::now();
+    let (mut gpu_time, mut cpu_time) = (0.0, 0.0);
     for k in 0..sim.frame_count() {
-        let target = sim.frame_step(k);
-        let n = target - g.steps_taken();
+        let n = sim.frame_step(k) - g.steps_taken();
+        let t = std::time::Instant::now();
         g.advance(n).map_err(step_error)?;
+        let eg = g.energies().map_err(step_error)?;
+        gpu_time += t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
         cpu.advance(n).map_err(step_error)?;
-        let (eg, ec) = (
-            g.energies().map_err(step_error)?,
-            cpu.energies().map_err(step_error)?,
-        );
+        let ec = cpu.energies().map_err(step_error)?;
+        cpu_time += t.elapsed().as_secs_f64();
         de = de.max((eg.total() - ec.total()).abs());
         let gs = g.state().map_err(step_error)?;
         let cs = cpu.state().map_err(step_error)?;
@@ -510,29 +537,73 @@ fn run_against_cpu(gpu: &Arc<Gpu>, integrator: Integrator, terrain: &str) -> Res
         }
         dc = dc.max(cg.distance(cc) / total_mass);
     }
-    let name = format!("{integrator} on the {terrain_name}");
-    println!(
-        "{name}: {} steps ({:.2} s for both): max |Δx| {dx:.2e} m, max |Δv| {dv:.2e} m/s \
-         ({:.2e} of the peak speed {peak:.2} m/s), centre of mass {dc:.2e} m, \
-         total energy {de:.2e} J ({:.2e} of the scale {scale:.2} J)",
-        sim.steps(),
-        started.elapsed().as_secs_f64(),
-        dv / peak,
-        de / scale,
-    );
-    if dx > bounds.position
-        || dv > bounds.velocity * peak
-        || dc > bounds.center
-        || de > bounds.energy * scale
-    {
-        return Err(format!(
-            "{name}: the GPU run is further from the CPU's than the bounds ({} m per particle, \
-             {} of the peak speed, {} m centre of mass, {} of the energy scale)",
-            bounds.position, bounds.velocity, bounds.center, bounds.energy
-        )
-        .into());
+    Ok(SideBySide {
+        steps: sim.steps(),
+        seconds: (gpu_time, cpu_time),
+        dx,
+        dv,
+        peak,
+        dc,
+        de,
+        scale,
+        statistics: (g.statistics(), cpu.statistics()),
+    })
+}
+
+impl std::fmt::Display for SideBySide {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (gst, cst) = &self.statistics;
+        write!(
+            f,
+            "{} steps (GPU {:.2} s, CPU {:.2} s): max |Δx| {:.2e} m, max |Δv| {:.2e} m/s ({:.2e} \
+             of the peak speed {:.2} m/s), centre of mass {:.2e} m, total energy {:.2e} J \
+             ({:.2e} of the scale {:.2} J)",
+            self.steps,
+            self.seconds.0,
+            self.seconds.1,
+            self.dx,
+            self.dv,
+            self.dv / self.peak,
+            self.peak,
+            self.dc,
+            self.de,
+            self.de / self.scale,
+            self.scale
+        )?;
+        if gst.cg_solves > 0 {
+            write!(
+                f,
+                "; CG: GPU {} iterations in {} solves (max residual {:.1e}), CPU {} in {} (max \
+                 residual {:.1e})",
+                gst.cg_iterations,
+                gst.cg_solves,
+                gst.cg_max_residual,
+                cst.cg_iterations,
+                cst.cg_solves,
+                cst.cg_max_residual
+            )?;
+        }
+        Ok(())
     }
-    Ok(())
+}
+
+impl RunBounds {
+    /// Ok if `run` is within the bounds.
+    fn check(&self, name: &str, run: &SideBySide) -> Result<(), Failed> {
+        if run.dx > self.position
+            || run.dv > self.velocity * run.peak
+            || run.dc > self.center
+            || run.de > self.energy * run.scale
+        {
+            return Err(format!(
+                "{name}: the GPU run is further from the CPU's than the bounds ({} m per \
+                 particle, {} of the peak speed, {} m centre of mass, {} of the energy scale)",
+                self.position, self.velocity, self.center, self.energy
+            )
+            .into());
+        }
+        Ok(())
+    }
 }
 
 /// M|g|(D + 1 m) + K₀ + E_el,₀: the run driver's energy scale.
@@ -642,7 +713,13 @@ fn lost_device(_shared: &Arc<Gpu>) -> Result<(), Failed> {
 /// the 1-D grids, bit for bit.
 fn two_dimensional_grids(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let scene = cube_scene_of(8, Integrator::Rk4, 2.5e-4, 0.1, BOUNCY_PLANE);
-    let (model, state) = Model::build(&scene);
+    same_bits_on_every_grid_width(gpu, &scene, 200)
+}
+
+/// `steps` steps of `scene` on 1-D grids and on grids one and two workgroups wide: the same
+/// states, energies and CG counts, bit for bit.
+fn same_bits_on_every_grid_width(gpu: &Arc<Gpu>, scene: &Scene, steps: u64) -> Result<(), Failed> {
+    let (model, state) = Model::build(scene);
     let mut runs = Vec::new();
     for width in [None, Some(1), Some(2)] {
         let mut g = GpuSolver::with_options(
@@ -655,15 +732,23 @@ fn two_dimensional_grids(gpu: &Arc<Gpu>) -> Result<(), Failed> {
             },
         )
         .map_err(|e| e.to_string())?;
-        g.advance(200).map_err(step_error)?;
+        g.advance(steps).map_err(step_error)?;
         let e = g.energies().map_err(step_error)?;
-        runs.push((g.state().map_err(step_error)?.clone(), e));
+        let stats = g.statistics();
+        runs.push((
+            g.state().map_err(step_error)?.clone(),
+            e,
+            stats.cg_iterations,
+            stats.cg_solves,
+        ));
     }
     println!(
-        "{} particles, {} springs; energies {:?}",
+        "{} particles, {} springs; energies {:?}; {} CG iterations in {} solves",
         model.len(),
         model.springs.len(),
-        runs[0].1
+        runs[0].1,
+        runs[0].2,
+        runs[0].3
     );
     if runs[1] != runs[0] || runs[2] != runs[0] {
         return Err("2-D grids give different results from 1-D grids".into());
@@ -978,70 +1063,10 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 fn run_implicit(gpu: &Arc<Gpu>, terrain: &str) -> Result<(), Failed> {
     let terrain_name = if terrain == PLANE { "plane" } else { "slope" };
     let scene = cube_scene(Integrator::ImplicitEuler, 2e-3, 0.5, terrain);
-    let (model, state) = Model::build(&scene);
-    let sim = model.simulation;
-    let total_mass: f64 = model.mass.iter().sum();
-    let mut g = open(gpu, &model, &state)?;
-    let mut cpu = CpuSolver::new(model.clone(), state, Some(1)).map_err(|e| e.to_string())?;
-    let e0 = cpu.energies().map_err(step_error)?;
-    let scale = softbody_scale(&mut cpu, &e0)?;
-    let (mut dx, mut dv, mut dc, mut peak, mut de) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
-    let (mut gpu_time, mut cpu_time) = (0.0, 0.0);
-    for k in 0..sim.frame_count() {
-        let target = sim.frame_step(k);
-        let n = target - g.steps_taken();
-        let t = std::time::Instant::now();
-        g.advance(n).map_err(step_error)?;
-        let eg = g.energies().map_err(step_error)?;
-        gpu_time += t.elapsed().as_secs_f64();
-        let t = std::time::Instant::now();
-        cpu.advance(n).map_err(step_error)?;
-        cpu_time += t.elapsed().as_secs_f64();
-        let ec = cpu.energies().map_err(step_error)?;
-        de = de.max((eg.total() - ec.total()).abs());
-        let gs = g.state().map_err(step_error)?;
-        let cs = cpu.state().map_err(step_error)?;
-        let (mut cg, mut cc) = (DVec3::ZERO, DVec3::ZERO);
-        for i in 0..model.len() {
-            dx = dx.max(gs.x[i].distance(cs.x[i]));
-            dv = dv.max(gs.v[i].distance(cs.v[i]));
-            peak = peak.max(cs.v[i].length());
-            cg += model.mass[i] * gs.x[i];
-            cc += model.mass[i] * cs.x[i];
-        }
-        dc = dc.max(cg.distance(cc) / total_mass);
-    }
-    let (gst, cst) = (g.statistics(), cpu.statistics());
+    let run = side_by_side(gpu, &scene)?;
     let name = format!("implicit-euler on the {terrain_name}");
-    println!(
-        "{name}: {} steps (GPU {gpu_time:.2} s, CPU {cpu_time:.2} s): max |Δx| {dx:.2e} m, \
-         max |Δv| {dv:.2e} m/s ({:.2e} of the peak speed {peak:.2} m/s), centre of mass \
-         {dc:.2e} m, total energy {de:.2e} J ({:.2e} of the scale {scale:.2} J); CG: GPU {} \
-         iterations in {} solves (max residual {:.1e}), CPU {} in {} (max residual {:.1e})",
-        sim.steps(),
-        dv / peak,
-        de / scale,
-        gst.cg_iterations,
-        gst.cg_solves,
-        gst.cg_max_residual,
-        cst.cg_iterations,
-        cst.cg_solves,
-        cst.cg_max_residual,
-    );
-    let bounds = IMPLICIT_RUN;
-    if dx > bounds.position
-        || dv > bounds.velocity * peak
-        || dc > bounds.center
-        || de > bounds.energy * scale
-    {
-        return Err(format!(
-            "{name}: the GPU run is further from the CPU's than the bounds ({} m per particle, \
-             {} of the peak speed, {} m centre of mass, {} of the energy scale)",
-            bounds.position, bounds.velocity, bounds.center, bounds.energy
-        )
-        .into());
-    }
-    Ok(())
+    println!("{name}: {run}");
+    IMPLICIT_RUN.check(&name, &run)
 }
 
 /// Bounds of the implicit runs against the CPU (see `run_implicit`): about ten times what was
@@ -1064,37 +1089,5 @@ const IMPLICIT_RUN: RunBounds = RunBounds {
 /// particles through the same `thread_of`).
 fn implicit_two_dimensional_grids(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let scene = cube_scene_of(8, Integrator::ImplicitEuler, 2e-3, 0.1, SLOPE);
-    let (model, state) = Model::build(&scene);
-    let mut runs = Vec::new();
-    for width in [None, Some(1), Some(2)] {
-        let mut g = GpuSolver::with_options(
-            gpu,
-            model.clone(),
-            state.clone(),
-            softbody_gpu::GpuOptions {
-                grid_width: width,
-                ..Default::default()
-            },
-        )
-        .map_err(|e| e.to_string())?;
-        g.advance(20).map_err(step_error)?;
-        let e = g.energies().map_err(step_error)?;
-        let stats = g.statistics();
-        runs.push((
-            g.state().map_err(step_error)?.clone(),
-            e,
-            stats.cg_iterations,
-            stats.cg_solves,
-        ));
-    }
-    println!(
-        "{} particles: {} CG iterations in {} solves",
-        model.len(),
-        runs[0].2,
-        runs[0].3
-    );
-    if runs[1] != runs[0] || runs[2] != runs[0] {
-        return Err("2-D grids give different implicit results from 1-D grids".into());
-    }
-    Ok(())
+    same_bits_on_every_grid_width(gpu, &scene, 20)
 }

@@ -103,6 +103,16 @@ pub struct Cuboid {
     pub bending: Option<SpringParams>,
 }
 
+impl Cuboid {
+    /// The smallest distance between lattice neighbours along an axis, metres (resolutions are
+    /// at least 2 in a valid scene).
+    pub fn smallest_spacing(&self) -> f64 {
+        (0..3)
+            .map(|axis| self.size[axis] / f64::from(self.resolution[axis].max(2) - 1))
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
 /// One spring of a [`ParticleSet`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ExplicitSpring {
@@ -163,22 +173,7 @@ impl Body {
     /// smallest lattice spacing of a cuboid, 0 for a `particles` body).
     pub fn contact_radius(&self) -> f64 {
         self.contact_radius.unwrap_or(match &self.shape {
-            BodyShape::Cuboid(c) => {
-                let spacing = |axis: usize| {
-                    let r = c.resolution[axis];
-                    if r > 1 {
-                        c.size[axis] / f64::from(r - 1)
-                    } else {
-                        f64::INFINITY
-                    }
-                };
-                let smallest = spacing(0).min(spacing(1)).min(spacing(2));
-                if smallest.is_finite() {
-                    0.5 * smallest
-                } else {
-                    0.0
-                }
-            }
+            BodyShape::Cuboid(c) => 0.5 * c.smallest_spacing(),
             BodyShape::Particles(_) => 0.0,
         })
     }

@@ -113,6 +113,21 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         body_values(&at, &body.shape)?;
         if let Some(r) = body.contact_radius {
             non_negative(at.key("contact_radius"), r)?;
+            // Beyond one spacing, particles three cells apart would touch at rest: a body would
+            // be in self-contact with its own structure, and every particle would have dozens
+            // of contact candidates.
+            if let BodyShape::Cuboid(c) = &body.shape
+                && r > c.smallest_spacing()
+            {
+                return Err(Invalid::new(
+                    at.key("contact_radius"),
+                    format!(
+                        "{r} m is more than the cuboid's smallest lattice spacing, {} m (the \
+                         default is half of it)",
+                        c.smallest_spacing()
+                    ),
+                ));
+            }
         }
         let count = body.particle_count();
         for (j, &p) in body.pinned.iter().enumerate() {
