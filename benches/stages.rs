@@ -116,7 +116,7 @@ fn cg_solve(c: &mut Criterion) {
     let (model, state) = Model::build(&cube(n, 1e4, Integrator::ImplicitEuler, 1.0 / 60.0));
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; model.len()];
-    system.assemble(&model, &state.x, &state.v, &mut b);
+    system.assemble(&model, None, &state.x, &state.v, &mut b);
     let constraints = vec![Constraint::Free; model.len()];
     let z = vec![DVec3::ZERO; model.len()];
     let mut scratch = Scratch::new(model.len());

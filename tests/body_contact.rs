@@ -1,7 +1,8 @@
 //! Contact between bodies (`softbody_cpu::body_contact`), for every integrator: momentum in a
 //! head-on collision, the restitution law of two particles, and the same bits for any thread
-//! count. The GPU does not run body contact yet: there each test checks that such a scene is
-//! refused before a step, with a message that names the CPU backend.
+//! count. The GPU runs body contact with the explicit integrators; with implicit Euler it does
+//! not yet, and there each test checks that such a scene is refused before a step, with a
+//! message that names the CPU backend.
 
 use std::process::ExitCode;
 
@@ -35,6 +36,10 @@ fn main() -> ExitCode {
                 "self_contact_keeps_a_folding_bar_from_passing_through_itself",
                 self_contact_keeps_a_folding_bar_apart,
             ),
+            (
+                "a_pile_in_the_bowl_comes_to_rest_and_never_gains_energy",
+                a_pile_comes_to_rest,
+            ),
         ],
     )
 }
@@ -48,12 +53,13 @@ fn step_for(integrator: Integrator) -> f64 {
     }
 }
 
-/// A solver, or on the GPU the check that the scene is refused (`None`).
+/// A solver, or on the GPU with implicit Euler the check that the scene is refused (`None`).
 fn open(backend: &Backend, scene: &Scene) -> Result<Option<Box<dyn Solver>>, Failed> {
+    let refused = backend.is_gpu() && scene.simulation.integrator == Integrator::ImplicitEuler;
     match backend.solver(scene) {
-        Ok(solver) if !backend.is_gpu() => Ok(Some(solver)),
-        Ok(_) => Err("the GPU accepted a scene with contact between bodies".into()),
-        Err(e) if backend.is_gpu() => {
+        Ok(solver) if !refused => Ok(Some(solver)),
+        Ok(_) => Err("the GPU accepted implicit Euler with contact between bodies".into()),
+        Err(e) if refused => {
             let message = e.message().unwrap_or_default().to_owned();
             ensure(message.contains("--backend cpu"), || {
                 format!("the GPU's refusal does not name the CPU backend: {message}")
@@ -102,11 +108,14 @@ fn head_on(integrator: Integrator) -> Scene {
 }
 
 /// Head-on: the total linear momentum Σ m v stays what it was to 1e-12 of Σ m|v| at every
-/// 10 ms (the impulses are equal and opposite; only rounding changes the sum; implicit Euler
-/// solves its springs' internal forces to the CG tolerance, 1e-8, which bounds its drift
-/// instead), and the cubes do
+/// 10 ms (the impulses are equal and opposite; only rounding changes the sum), and the cubes do
 /// collide: their centres stay more than 5 cm apart along x (passing through each other, the
 /// difference would turn negative), and they end moving apart (v_a < v_b).
+///
+/// Implicit Euler solves for its internal forces (the springs', and the pairs' in contact) to
+/// the CG tolerance: each step's residual, at most that fraction of the step's right-hand side
+/// (whose impulses are within the momentum scale here), changes the momentum. Its bound is the
+/// tolerance once per step, 300 × 1e-8; measured 2.1e-7.
 fn a_head_on_collision_conserves_momentum(backend: &Backend) -> Result<(), Failed> {
     let mut failures = Vec::new();
     for integrator in Integrator::ALL {
@@ -138,7 +147,7 @@ fn a_head_on_collision_conserves_momentum(backend: &Backend) -> Result<(), Faile
             va.x, vb.x
         );
         let bound = if integrator == Integrator::ImplicitEuler {
-            backend.cg_tolerance()
+            backend.cg_tolerance() * (30 * per_frame) as f64
         } else {
             1e-12
         };
@@ -225,14 +234,16 @@ fn same_bits_for_any_thread_count(backend: &Backend) -> Result<(), Failed> {
 }
 
 /// Two 2 kg cubes (15 cm, 4³, k_s = 1000 N/m, contact radius 2.5 cm) dropped one onto the other
-/// onto a plane (restitution 0.3 and 0.2 between the bodies, friction 0.5 and 0.4), h = 1e-4 s,
-/// 4 s: at every 10 ms no pair of the two bodies is closer than 90% of the sum of their radii,
-/// and from 2.5 s on the kinetic energy stays below 1e-9 J per kg of the stack.
+/// onto a plane (restitution 0.3 and 0.2 between the bodies, friction 0.5 and 0.4), 4 s, with
+/// h = 1e-4 s (implicit Euler: 1/60 s, the step it is for): at every 10 ms (implicit Euler:
+/// every step) no pair of the two bodies is closer than 90% of the sum of their radii
+/// (implicit Euler: 85%, see `a_pile_comes_to_rest`; measured 0.9000), and from 2.5 s on the
+/// kinetic energy stays below 1e-9 J per kg of the stack.
 ///
-/// Measured: symplectic Euler 3e-23 J at 4 s, midpoint 3e-15 J, RK4 below 7e-10 J. Explicit
-/// Euler's own energy gain keeps the stack moving longer (5e-8 J at 4 s): it is held to the
-/// no-interpenetration bound only. Implicit Euler has no contact force in its solve yet (its
-/// post-step pushes keep a stack chattering) and is left out.
+/// Measured, the largest after 2.5 s: symplectic Euler 6e-15 J, midpoint 7e-12 J, RK4 7e-10 J, implicit
+/// Euler 1.2e-13 J. Explicit Euler's own energy gain keeps the stack moving (5e-5 J after 2.5 s,
+/// and 3e-5 J at h = 1e-5 s: not a matter of the step): it is held to the no-interpenetration
+/// bound only.
 fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
     const MASS: f64 = 4.0;
     let params = SpringParams {
@@ -257,13 +268,13 @@ fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
     let mut upper = cuboid_body(upper);
     upper.name = "upper".into();
     let mut failures = Vec::new();
-    for integrator in [
-        Integrator::SymplecticEuler,
-        Integrator::Midpoint,
-        Integrator::Rk4,
-        Integrator::ExplicitEuler,
-    ] {
-        let mut sim = simulation(integrator, 1e-4);
+    for integrator in Integrator::ALL {
+        let h = if integrator == Integrator::ImplicitEuler {
+            1.0 / 60.0
+        } else {
+            1e-4
+        };
+        let mut sim = simulation(integrator, h);
         sim.duration = 4.0;
         sim.body_contact = BodyContact {
             restitution: 0.2,
@@ -277,19 +288,21 @@ fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
             vec![floor],
         );
         let Some(mut solver) = open(backend, &scene)? else {
-            return Ok(());
+            continue;
         };
         let reach = 2.0 * 0.5 * 0.05;
+        let steps = ((0.01 / h).round() as u64).max(1);
+        let checks = (4.0 / (steps as f64 * h)).round() as u64;
         let (mut closest, mut resting) = (f64::INFINITY, 0.0f64);
-        for frame in 1..=400u64 {
-            solver.advance(100)?;
+        for check in 1..=checks {
+            solver.advance(steps)?;
             let x = &solver.state()?.x;
             for a in &x[..64] {
                 for b in &x[64..] {
                     closest = closest.min(a.distance(*b));
                 }
             }
-            if frame >= 250 {
+            if (check * steps) as f64 * h >= 2.5 {
                 resting = resting.max(solver.energies()?.kinetic);
             }
         }
@@ -297,9 +310,17 @@ fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
             "{integrator}: closest pair {:.4} of R, kinetic energy up to {resting:.2e} J after 2.5 s",
             closest / reach
         );
-        if closest < 0.9 * reach {
+        // Implicit Euler's impacts sink within its long step, and the response pushes them
+        // back to 90% exactly (see `a_pile_comes_to_rest`).
+        let nearest = if integrator == Integrator::ImplicitEuler {
+            0.85
+        } else {
+            0.9
+        };
+        if closest < nearest * reach {
             failures.push(format!(
-                "{integrator}: two particles came to {closest} m, under 90% of R = {reach} m"
+                "{integrator}: two particles came to {closest} m, under {nearest} R = {} m",
+                nearest * reach
             ));
         }
         if integrator != Integrator::ExplicitEuler && resting >= 1e-9 * MASS {
@@ -325,6 +346,7 @@ fn self_contact_keeps_a_folding_bar_apart(backend: &Backend) -> Result<(), Faile
         Integrator::SymplecticEuler,
         Integrator::Midpoint,
         Integrator::Rk4,
+        Integrator::ImplicitEuler,
     ] {
         for self_contact in [true, false] {
             let mut scene = base.clone();
@@ -344,7 +366,7 @@ fn self_contact_keeps_a_folding_bar_apart(backend: &Backend) -> Result<(), Faile
                 Some(backend.solver(&scene)?)
             };
             let Some(mut solver) = solver else {
-                return Ok(());
+                continue;
             };
             let mut closest = f64::INFINITY;
             for _ in 0..160 {
@@ -372,6 +394,103 @@ fn self_contact_keeps_a_folding_bar_apart(backend: &Backend) -> Result<(), Faile
                      (closest {closest} m): the case tests nothing"
                 ));
             }
+        }
+    }
+    all(failures)
+}
+
+/// `scenes/pile-in-bowl.toml` (six 8 kg cubes of 5³ particles dropped into a bowl, contact
+/// radius 2.5 cm) with symplectic Euler at the scene's step (1e-4 s) and implicit Euler at
+/// 1/60 s, 10 s, checked every 10 ms (implicit Euler: every step): the kinetic energy is below
+/// 1e-9 J per kg of the pile from 6 s on, and the total energy never exceeds its start.
+/// Symplectic Euler keeps every two particles of different bodies beyond 90% of the sum of
+/// their radii. Implicit Euler is held to 85%, and to energy rises within a step of at most
+/// 1e-3 of the start: its impacts sink up to 12% within a 1/60 s step before the response
+/// pushes them back to 10% (pairs meeting within the step are not in its solve yet), and the
+/// penalty's potential ½k(R − d)² of that overlap, which the energies do not count, goes back
+/// into the bodies.
+///
+/// Measured: closest 0.995 R (symplectic), 0.878 R (implicit); kinetic energy from 6 s on up
+/// to 3e-10 J and 4e-10 J; largest rise in a step 4e-9 J and 0.08 J (of 206 J). Midpoint and
+/// RK4 creep on (7.7e-6 J and 4.9e-7 J at 12 s) and explicit Euler keeps moving (3e-4 J):
+/// ARCHITECTURE.md, "What is left". The GPU does not run it: 100,000 steps of 750 particles
+/// with contact would take lavapipe minutes.
+fn a_pile_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
+    if backend.is_gpu() {
+        println!("not run on the GPU (lavapipe is too slow for this pile)");
+        return Ok(());
+    }
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/pile-in-bowl.toml");
+    let base = Scene::from_file(&path).map_err(|e| e.to_string())?;
+    let mut failures = Vec::new();
+    for (integrator, h) in [
+        (Integrator::SymplecticEuler, base.simulation.dt),
+        (Integrator::ImplicitEuler, 1.0 / 60.0),
+    ] {
+        let mut scene = base.clone();
+        scene.simulation.integrator = integrator;
+        scene.simulation.dt = h;
+        let (model, _) = Model::build(&scene);
+        let mass: f64 = model.mass.iter().sum();
+        let body = &model.contact.body;
+        let reach = 2.0 * model.contact.radius[0];
+        let mut solver = backend.solver(&scene)?;
+        let steps = ((0.01 / h).round() as u64).max(1);
+        let checks = (10.0 / (steps as f64 * h)).round() as u64;
+        let total = |e: softbody::Energies| e.kinetic + e.gravitational + e.elastic;
+        let start = total(solver.energies()?);
+        let (mut previous, mut rise, mut highest) = (start, 0.0f64, start);
+        let (mut closest, mut resting) = (f64::INFINITY, 0.0f64);
+        for check in 1..=checks {
+            solver.advance(steps)?;
+            let x = &solver.state()?.x;
+            for i in 0..x.len() {
+                for j in i + 1..x.len() {
+                    if body[i] != body[j] {
+                        closest = closest.min(x[i].distance(x[j]));
+                    }
+                }
+            }
+            let energies = solver.energies()?;
+            if (check * steps) as f64 * h >= 6.0 {
+                resting = resting.max(energies.kinetic);
+            }
+            rise = rise.max(total(energies) - previous);
+            previous = total(energies);
+            highest = highest.max(previous);
+        }
+        println!(
+            "{integrator}: closest pair {:.4} of R, kinetic energy up to {resting:.2e} J from 6 s, \
+             largest energy rise {rise:.2e} J of {start:.1} J",
+            closest / reach
+        );
+        let (nearest, largest_rise) = if integrator == Integrator::ImplicitEuler {
+            (0.85, 1e-3)
+        } else {
+            (0.9, f64::INFINITY)
+        };
+        if closest < nearest * reach {
+            failures.push(format!(
+                "{integrator}: two particles came to {closest} m, under {nearest} R = {} m",
+                nearest * reach
+            ));
+        }
+        if highest > start {
+            failures.push(format!(
+                "{integrator}: the energy rose to {highest} J, above its start {start} J"
+            ));
+        }
+        if resting >= 1e-9 * mass {
+            failures.push(format!(
+                "{integrator}: kinetic energy up to {resting:e} J from 6 s (rest: < {} J)",
+                1e-9 * mass
+            ));
+        }
+        if rise > largest_rise * start {
+            failures.push(format!(
+                "{integrator}: the energy rose by {rise:e} J within 10 ms (bound {} J)",
+                largest_rise * start
+            ));
         }
     }
     all(failures)

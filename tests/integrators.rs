@@ -346,7 +346,7 @@ fn internal_springs_conserve_linear_momentum(backend: &Backend) -> Result<(), Fa
         for _ in 0..steps {
             if integrator == Integrator::ImplicitEuler {
                 let st = solver.state().map_err(|e| e.to_string())?;
-                system.assemble(&model, &st.x, &st.v, &mut b);
+                system.assemble(&model, None, &st.x, &st.v, &mut b);
                 let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
                 for i in 0..n {
                     let mut top = system.mass_diag[i];

@@ -2,17 +2,22 @@
 //! `self_contact` beyond its rest neighbourhood ([`softbody_scene::Contacts::admits`]), closer
 //! than the sum of their radii, d = |x_i − x_j| < R = r_i + r_j.
 //!
-//! Within the explicit integrators' stages, each pair that was in contact at the start of the
-//! step pushes apart with a penalty force ([`Partners`]), so that a resting stack is held by
-//! forces, as terrain holds a body (a pair that meets within the step is an impact, left to the
-//! response): a critically damped spring along n = (x_i − x_j)/d,
+//! Within the step, each pair that was in contact at its start pushes apart with a penalty
+//! force ([`Partners`]), so that a resting stack is held by forces, as terrain holds a body (a
+//! pair that meets within the step is an impact, left to the response): a critically damped
+//! spring along n = (x_i − x_j)/d,
 //!
 //!   F = max(0, k (R − d) − c (u·n)) n,   k = κ m_red / h²,   c = 2 √(k m_red),
 //!
-//! with m_red = 1/(w_i + w_j) and κ = [`PENALTY`]: the pair's own oscillation is ω h = √κ, well
-//! inside every explicit integrator's stability, and its overlap under a load L is L h²/(κ m_red)
-//! (micrometres for a body resting on another at h = 1e-4 s). It is +F on i and −F on j,
-//! computed for the pair (min, max) by both particles, so the two are bit-equal and opposite.
+//! with m_red = 1/(w_i + w_j). Its overlap under a load L is L h²/(κ m_red). The explicit
+//! integrators evaluate it at every stage with κ = [`PENALTY`]: the pair's own oscillation is
+//! ω h = √κ, well inside their stability, and the overlap micrometres for a body resting on
+//! another at h = 1e-4 s. It is +F on i and −F on j, computed for the pair (min, max) by both
+//! particles, so the two are bit-equal and opposite. Implicit Euler takes it into its linear
+//! system as a spring along n (stiffness k, damping c, the transverse term dropped as for a
+//! compressed spring) with κ = [`PENALTY_IMPLICIT`]: backward Euler damps any stiffness, and
+//! at the large steps it is used for, a stiff penalty is what keeps overlaps small (0.05 mm, 0.1% of R,
+//! for 6 N between two of the 64 g particles of the pile in the bowl at h = 1/60 s).
 //!
 //! After each step (every integrator), the response; for each pair, with w = 1/m and the
 //! relative velocity u = v_i − v_j:
@@ -29,7 +34,6 @@
 //! - if d < (1 − [`SLOP`])·R, the pair is pushed apart to that distance, each particle by its
 //!   share w/(w_i + w_j): the penalty force holds overlaps far smaller, and a push within the
 //!   slop would move particles with no force, which their springs answer with a chatter.
-//!   Implicit Euler has no penalty force in its solve (yet): there the push goes to d = R.
 //!
 //! Every pair's impulse and push is computed from the state after the step, before any is
 //! applied (one Jacobi sweep), then added to i and subtracted from j in pair order: equal and
@@ -38,7 +42,7 @@
 
 use glam::DVec3;
 use rayon::prelude::*;
-use softbody_scene::{FrictionModel, Integrator, Model, State};
+use softbody_scene::{Adjacency, FrictionModel, Integrator, Model, State};
 
 use crate::broad_phase::BroadPhase;
 use crate::vec_bytes;
@@ -46,7 +50,18 @@ use crate::vec_bytes;
 /// κ: the penalty's stiffness in units of m_red/h² (ω h = √κ ≈ 0.32).
 pub const PENALTY: f64 = 0.1;
 
-/// The overlap, as a fraction of R, that the response leaves to the penalty force.
+/// κ inside implicit Euler's solve, where the pair is a linearised spring like any other
+/// ([`crate::integrators::implicit_euler::system`]): backward Euler damps any stiffness, and
+/// a stiff penalty keeps the overlap under load small at large steps (κ = 100 lets a pile at
+/// h = 1/60 s sink to 0.89 R; 10⁴ makes the linearisation at the step start too coarse and the
+/// pile never settles).
+pub const PENALTY_IMPLICIT: f64 = 1000.0;
+
+/// The overlap, as a fraction of R, that the response leaves to the penalty force. A push is
+/// a move without a force, which the springs around it answer with elastic energy, so pushes
+/// must stay rare, and short: at 5%, implicit Euler's pile in the bowl at h = 1/60 s gains up
+/// to 1.5 J in a step, at 10% 0.08 J (of 206 J), and 1.25 J when a push triggered at 10% goes
+/// on to 5%.
 pub const SLOP: f64 = 0.1;
 
 /// Forces between particles that the explicit stages add to the springs' (a generic parameter
@@ -66,41 +81,34 @@ impl PairForces for NoPairs {
     }
 }
 
-/// Each particle's partners in contact at the start of the step (both directions, ascending),
-/// and their penalty forces.
+/// The pairs in contact at the start of the step and each particle's partners among them.
 #[derive(Debug, Default)]
 pub struct Partners {
-    offsets: Vec<u32>,
-    entries: Vec<u32>,
+    /// The pairs (a, b), a < b, sorted.
+    pairs: Vec<[u32; 2]>,
+    /// Per particle, `2·pair + side` (side 0 where it is the pair's a): its partners k of
+    /// pairs (k, p), ascending, then the j of pairs (p, j), ascending — the springs' layout,
+    /// so the implicit system gathers pair terms as it gathers springs.
+    adjacency: Adjacency,
 }
 
 impl Partners {
-    /// The CSR of `pairs` (sorted by (i, j)): particle p's partners are the k of pairs
-    /// (k, p), which come first and ascending, then the j of pairs (p, j), ascending.
+    /// The partners of `pairs` (sorted by (a, b)) among `n` particles.
     fn rebuild(&mut self, n: usize, pairs: &[[u32; 2]]) {
-        self.offsets.clear();
-        self.offsets.resize(n + 1, 0);
-        for &[i, j] in pairs {
-            self.offsets[i as usize + 1] += 1;
-            self.offsets[j as usize + 1] += 1;
-        }
-        for k in 0..n {
-            self.offsets[k + 1] += self.offsets[k];
-        }
-        self.entries.clear();
-        self.entries.resize(2 * pairs.len(), 0);
-        // offsets[p] walks to p's end, then is restored below.
-        for &[i, j] in pairs {
-            for (p, q) in [(i, j), (j, i)] {
-                let slot = &mut self.offsets[p as usize];
-                self.entries[*slot as usize] = q;
-                *slot += 1;
-            }
-        }
-        for k in (1..=n).rev() {
-            self.offsets[k] = self.offsets[k - 1];
-        }
-        self.offsets[0] = 0;
+        self.pairs.clear();
+        self.pairs.extend_from_slice(pairs);
+        self.adjacency
+            .rebuild(n, pairs.iter().map(|&[a, b]| (a, b)));
+    }
+
+    /// The pairs, sorted by (a, b).
+    pub fn pairs(&self) -> &[[u32; 2]] {
+        &self.pairs
+    }
+
+    /// Each particle's entries `2·pair + side` (see [`Adjacency`]).
+    pub fn adjacency(&self) -> &Adjacency {
+        &self.adjacency
     }
 }
 
@@ -109,39 +117,72 @@ impl PairForces for Partners {
     /// ascending order.
     #[inline(always)]
     fn force(&self, model: &Model, i: usize, x: &[DVec3], v: &[DVec3]) -> DVec3 {
-        let run = self.offsets[i] as usize..self.offsets[i + 1] as usize;
-        self.entries[run].iter().fold(DVec3::ZERO, |f, &j| {
-            let j = j as usize;
-            if i < j {
-                f + penalty(model, [i, j], x, v)
-            } else {
-                f - penalty(model, [j, i], x, v)
-            }
+        self.adjacency.of(i).iter().fold(DVec3::ZERO, |f, &e| {
+            let [a, b] = self.pairs[(e >> 1) as usize];
+            let p = penalty(model, [a as usize, b as usize], x, v);
+            if e & 1 == 0 { f + p } else { f - p }
         })
     }
 }
 
 /// The penalty force on a of the pair [a, b] (a < b), 0 unless they overlap.
 #[inline(never)]
-fn penalty(model: &Model, [a, b]: [usize; 2], x: &[DVec3], v: &[DVec3]) -> DVec3 {
+fn penalty(model: &Model, pair: [usize; 2], x: &[DVec3], v: &[DVec3]) -> DVec3 {
+    penalty_law(model, PENALTY, pair, x, v).map_or(DVec3::ZERO, |p| p.force * p.normal)
+}
+
+/// The penalty between a and b (a < b) at (x, v) with stiffness κ: its magnitude F > 0 on a
+/// along n, and the pair's (k, c); `None` where it does not push.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Penalty {
+    pub normal: DVec3,
+    pub force: f64,
+    pub stiffness: f64,
+    pub damping: f64,
+}
+
+/// The penalty law of the module doc with stiffness κ (in units of m_red/h²).
+#[inline(always)]
+pub(crate) fn penalty_law(
+    model: &Model,
+    kappa: f64,
+    [a, b]: [usize; 2],
+    x: &[DVec3],
+    v: &[DVec3],
+) -> Option<Penalty> {
     let reach = model.contact.radius[a] + model.contact.radius[b];
     let offset = x[a] - x[b];
     let d2 = offset.length_squared();
     let w = model.inv_mass[a] + model.inv_mass[b];
     if d2 >= reach * reach || d2 == 0.0 || w == 0.0 {
-        return DVec3::ZERO;
+        return None;
     }
     let d = d2.sqrt();
-    let n = offset / d;
-    let (k, c) = penalty_coefficients(model.simulation.dt, 1.0 / w);
-    let un = (v[a] - v[b]).dot(n);
-    (k * (reach - d) - c * un).max(0.0) * n
+    let normal = offset / d;
+    let (stiffness, damping) = penalty_coefficients(kappa, model.simulation.dt, 1.0 / w);
+    let force = stiffness * (reach - d) - damping * (v[a] - v[b]).dot(normal);
+    (force > 0.0).then_some(Penalty {
+        normal,
+        force,
+        stiffness,
+        damping,
+    })
 }
 
-/// (k, c) of the penalty for a pair of reduced mass `m_red` at step `h`.
-fn penalty_coefficients(h: f64, m_red: f64) -> (f64, f64) {
-    let k = PENALTY * m_red / (h * h);
+/// (k, c) of a penalty of stiffness κ for a pair of reduced mass `m_red` at step `h`:
+/// k = κ m_red/h², critically damped.
+fn penalty_coefficients(kappa: f64, h: f64, m_red: f64) -> (f64, f64) {
+    let k = kappa * m_red / (h * h);
     (k, 2.0 * (k * m_red).sqrt())
+}
+
+/// κ of the penalty in `integrator`'s steps.
+fn kappa(integrator: Integrator) -> f64 {
+    if integrator == Integrator::ImplicitEuler {
+        PENALTY_IMPLICIT
+    } else {
+        PENALTY
+    }
 }
 
 /// The broad phase, the stages' partners and the per-pair results of the response.
@@ -213,8 +254,9 @@ impl BodyContact {
         self.broad.memory_bytes()
             + vec_bytes(&self.results)
             + vec_bytes(&self.pairs)
-            + vec_bytes(&self.partners.offsets)
-            + vec_bytes(&self.partners.entries)
+            + vec_bytes(&self.partners.pairs)
+            + vec_bytes(&self.partners.adjacency.offsets)
+            + vec_bytes(&self.partners.adjacency.entries)
     }
 }
 
@@ -228,7 +270,6 @@ fn pair(
     let c = &model.contact;
     let sim = &model.simulation;
     let (h, eps) = (sim.dt, sim.contact_distance);
-    let implicit = sim.integrator == Integrator::ImplicitEuler;
     let w = model.inv_mass[i] + model.inv_mass[j];
     let reach = c.radius[i] + c.radius[j];
     let offset = x[i] - x[j];
@@ -238,14 +279,13 @@ fn pair(
         return (DVec3::ZERO, DVec3::ZERO);
     }
     let n = offset / d;
-    let slop = if implicit { 0.0 } else { SLOP };
-    let push = ((1.0 - slop) * reach - d).max(0.0) / w * n;
+    let push = ((1.0 - SLOP) * reach - d).max(0.0) / w * n;
     let u = v[i] - v[j];
     let un = u.dot(n);
     if un >= 0.0 {
         return (DVec3::ZERO, push);
     }
-    let (k, c_damp) = penalty_coefficients(h, 1.0 / w);
+    let (k, c_damp) = penalty_coefficients(kappa(sim.integrator), h, 1.0 / w);
     let pressed = h * (k * (reach - d).max(0.0) - c_damp * un).max(0.0);
     let laws = &c.laws;
     let u0 = start.v[i] - start.v[j];

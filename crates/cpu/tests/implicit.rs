@@ -160,7 +160,7 @@ fn cg_solution_matches_a_direct_sparse_solve() {
 
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, &state.x, &state.v, &mut b);
+    system.assemble(&model, None, &state.x, &state.v, &mut b);
     let b_scale = b_ref.iter().map(|b| b.length()).fold(0.0, f64::max);
     let b_err = max_diff(&b, &b_ref);
     println!("b: max |b − b_ref| = {b_err:.2e} (max |b_i| = {b_scale:.3e})");
@@ -233,7 +233,7 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
     let a = dense(n, &triplets);
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, &state.x, &state.v, &mut b);
+    system.assemble(&model, None, &state.x, &state.v, &mut b);
 
     let normal = DVec3::new(1.0, 2.0, -1.0).normalize();
     let (fixed, slid) = (0usize, 13usize);
@@ -345,7 +345,7 @@ fn implicit_steps_change_momentum_by_minus_the_residual_sum() {
     let mut worst = 0.0f64;
     for _ in 0..400 {
         let st = solver.state().unwrap();
-        system.assemble(&model, &st.x, &st.v, &mut b);
+        system.assemble(&model, None, &st.x, &st.v, &mut b);
         let (v_before, p_before) = (st.v.clone(), momentum(&model, st));
         solver.advance(1).unwrap();
         let st = solver.state().unwrap();

@@ -89,23 +89,38 @@ pub struct Adjacency {
 impl Adjacency {
     /// Builds the adjacency of `n` particles by a counting sort over the springs.
     pub fn build(n: usize, springs: &Springs) -> Adjacency {
-        let mut offsets = vec![0u32; n + 1];
-        for (&a, &b) in springs.a.iter().zip(&springs.b) {
+        let mut adjacency = Adjacency::default();
+        adjacency.rebuild(n, springs.a.iter().copied().zip(springs.b.iter().copied()));
+        adjacency
+    }
+
+    /// Rebuilds in place (reusing the buffers) the adjacency of `n` particles joined by `ends`,
+    /// the (a, b) of each link in link order, by a counting sort.
+    pub fn rebuild(&mut self, n: usize, ends: impl Iterator<Item = (u32, u32)> + Clone) {
+        let (offsets, entries) = (&mut self.offsets, &mut self.entries);
+        offsets.clear();
+        offsets.resize(n + 1, 0);
+        let mut links = 0;
+        for (a, b) in ends.clone() {
             offsets[a as usize + 1] += 1;
             offsets[b as usize + 1] += 1;
+            links += 1;
         }
         for i in 0..n {
             offsets[i + 1] += offsets[i];
         }
-        let mut next: Vec<u32> = offsets[..n].to_vec();
-        let mut entries = vec![0u32; 2 * springs.len()];
-        for (s, (&a, &b)) in springs.a.iter().zip(&springs.b).enumerate() {
+        entries.clear();
+        entries.resize(2 * links, 0);
+        // offsets[p] walks to p's end (the start of p + 1's run), then is shifted back below.
+        for (s, (a, b)) in ends.enumerate() {
             for (p, side) in [(a, 0), (b, 1)] {
-                entries[next[p as usize] as usize] = 2 * s as u32 + side;
-                next[p as usize] += 1;
+                let next = &mut offsets[p as usize];
+                entries[*next as usize] = 2 * s as u32 + side;
+                *next += 1;
             }
         }
-        Adjacency { offsets, entries }
+        offsets.copy_within(0..n, 1);
+        offsets[0] = 0;
     }
 
     /// The entries of particle i.

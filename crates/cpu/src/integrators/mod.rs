@@ -101,7 +101,7 @@ impl Stepper {
                 with_pairs!(|q| s.step(model, surfaces, q, state))
             }),
             Stepper::ImplicitEuler(s) => {
-                s.step(model, surfaces, state, timings);
+                s.step(model, surfaces, pairs, state, timings);
                 return timings.time("finiteness", || crate::first_non_finite(state));
             }
         };

@@ -26,6 +26,10 @@
 //! constraints with Δv = 0. One contact per particle: where a particle touches two surfaces at
 //! once (an inner corner), the one it reaches first within the step is constrained.
 //!
+//! Pairs of bodies in contact at the start of the step push apart inside the solve: each is a
+//! linearised penalty spring of the system ([`system`], [`crate::body_contact`]); impacts and
+//! friction between bodies are the response after the step, as for every integrator.
+//!
 //! With no springs and no contact this is v' = v + h g, x' = x + h v': symplectic Euler's
 //! free fall. On the same contact laws as the explicit integrators' ([`crate::contact`]): a
 //! sliding particle decelerates at μ|g_n|, and a particle on a slope shallower than atan μ
@@ -41,6 +45,7 @@ use softbody_scene::{FrictionModel, Model, State, Statistics, Timings};
 
 use self::cg::{Constraint, Scratch};
 use self::system::System;
+use crate::body_contact::Partners;
 use crate::forces::PARTICLE_CHUNK;
 use softbody_terrain::Surface;
 
@@ -126,19 +131,22 @@ impl ImplicitEuler {
             + vec_bytes(&self.sticking)
     }
 
-    /// One step, its stages timed into `timings`: "assemble" (the linear system),
+    /// One step, with the pairs of bodies in contact at its start `partners` (given exactly
+    /// when the model has contact between bodies), its stages timed into `timings`:
+    /// "assemble" (the linear system),
     /// "contacts" (candidates, constraints, active set), "cg" (the solves), "update".
     pub fn step(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
+        partners: Option<&Partners>,
         state: &mut State,
         timings: &mut Timings,
     ) {
         let sim = &model.simulation;
         let (h, eps) = (sim.dt, sim.contact_distance);
         timings.time("assemble", || {
-            self.system.assemble(model, &state.x, &state.v, &mut self.b)
+            (self.system).assemble(model, partners, &state.x, &state.v, &mut self.b)
         });
         let mut candidates = timings.time("contacts", || {
             self.find_candidates(model, surfaces, state, h, eps)

@@ -14,11 +14,20 @@
 //!
 //! A product A p is a per-spring pass (z_s = B_s (p_a − p_b)) and a per-particle gather, the
 //! same scheme as the spring forces, so it is deterministic for any thread count.
+//!
+//! Pairs of bodies in contact at the start of the step ([`Partners`]) enter the same way, as
+//! springs along their normal n that only push: with the penalty F n on a (F > 0,
+//! [`crate::body_contact`]), stiffness k and damping c, ∂f_a/∂x_a = −k nnᵀ (the transverse term
+//! k(R − d)/d (I − nnᵀ) dropped, as for a compressed spring) and ∂f_a/∂v_a = −c nnᵀ, so the
+//! pair's block is β nnᵀ with β = h c + h² k and its share of the right-hand side
+//! h(F − h k (v_a − v_b)·n) n. A pair whose penalty does not push at the start (F ≤ 0) is left
+//! out of the step's system.
 
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
-use softbody_scene::Model;
+use softbody_scene::{Adjacency, Model};
 
+use crate::body_contact::{PENALTY_IMPLICIT, Partners, penalty_law};
 use crate::forces::PARTICLE_CHUNK;
 use crate::spring_forces::{self, gather, gather_block};
 
@@ -39,6 +48,76 @@ pub struct System {
     pub mass_diag: Vec<f64>,
     /// Inverse diagonal blocks (block-Jacobi preconditioner).
     pub inv_diag: Vec<DMat3>,
+    /// The pairs of bodies in contact, when the model has contact between bodies.
+    pub pairs: Option<PairBlocks>,
+}
+
+/// The pairs' share of the system: the step's pairs and their adjacency (copied from the
+/// [`Partners`], reusing the buffers), per pair its normal n and β (0 for a pair left out),
+/// and the per-pair scratch.
+#[derive(Debug, Default)]
+pub struct PairBlocks {
+    /// The pairs (a, b), sorted.
+    pub ends: Vec<[u32; 2]>,
+    /// Each particle's `2·pair + side` entries.
+    pub adjacency: Adjacency,
+    /// n of each pair.
+    pub n: Vec<DVec3>,
+    /// β of each pair.
+    pub beta: Vec<f64>,
+    /// Per-pair scratch: (F − h k (v_a − v_b)·n) n while assembling b, then products.
+    pub per_pair: Vec<DVec3>,
+}
+
+impl PairBlocks {
+    fn memory_bytes(&self) -> u64 {
+        use crate::vec_bytes;
+        vec_bytes(&self.ends)
+            + vec_bytes(&self.adjacency.offsets)
+            + vec_bytes(&self.adjacency.entries)
+            + vec_bytes(&self.n)
+            + vec_bytes(&self.beta)
+            + vec_bytes(&self.per_pair)
+    }
+
+    /// Linearises each pair's penalty at (x, v).
+    fn assemble(&mut self, model: &Model, partners: &Partners, x: &[DVec3], v: &[DVec3]) {
+        let h = model.simulation.dt;
+        self.ends.clear();
+        self.ends.extend_from_slice(partners.pairs());
+        self.adjacency.clone_from(partners.adjacency());
+        let pairs = &self.ends;
+        self.n.resize(pairs.len(), DVec3::ZERO);
+        self.beta.resize(pairs.len(), 0.0);
+        self.per_pair.resize(pairs.len(), DVec3::ZERO);
+        (&mut self.n, &mut self.beta, &mut self.per_pair, pairs)
+            .into_par_iter()
+            .for_each(|(n, beta, g, &[a, b])| {
+                let (a, b) = (a as usize, b as usize);
+                (*n, *beta, *g) = match penalty_law(model, PENALTY_IMPLICIT, [a, b], x, v) {
+                    Some(p) => {
+                        let un = (v[a] - v[b]).dot(p.normal);
+                        (
+                            p.normal,
+                            h * p.damping + h * h * p.stiffness,
+                            (p.force - h * p.stiffness * un) * p.normal,
+                        )
+                    }
+                    None => (DVec3::ZERO, 0.0, DVec3::ZERO),
+                };
+            });
+    }
+
+    /// z_p = β_p n_p n_p·(p_a − p_b) for each pair.
+    fn products(&mut self, p: &[DVec3]) {
+        self.per_pair
+            .par_iter_mut()
+            .zip(self.ends.par_iter())
+            .zip(self.n.par_iter().zip(self.beta.par_iter()))
+            .for_each(|((z, &[a, b]), (n, &beta))| {
+                *z = beta * n.dot(p[a as usize] - p[b as usize]) * *n;
+            });
+    }
 }
 
 impl System {
@@ -52,6 +131,7 @@ impl System {
             per_spring: vec![DVec3::ZERO; s],
             mass_diag: vec![0.0; n],
             inv_diag: vec![DMat3::IDENTITY; n],
+            pairs: model.contact.enabled().then(PairBlocks::default),
         }
     }
 
@@ -64,11 +144,24 @@ impl System {
             + vec_bytes(&self.per_spring)
             + vec_bytes(&self.mass_diag)
             + vec_bytes(&self.inv_diag)
+            + self.pairs.as_ref().map_or(0, PairBlocks::memory_bytes)
     }
 
-    /// Linearises at (x, v) and writes the right-hand side h(f + h ∂f/∂x v) into `b`.
-    pub fn assemble(&mut self, model: &Model, x: &[DVec3], v: &[DVec3], b: &mut [DVec3]) {
+    /// Linearises at (x, v), with the pairs of bodies in contact `partners` (given exactly when
+    /// the model has contact between bodies), and writes the right-hand side
+    /// h(f + h ∂f/∂x v) into `b`.
+    pub fn assemble(
+        &mut self,
+        model: &Model,
+        partners: Option<&Partners>,
+        x: &[DVec3],
+        v: &[DVec3],
+        b: &mut [DVec3],
+    ) {
         let h = model.simulation.dt;
+        if let (Some(blocks), Some(partners)) = (self.pairs.as_mut(), partners) {
+            blocks.assemble(model, partners, x, v);
+        }
         let springs = &model.springs;
         // Per spring: its force f_s and its stiffness product y_s = K_s (v_a − v_b); store
         // g_s = f_s − h y_s, so that b_i = h (gravity + drag + Σ± g_s) in one gather, since
@@ -110,6 +203,7 @@ impl System {
         let sim = &model.simulation;
         let per_spring = &self.per_spring;
         let (u, beta, gamma) = (&self.u, &self.beta, &self.gamma);
+        let pairs = self.pairs.as_ref();
         b.par_iter_mut()
             .zip(
                 self.mass_diag
@@ -120,23 +214,31 @@ impl System {
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, (b, (md, inv)))| {
                 let m = model.mass[i];
-                *b = h
-                    * (m * sim.gravity - sim.drag * m * v[i]
-                        + gather(&model.adjacency, per_spring, i));
+                let mut f =
+                    m * sim.gravity - sim.drag * m * v[i] + gather(&model.adjacency, per_spring, i);
                 *md = m * (1.0 + h * sim.drag);
                 let mut block = DMat3::from_diagonal(DVec3::splat(*md));
                 for &e in model.adjacency.of(i) {
                     let s = (e >> 1) as usize;
-                    let us = u[s];
-                    block += DMat3::from_cols(us * us.x, us * us.y, us * us.z) * beta[s]
-                        + DMat3::from_diagonal(DVec3::splat(gamma[s]));
+                    block += outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
                 }
+                if let Some(pairs) = pairs {
+                    f += gather(&pairs.adjacency, &pairs.per_pair, i);
+                    for &e in pairs.adjacency.of(i) {
+                        let p = (e >> 1) as usize;
+                        block += outer(pairs.n[p], pairs.beta[p]);
+                    }
+                }
+                *b = h * f;
                 *inv = block.inverse();
             });
     }
 
     /// out = A p.
     pub fn apply(&mut self, model: &Model, p: &[DVec3], out: &mut [DVec3]) {
+        if let Some(pairs) = self.pairs.as_mut() {
+            pairs.products(p);
+        }
         let springs = &model.springs;
         let (u, beta, gamma) = (&self.u, &self.beta, &self.gamma);
         assert!(springs.b.len() == springs.len() && u.len() == springs.len());
@@ -157,6 +259,7 @@ impl System {
             });
         let per_spring = &self.per_spring[..];
         let md = &self.mass_diag;
+        let pairs = self.pairs.as_ref();
         const BLOCK: usize = 64;
         out.par_chunks_mut(PARTICLE_CHUNK)
             .enumerate()
@@ -168,8 +271,16 @@ impl System {
                     for (j, o) in out.iter_mut().enumerate() {
                         let i = first + j;
                         *o = md[i] * p[i] + *o;
+                        if let Some(pairs) = pairs {
+                            *o += gather(&pairs.adjacency, &pairs.per_pair, i);
+                        }
                     }
                 }
             });
     }
+}
+
+/// β uuᵀ.
+fn outer(u: DVec3, beta: f64) -> DMat3 {
+    DMat3::from_cols(u * u.x, u * u.y, u * u.z) * beta
 }
