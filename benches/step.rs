@@ -2,7 +2,9 @@
 //! particles: symplectic Euler at half its largest stable step, and implicit Euler at
 //! dt = 1/60 s (its point: a step the explicit methods cannot take), all cores. And one step of
 //! the multi-body pile (`benchmark::pile`: 27 cubes of 6³ and of 10³ touching in a bowl), timed
-//! once the cubes have landed on each other (0.1 s simulated first).
+//! once the cubes have landed on each other (0.1 s simulated first), on the CPU and, where an
+//! adapter opens, on the GPU (`gpu n^3`: 64 steps per iteration, one submission, as a run
+//! submits them).
 //!
 //! `cargo bench --bench step`; the figures are recorded in BENCHMARKS.md.
 
@@ -51,20 +53,33 @@ fn step(c: &mut Criterion) {
 fn pile(c: &mut Criterion) {
     let mut group = c.benchmark_group("pile/27 cubes");
     group.sample_size(10);
-    for n in [6u32, 10] {
-        let scene = softbody::benchmark::pile(n);
-        let mut solver = softbody::open(&scene, Backend::Cpu, None).expect("CPU solver");
-        let landed = (0.1 / scene.simulation.dt).round() as u64;
-        solver.advance(landed).expect("stable");
-        group.throughput(Throughput::Elements(27 * (n as u64).pow(3)));
-        group.bench_function(BenchmarkId::from_parameter(format!("{n}^3")), |b| {
-            b.iter(|| solver.advance(1).expect("stable"))
-        });
-        let stats = solver.statistics();
-        eprintln!(
-            "  27 cubes of {n}^3 at dt = {:e} s, where the time went:\n{}",
-            scene.simulation.dt, stats.timings
-        );
+    for (backend, prefix, steps) in [(Backend::Cpu, "", 1u64), (Backend::Gpu, "gpu ", 64)] {
+        for n in [6u32, 10] {
+            let scene = softbody::benchmark::pile(n);
+            let mut solver = match softbody::open(&scene, backend, None) {
+                Ok(solver) => solver,
+                Err(e) => {
+                    eprintln!(
+                        "  27 cubes of {n}^3 on the {}: skipped: {e}",
+                        backend.name()
+                    );
+                    continue;
+                }
+            };
+            let landed = (0.1 / scene.simulation.dt).round() as u64;
+            solver.advance(landed).expect("stable");
+            group.throughput(Throughput::Elements(27 * (n as u64).pow(3) * steps));
+            group.bench_function(BenchmarkId::from_parameter(format!("{prefix}{n}^3")), |b| {
+                b.iter(|| solver.advance(steps).expect("stable"))
+            });
+            let stats = solver.statistics();
+            eprintln!(
+                "  27 cubes of {n}^3 on {} at dt = {:e} s, where the time went:\n{}",
+                solver.device(),
+                scene.simulation.dt,
+                stats.timings
+            );
+        }
     }
     group.finish();
 }

@@ -2,6 +2,8 @@
 //
 //   f = m g − drag·m·v + Σ_springs ±f_s (gathered) + contact and friction (contact.wgsl),
 //
+// plus, with contact between bodies, the pairs' penalty forces (body_contact.wgsl),
+//
 // one thread per particle. Particle i's spring forces are gathered over its CSR run in ascending
 // spring order (gather.wgsl): the CPU's order, and no float atomics. Pinned particles (1/m = 0)
 // get a = 0.
@@ -16,17 +18,14 @@
 @group(0) @binding(5) var<storage, read> mass: array<vec2<f32>>;
 @group(0) @binding(6) var<storage, read_write> a: array<vec4<f32>>;
 
-// Gravity, drag and spring force on particle i of mass m and velocity vi.
-fn applied_force(i: u32, m: f32, vi: vec3<f32>) -> vec3<f32> {
-    return m * params.gravity - params.drag * m * vi + gather(i);
+// Gravity, drag, spring force and the forces between particles `pairs` on particle i of mass m
+// and velocity vi.
+fn applied_force(i: u32, m: f32, vi: vec3<f32>, pairs: vec3<f32>) -> vec3<f32> {
+    return m * params.gravity - params.drag * m * vi + (gather(i) + pairs);
 }
 
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn accelerations(id: Invocation) {
-    let i = thread_of(id);
-    if i >= params.n_particles {
-        return;
-    }
+// The acceleration of particle i, with the forces between particles `pairs`.
+fn accelerate(i: u32, pairs: vec3<f32>) {
     let mw = mass[i];
     if mw.y == 0.0 {
         a[i] = vec4<f32>(0.0);
@@ -34,7 +33,25 @@ fn accelerations(id: Invocation) {
     }
     let xi = x[i].xyz;
     let vi = v[i].xyz;
-    let f = applied_force(i, mw.x, vi);
+    let f = applied_force(i, mw.x, vi, pairs);
     let fc = contact_force(params.contact_distance, params.dt, mw.x, xi, vi, f);
     a[i] = vec4<f32>((f + fc) * mw.y, 0.0);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn accelerations(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        accelerate(i, vec3<f32>(0.0));
+    }
+}
+
+// For models whose bodies touch: `pair_forces` (body_contact.wgsl) has left each particle's
+// penalty forces in `a`, which are added to its springs' (the CPU's springs + pairs).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn accelerations_with_pairs(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        accelerate(i, a[i].xyz);
+    }
 }

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use wgpu::util::DeviceExt;
 
 use crate::GpuError;
+use crate::body_contact::BodyContact;
 use crate::buffers::ModelBuffers;
 use crate::chunks::Chunking;
 use crate::chunks::SpringChunks;
@@ -33,8 +34,8 @@ pub(crate) struct Builder {
     bytes: Cell<u64>,
 }
 
-/// What a stage is built from: the builder, the model's buffers, the spring chunks and the
-/// particle grid.
+/// What a stage is built from: the builder, the model's buffers, the spring chunks, the
+/// particle grid and the contact between bodies.
 #[derive(Clone, Copy)]
 pub(crate) struct Setup<'a> {
     /// Buffers and kernels.
@@ -47,6 +48,9 @@ pub(crate) struct Setup<'a> {
     pub particles: Grid,
     /// Particles.
     pub n: u64,
+    /// The contact between bodies, for models whose bodies touch (the stages' forces add its
+    /// penalty forces).
+    pub body_contact: Option<&'a BodyContact>,
 }
 
 impl<'a> Setup<'a> {

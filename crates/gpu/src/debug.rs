@@ -5,9 +5,11 @@
 use std::sync::Arc;
 
 use glam::{DVec3, Vec3, Vec4};
-use softbody_scene::StepError;
 use softbody_scene::implicit::Constraint;
+use softbody_scene::{State, StepError};
 
+use crate::body_contact::BodyContact;
+use crate::broad_phase::Snapshot;
 use crate::buffers::{to_dvec3, to_vec3, vec4s};
 use crate::builder::{Builder, Setup};
 use crate::collision_response::CollisionResponse;
@@ -39,6 +41,7 @@ impl GpuSolver {
             chunks: &self.chunks,
             particles: self.particles,
             n: self.model_len(),
+            body_contact: self.body_contact.as_ref(),
         }
     }
 
@@ -113,6 +116,99 @@ impl GpuSolver {
             });
             response.encode(&mut pass);
         }
+        submitter.submit_and_read(encoder, &[])?;
+        submitter.healthy()
+    }
+
+    /// The contact between bodies, or an error for a model whose bodies cannot touch.
+    fn body_contact(&self) -> Result<&BodyContact, StepError> {
+        self.body_contact
+            .as_ref()
+            .ok_or_else(|| StepError::Invalid("the model's bodies cannot touch".to_owned()))
+    }
+
+    /// The pairs (i, j), i < j, sorted, in contact in the current state as the response finds
+    /// them: the grid of the state and a probe of each particle's partners.
+    pub fn debug_contact_pairs(&mut self) -> Result<Vec<[u32; 2]>, StepError> {
+        /// Partners j > i read back per particle.
+        const CAPACITY: u64 = 64;
+        let n = self.model_len();
+        let contact = self.body_contact()?;
+        let builder = &self.builder;
+        let count = builder.storage("probe_count", n, 4);
+        let found = builder.storage("probe_pairs", n * CAPACITY, 4);
+        let probe = builder
+            .call(
+                Stage::PairsProbe,
+                "pairs_probe",
+                &contact
+                    .resources(&self.buffers)
+                    .buffer("probe_count", &count)
+                    .buffer("probe_pairs", &found),
+            )
+            .map_err(setup_error)?;
+        let grid = self.particles;
+        let encoder = self.submitter.encode_pass("contact pairs", |pass| {
+            contact.encode_grid(pass, Snapshot::End);
+            probe.run(pass, grid);
+        });
+        self.state_fresh = false;
+        self.submitter.healthy()?;
+        let bytes = self
+            .submitter
+            .submit_and_read(encoder, &[(&count, n * 4), (&found, n * CAPACITY * 4)])?;
+        let words: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
+        let (counts, found) = words.split_at(n as usize);
+        let mut pairs = Vec::new();
+        for (i, (&k, partners)) in counts
+            .iter()
+            .zip(found.chunks_exact(CAPACITY as usize))
+            .enumerate()
+        {
+            if u64::from(k) > CAPACITY {
+                return Err(StepError::Invalid(format!(
+                    "particle {i} has {k} partners, more than the probe's {CAPACITY}"
+                )));
+            }
+            pairs.extend(partners[..k as usize].iter().map(|&j| [i as u32, j]));
+        }
+        pairs.sort_unstable();
+        Ok(pairs)
+    }
+
+    /// The penalty forces between bodies at the current state, of the pairs in contact there:
+    /// the grid of the state as a step's start, then `pair_forces` alone.
+    pub fn debug_pair_forces(&mut self) -> Result<Vec<Vec3>, StepError> {
+        let n = self.model_len();
+        let contact = self.body_contact()?;
+        let b = &self.buffers;
+        let forces = contact
+            .pair_forces(self.setup(), &b.x, &b.v)
+            .map_err(setup_error)?;
+        let grid = self.particles;
+        let encoder = self.submitter.encode_pass("pair forces", |pass| {
+            contact.encode_start(pass);
+            forces.run(pass, grid);
+        });
+        let a = self.buffers.a.clone();
+        let submitter = self.stage_submitter()?;
+        Ok(to_vec3(
+            &submitter.submit_and_read(encoder, &[(&a, n * VEC4)])?,
+        ))
+    }
+
+    /// Runs the response between bodies alone on the current state, as the end of a step that
+    /// started at `start`.
+    pub fn debug_body_contact_response(&mut self, start: &State) -> Result<(), StepError> {
+        let contact = self.body_contact()?;
+        let [x, v] = contact.snapshots();
+        let queue = self.submitter.queue();
+        queue.write_buffer(x, 0, bytemuck::cast_slice(&vec4s(&start.x)));
+        queue.write_buffer(v, 0, bytemuck::cast_slice(&vec4s(&start.v)));
+        let encoder = self.submitter.encode_pass("body contact response", |pass| {
+            contact.encode_response(pass)
+        });
+        let submitter = self.stage_submitter()?;
         submitter.submit_and_read(encoder, &[])?;
         submitter.healthy()
     }

@@ -3,7 +3,9 @@
 //! f = m g − drag·m·v + Σ_springs ±f_s (gathered in ascending spring order) + contact and
 //! friction (`shaders/contact.wgsl` ↔ `softbody_cpu::contact`),
 //!
-//! after the spring forces of the same state; pinned particles get a = 0.
+//! after the spring forces of the same state, and for models whose bodies touch after the
+//! pairs' penalty forces ([`crate::body_contact`]), which the springs' sum takes in; pinned
+//! particles get a = 0.
 
 use crate::GpuError;
 use crate::builder::Setup;
@@ -15,6 +17,8 @@ use crate::spring_forces::SpringForces;
 /// The accelerations of one state, into the solver's `a`.
 pub(crate) struct Accelerations {
     spring_forces: SpringForces,
+    /// The penalty forces between bodies, into `a`, for models whose bodies touch.
+    pair_forces: Option<Call>,
     accelerations: Call,
     grid: Grid,
 }
@@ -27,9 +31,19 @@ impl Accelerations {
         v: &wgpu::Buffer,
     ) -> Result<Accelerations, GpuError> {
         let resources = s.buffers.resources().buffer("x", x).buffer("v", v);
+        let pair_forces = s
+            .body_contact
+            .map(|contact| contact.pair_forces(s, x, v))
+            .transpose()?;
+        let entry = if pair_forces.is_some() {
+            "accelerations_with_pairs"
+        } else {
+            "accelerations"
+        };
         Ok(Accelerations {
             spring_forces: SpringForces::new(s, x, v)?,
-            accelerations: s.builder.call(Stage::Forces, "accelerations", &resources)?,
+            pair_forces,
+            accelerations: s.builder.call(Stage::Forces, entry, &resources)?,
             grid: s.particles,
         })
     }
@@ -40,9 +54,12 @@ impl Accelerations {
         &self.spring_forces
     }
 
-    /// Encodes the spring forces, then the accelerations.
+    /// Encodes the spring forces, the pair forces, then the accelerations.
     pub fn encode(&self, pass: &mut wgpu::ComputePass<'_>) {
         self.spring_forces.encode(pass);
+        if let Some(pair_forces) = &self.pair_forces {
+            pair_forces.run(pass, self.grid);
+        }
         self.accelerations.run(pass, self.grid);
     }
 }

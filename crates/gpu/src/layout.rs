@@ -245,3 +245,73 @@ pub fn constraint_vec4(c: Constraint) -> [f32; 4] {
         Constraint::Fixed => [0.0, 0.0, 0.0, 2.0],
     }
 }
+
+/// The constants of contact between bodies: twin of `ContactParams` in
+/// `shaders/neighbours.wgsl`, one uniform.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct ContactParams {
+    /// 1/s, s the grid's cell size, 1/m.
+    pub inv_cell: f32,
+    /// Buckets of the hash table, a power of two.
+    pub buckets: u32,
+    /// k_r between bodies.
+    pub restitution: f32,
+    /// μ or k_f between bodies.
+    pub friction: f32,
+    /// [`ContactParams::COULOMB`] or [`ContactParams::VISCOUS`].
+    pub friction_model: u32,
+    /// κ: the penalty stiffness in units of m_red/h².
+    pub penalty: f32,
+    /// The overlap, as a fraction of R, that the response leaves to the penalty force.
+    pub slop: f32,
+    /// Self-contact ignores pairs of a cuboid this close on its lattice (Chebyshev, in cells).
+    pub exclusion: i32,
+}
+
+impl ContactParams {
+    /// Coulomb friction between bodies (`FRICTION_COULOMB` in the WGSL).
+    pub const COULOMB: u32 = 0;
+    /// Viscous friction between bodies (`FRICTION_VISCOUS` in the WGSL).
+    pub const VISCOUS: u32 = 1;
+}
+
+/// A particle's contact data: twin of `ContactParticle` in `shaders/neighbours.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct ContactParticleGpu {
+    /// Lattice coordinates in its cuboid (with [`ContactParticleGpu::LATTICE`]).
+    pub lattice: [i32; 3],
+    /// Its body.
+    pub body: u32,
+    /// r, m.
+    pub radius: f32,
+    /// 1/m, 0 if pinned.
+    pub inv_mass: f32,
+    /// [`ContactParticleGpu::SELF_CONTACT`] | [`ContactParticleGpu::LATTICE`].
+    pub flags: u32,
+    /// Padding to WGSL's 32-byte size (the struct aligns to its vec3's 16).
+    pub _pad: u32,
+}
+
+impl ContactParticleGpu {
+    /// Its body touches itself.
+    pub const SELF_CONTACT: u32 = 1;
+    /// It belongs to a cuboid and has lattice coordinates.
+    pub const LATTICE: u32 = 2;
+}
+
+/// One level of the broad phase's prefix sum: twin of `ScanLevel` in `shaders/broad_phase.wgsl`,
+/// a uniform bound at a dynamic offset (one slot per level).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct ScanLevel {
+    /// The level's first element in the counts.
+    pub offset: u32,
+    /// Its elements.
+    pub count: u32,
+    /// Where its blocks' totals go.
+    pub sums: u32,
+    /// Padding to WGSL's 16-byte uniform size.
+    pub _pad: u32,
+}

@@ -21,6 +21,8 @@
 //! backends were tried and how to get a software adapter.
 #![warn(missing_docs)]
 
+pub mod body_contact;
+mod broad_phase;
 mod buffers;
 mod builder;
 mod check_finite;

@@ -4,7 +4,8 @@
 //! needs and its own file: `common.wgsl` (parameters, springs, the thread index) always, then
 //! `reduce.wgsl` (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR
 //! gather) for the stages that gather per-spring vectors, `terrain.wgsl` for the stages that
-//! query the terrain, then `contact.wgsl` for `forces.wgsl`.
+//! query the terrain, then `contact.wgsl` for `forces.wgsl`, and `neighbours.wgsl` (the hashed
+//! grid of contact between bodies) for the stages that build or search it.
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
 //! point's bindings (name, number, access) from the composed module with naga and binds
@@ -28,6 +29,8 @@ pub const CONTACT: &str = include_str!("../../../shaders/contact.wgsl");
 pub const REDUCE: &str = include_str!("../../../shaders/reduce.wgsl");
 /// `shaders/gather.wgsl`.
 pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
+/// `shaders/neighbours.wgsl`.
+pub const NEIGHBOURS: &str = include_str!("../../../shaders/neighbours.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
@@ -129,11 +132,17 @@ pub enum Stage {
     ImplicitEuler,
     /// `terrain_probe.wgsl` (with terrain): the terrain queries alone, for the twin tests.
     TerrainProbe,
+    /// `broad_phase.wgsl` (with the grid): the hashed grid of contact between bodies.
+    BroadPhase,
+    /// `body_contact.wgsl` (with the grid): the penalty forces and the response between bodies.
+    BodyContact,
+    /// `pairs_probe.wgsl` (with the grid): the pairs in contact, for the twin tests.
+    PairsProbe,
 }
 
 impl Stage {
     /// Every stage.
-    pub const ALL: [Stage; 13] = [
+    pub const ALL: [Stage; 16] = [
         Stage::SpringForces,
         Stage::Forces,
         Stage::ExplicitEuler,
@@ -147,6 +156,9 @@ impl Stage {
         Stage::Cg,
         Stage::ImplicitEuler,
         Stage::TerrainProbe,
+        Stage::BroadPhase,
+        Stage::BodyContact,
+        Stage::PairsProbe,
     ];
 
     /// The stage's file name under `shaders/`.
@@ -165,6 +177,9 @@ impl Stage {
             Stage::Cg => "cg.wgsl",
             Stage::ImplicitEuler => "implicit_euler.wgsl",
             Stage::TerrainProbe => "terrain_probe.wgsl",
+            Stage::BroadPhase => "broad_phase.wgsl",
+            Stage::BodyContact => "body_contact.wgsl",
+            Stage::PairsProbe => "pairs_probe.wgsl",
         }
     }
 
@@ -184,6 +199,9 @@ impl Stage {
             Stage::Cg => include_str!("../../../shaders/cg.wgsl"),
             Stage::ImplicitEuler => include_str!("../../../shaders/implicit_euler.wgsl"),
             Stage::TerrainProbe => include_str!("../../../shaders/terrain_probe.wgsl"),
+            Stage::BroadPhase => include_str!("../../../shaders/broad_phase.wgsl"),
+            Stage::BodyContact => include_str!("../../../shaders/body_contact.wgsl"),
+            Stage::PairsProbe => include_str!("../../../shaders/pairs_probe.wgsl"),
         }
     }
 
@@ -196,12 +214,22 @@ impl Stage {
     }
 
     /// The uniforms of its module bound at a dynamic offset (WGSL cannot say so): the step
-    /// number of `check_finite`, one slot of a constant table per step of a submission.
+    /// number of `check_finite`, one slot of a constant table per step of a submission; the
+    /// level of the broad phase's prefix sum, one slot per level.
     pub fn dynamic_uniforms(self) -> &'static [&'static str] {
         match self {
             Stage::CheckFinite => &["step_index"],
+            Stage::BroadPhase => &["scan_level"],
             _ => &[],
         }
+    }
+
+    /// Whether its module includes `neighbours.wgsl`.
+    fn uses_neighbours(self) -> bool {
+        matches!(
+            self,
+            Stage::BroadPhase | Stage::BodyContact | Stage::PairsProbe
+        )
     }
 
     /// Whether its module includes `reduce.wgsl`.
@@ -228,6 +256,9 @@ impl Stage {
         }
         if self == Stage::Forces {
             pieces.push(("contact.wgsl", CONTACT));
+        }
+        if self.uses_neighbours() {
+            pieces.push(("neighbours.wgsl", NEIGHBOURS));
         }
         pieces.push((self.file(), self.own_source()));
         pieces

@@ -7,7 +7,10 @@
 //! Every step is a fixed sequence of dispatches in one compute pass (wgpu orders consecutive
 //! dispatches: each is its own usage scope, so each sees what the previous wrote): the
 //! integrator's ([`crate::integrators`]), then `collision_response` (when there is terrain) and
-//! `check_finite`. [`STEPS_PER_SUBMISSION`] steps go into one command buffer; after each
+//! `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
+//! of its start state, whose pairs' penalty forces every stage adds, and the collision response
+//! is followed by the grid of the end state and the response between bodies, and (with
+//! terrain) by the terrain's record of the next step's start, which that response changed. [`STEPS_PER_SUBMISSION`] steps go into one command buffer; after each
 //! submission the host reads back the 12-byte status only. Implicit Euler cannot know its CG
 //! iterations and active-set rounds in advance: it synchronises at least once per step on a
 //! 68-byte read-back, and reads the status after [`STEPS_PER_SUBMISSION`] steps.
@@ -40,6 +43,7 @@ use softbody_scene::{
     solver::check_state_len,
 };
 
+use crate::body_contact::{self, BodyContact};
 use crate::buffers::{ModelBuffers, to_dvec3, vec4s};
 use crate::builder::{Builder, Setup};
 use crate::check_finite::CheckFinite;
@@ -82,7 +86,9 @@ pub struct GpuSolver {
     #[cfg(feature = "debug")]
     pub(crate) particles: Grid,
     pub(crate) stepper: Stepper,
-    collision_response: Option<CollisionResponse>,
+    /// Contact between bodies, for models whose bodies touch.
+    pub(crate) body_contact: Option<BodyContact>,
+    pub(crate) collision_response: Option<CollisionResponse>,
     check: CheckFinite,
     energy: Energy,
     /// Host copy of the state, valid while `state_fresh`.
@@ -101,14 +107,16 @@ const _: fn() = || {
     send::<GpuSolver>();
 };
 
-/// Refuses what the GPU solver does not do yet: contact between bodies (ARCHITECTURE.md, "What
-/// is left").
+/// Refuses what the GPU solver does not do yet: contact between bodies with implicit Euler
+/// (ARCHITECTURE.md, "What is left").
 fn supported(model: &Model) -> Result<(), GpuError> {
-    if model.contact.enabled() {
+    if model.contact.enabled()
+        && model.simulation.integrator == softbody_scene::Integrator::ImplicitEuler
+    {
         return Err(GpuError::Unsupported(
-            "contact between bodies (two bodies with a contact radius, or self_contact) runs on \
-             the CPU only for now: run with --backend cpu, or set contact_radius = 0 on the \
-             bodies"
+            "contact between bodies (two bodies with a contact radius, or self_contact) with \
+             implicit-euler runs on the CPU only for now: run with --backend cpu, use an \
+             explicit integrator, or set contact_radius = 0 on the bodies"
                 .to_owned(),
         ));
     }
@@ -172,7 +180,11 @@ impl GpuSolver {
             &adapter,
             &needs(&model, &packed),
             2 * n * VEC4,
-            &[("particle", n), ("spring", m)],
+            &[
+                ("particle", n),
+                ("spring", m),
+                ("broad-phase bucket", body_contact::buckets(n)),
+            ],
         )?;
         let spring_stride = if implicit {
             std::mem::size_of::<SpringBlockGpu>()
@@ -215,6 +227,16 @@ impl GpuSolver {
                 chunks: &chunks,
                 particles,
                 n,
+                body_contact: None,
+            };
+            let body_contact = model
+                .contact
+                .enabled()
+                .then(|| BodyContact::new(s, &model, width, max_dim))
+                .transpose()?;
+            let s = Setup {
+                body_contact: body_contact.as_ref(),
+                ..s
             };
             let stepper = Stepper::new(s, integrator, n_surfaces > 0)?;
             let collision_response = match (implicit, n_surfaces) {
@@ -223,7 +245,15 @@ impl GpuSolver {
             };
             let check = CheckFinite::new(s)?;
             let energy = Energy::new(s, m)?;
-            Ok((stepper, collision_response, check, energy, buffers, builder))
+            Ok((
+                stepper,
+                body_contact,
+                collision_response,
+                check,
+                energy,
+                buffers,
+                builder,
+            ))
         })();
         // Scopes pop in reverse order.
         let errors = [
@@ -237,7 +267,7 @@ impl GpuSolver {
                 message: format!("cannot set up the solver: {e}"),
             });
         }
-        let (stepper, collision_response, check, energy, buffers, builder) = built?;
+        let (stepper, body_contact, collision_response, check, energy, buffers, builder) = built?;
         // The host copy is what the device holds: the state rounded to f32.
         for p in state.x.iter_mut().chain(state.v.iter_mut()) {
             *p = p.as_vec3().as_dvec3();
@@ -256,6 +286,7 @@ impl GpuSolver {
             #[cfg(feature = "debug")]
             particles,
             stepper,
+            body_contact,
             collision_response,
             check,
             energy,
@@ -295,15 +326,25 @@ impl GpuSolver {
         let encoder = match &mut self.stepper {
             Stepper::Explicit(stepper) => {
                 let (collision, check) = (&self.collision_response, &self.check);
+                let contact = &self.body_contact;
                 let band_stale = std::mem::take(&mut self.band_stale);
                 let encoder = self.submitter.encode_pass("steps", |pass| {
                     if let (Some(c), true) = (collision, band_stale) {
                         c.encode_band(pass);
                     }
                     for k in 0..batch {
+                        if let Some(contact) = contact {
+                            contact.encode_start(pass);
+                        }
                         stepper.encode(pass);
                         if let Some(c) = collision {
                             c.encode(pass);
+                        }
+                        if let Some(contact) = contact {
+                            contact.encode_response(pass);
+                            if let Some(c) = collision {
+                                c.encode_band(pass);
+                            }
                         }
                         check.encode(pass, k);
                     }
@@ -373,6 +414,13 @@ fn needs(model: &Model, packed: &terrain::TerrainBuffers) -> Vec<Need> {
     if model.simulation.integrator == Rk4 {
         needs.push(need("RK4 position sums", n, VEC4));
         needs.push(need("RK4 velocity sums", n, VEC4));
+    }
+    if model.contact.enabled() {
+        needs.extend(
+            body_contact::needs(model)
+                .into_iter()
+                .map(|(what, count, stride)| need(what, count, stride)),
+        );
     }
     needs
 }

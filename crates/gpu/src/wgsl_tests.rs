@@ -8,8 +8,8 @@ use naga::valid::{Capabilities, ValidationFlags, Validator};
 use crate::chunks::{Chunking, MAX_SPRING_CHUNKS};
 use crate::kernel::{Access, Parsed, reflect};
 use crate::layout::{
-    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, Params, SpringBlockGpu, SpringChunk, SpringGpu,
-    Status, StepIndex, dispatch_slot,
+    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, ContactParams, ContactParticleGpu, Params,
+    ScanLevel, SpringBlockGpu, SpringChunk, SpringGpu, Status, StepIndex, dispatch_slot,
 };
 use crate::shaders::Stage;
 use crate::terrain::SurfaceGpu;
@@ -77,7 +77,7 @@ fn every_entry_point_reflects_within_webgpu_limits() {
             kernels += 1;
         }
     }
-    assert_eq!(kernels, 32);
+    assert_eq!(kernels, 43);
 }
 
 /// Reflection reads what an entry point uses through the functions it calls, with the access
@@ -122,6 +122,55 @@ fn reflection_reads_each_kernels_own_bindings() {
     );
     let parsed = Parsed::new(Stage::Rk4, &Stage::Rk4.source()).unwrap();
     assert!(reflect(&parsed, "no_such_kernel").is_err());
+    // The stage forces of bodies that touch: the search of the start grid (neighbours.wgsl)
+    // and the admit rule's rest neighbours, the stage state, into `a`; the counting kernels
+    // bind the counts as atomics, the scan as plain words at a dynamic offset.
+    let strings = |names: &[&str]| names.iter().map(|&n| n.to_owned()).collect::<Vec<_>>();
+    assert_eq!(
+        names(Stage::BodyContact, one, "pair_forces"),
+        (
+            strings(&[
+                "params",
+                "x",
+                "v",
+                "a",
+                "contact",
+                "particles",
+                "counts",
+                "sorted",
+                "snapshot_x",
+                "rest_neighbours"
+            ]),
+            false
+        )
+    );
+    assert_eq!(
+        names(Stage::BroadPhase, one, "grid_count_end").0,
+        strings(&[
+            "params",
+            "x",
+            "v",
+            "counts_atomic",
+            "particle_bucket",
+            "contact",
+            "particles",
+            "snapshot_x",
+            "snapshot_v"
+        ])
+    );
+    let parsed = Parsed::new(Stage::BroadPhase, &Stage::BroadPhase.source()).unwrap();
+    let (bindings, _) = reflect(&parsed, "scan_up").unwrap();
+    let access: Vec<(&str, Access, bool)> = bindings
+        .iter()
+        .map(|b| (b.name.as_str(), b.access, b.dynamic))
+        .collect();
+    assert_eq!(
+        access,
+        [
+            ("scan_level", Access::Uniform, true),
+            ("counts", Access::ReadWrite, false),
+        ]
+    );
 }
 
 /// The size of a WGSL struct and its members' (name, offset).
@@ -272,7 +321,9 @@ fn chunked_gathers_validate_and_read_every_chunk() {
                 let extra =
                     |base: &'static str| (1..chunking.count).map(move |c| format!("{base}_{c}"));
                 let expected: Vec<String> = match entry {
-                    "accelerations" | "apply_particles" => extra("per_spring").collect(),
+                    "accelerations" | "accelerations_with_pairs" | "apply_particles" => {
+                        extra("per_spring").collect()
+                    }
                     "assemble_particles" => extra("per_spring").chain(extra("block")).collect(),
                     _ => Vec::new(),
                 };
@@ -323,6 +374,57 @@ fn locate_maps_composed_lines_back_to_files() {
         }
         assert_eq!(headers, pieces.len());
     }
+}
+
+#[test]
+fn contact_layouts_match() {
+    for stage in [Stage::BroadPhase, Stage::BodyContact, Stage::PairsProbe] {
+        check_layout(
+            stage,
+            "ContactParams",
+            size_of::<ContactParams>(),
+            &[
+                ("inv_cell", offset_of!(ContactParams, inv_cell)),
+                ("buckets", offset_of!(ContactParams, buckets)),
+                ("restitution", offset_of!(ContactParams, restitution)),
+                ("friction", offset_of!(ContactParams, friction)),
+                ("friction_model", offset_of!(ContactParams, friction_model)),
+                ("penalty", offset_of!(ContactParams, penalty)),
+                ("slop", offset_of!(ContactParams, slop)),
+                ("exclusion", offset_of!(ContactParams, exclusion)),
+            ],
+        );
+        check_layout(
+            stage,
+            "ContactParticle",
+            size_of::<ContactParticleGpu>(),
+            &[
+                ("lattice", offset_of!(ContactParticleGpu, lattice)),
+                ("body", offset_of!(ContactParticleGpu, body)),
+                ("radius", offset_of!(ContactParticleGpu, radius)),
+                ("inv_mass", offset_of!(ContactParticleGpu, inv_mass)),
+                ("flags", offset_of!(ContactParticleGpu, flags)),
+                ("_pad", offset_of!(ContactParticleGpu, _pad)),
+            ],
+        );
+    }
+    check_layout(
+        Stage::BroadPhase,
+        "ScanLevel",
+        size_of::<ScanLevel>(),
+        &[
+            ("offset", offset_of!(ScanLevel, offset)),
+            ("count", offset_of!(ScanLevel, count)),
+            ("sums", offset_of!(ScanLevel, sums)),
+            ("_pad", offset_of!(ScanLevel, _pad)),
+        ],
+    );
+    // The flags' and friction models' values, as the WGSL names them.
+    let constant = |name| wgsl_const(Stage::BodyContact, name) as u32;
+    assert_eq!(constant("SELF_CONTACT"), ContactParticleGpu::SELF_CONTACT);
+    assert_eq!(constant("LATTICE"), ContactParticleGpu::LATTICE);
+    assert_eq!(constant("FRICTION_COULOMB"), ContactParams::COULOMB);
+    assert_eq!(constant("FRICTION_VISCOUS"), ContactParams::VISCOUS);
 }
 
 #[test]
