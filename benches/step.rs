@@ -67,12 +67,19 @@ fn pile(c: &mut Criterion) {
                 }
             };
             let landed = (0.1 / scene.simulation.dt).round() as u64;
-            solver.advance(landed).expect("stable");
             group.throughput(Throughput::Elements(27 * (n as u64).pow(3) * steps));
             group.bench_function(BenchmarkId::from_parameter(format!("{prefix}{n}^3")), |b| {
+                // Landed here, only for the sizes the filter selects: on a software adapter the
+                // landing of the 10³ pile alone takes minutes.
+                if solver.steps_taken() == 0 {
+                    solver.advance(landed).expect("stable");
+                }
                 b.iter(|| solver.advance(steps).expect("stable"))
             });
             let stats = solver.statistics();
+            if stats.steps == 0 {
+                continue;
+            }
             eprintln!(
                 "  27 cubes of {n}^3 on {} at dt = {:e} s, where the time went:\n{}",
                 solver.device(),
