@@ -11,8 +11,14 @@
 //   index = (workgroup_id.y · num_workgroups.x + workgroup_id.x) · 256 + local_invocation_index,
 //   so every kernel returns early past the end of its range.
 //
+// - `FRICTION_COULOMB`, `FRICTION_VISCOUS`: a friction model, terrain's and bodies' alike (twin
+//   `layout::friction_code`).
+//
 // Vectors are vec4<f32> in storage (16-byte stride, w = 0): vec3 arrays would have the same
 // stride, and w = 0 keeps every element-wise update exact on the unused lane.
+
+const FRICTION_COULOMB: u32 = 0u;
+const FRICTION_VISCOUS: u32 = 1u;
 
 struct Params {
     // g, m/s².

@@ -28,7 +28,7 @@ fn friction(
 ) -> vec3<f32> {
     // Force per unit slip speed that stops the slip in one step.
     let stop = m / h;
-    if model == TERRAIN_FRICTION_COULOMB {
+    if model == FRICTION_COULOMB {
         let limit = mu * press;
         let speed = length(vt);
         if stop * speed > limit {

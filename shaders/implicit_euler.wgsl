@@ -160,7 +160,7 @@ fn implicit_candidates(id: Invocation) {
     c.friction = surface.friction;
     c.restitution = surface.restitution;
     c.state = MODE_INACTIVE;
-    if surface.friction_model == TERRAIN_FRICTION_VISCOUS {
+    if surface.friction_model == FRICTION_VISCOUS {
         c.state |= CANDIDATE_VISCOUS;
     }
     if last == MODE_STICK || last == MODE_SLIP {

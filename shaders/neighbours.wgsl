@@ -54,8 +54,6 @@ struct ContactParticle {
     _pad: u32,
 }
 
-const FRICTION_COULOMB: u32 = 0u;
-const FRICTION_VISCOUS: u32 = 1u;
 // The particle's body touches itself.
 const SELF_CONTACT: u32 = 1u;
 // The particle belongs to a cuboid and has lattice coordinates.

@@ -73,9 +73,6 @@ const TERRAIN_HEIGHTFIELD: u32 = 4u;
 const TERRAIN_MESH: u32 = 5u;
 const TERRAIN_NONE: u32 = 6u;
 
-const TERRAIN_FRICTION_COULOMB: u32 = 0u;
-const TERRAIN_FRICTION_VISCOUS: u32 = 1u;
-
 // "No contact at any reach": φ of the none kind and the reach of terrain_query.
 const TERRAIN_FAR: f32 = 3.0e38;
 

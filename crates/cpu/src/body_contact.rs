@@ -47,22 +47,7 @@ use softbody_scene::{Adjacency, FrictionModel, Integrator, Model, State};
 use crate::broad_phase::BroadPhase;
 use crate::vec_bytes;
 
-/// κ: the penalty's stiffness in units of m_red/h² (ω h = √κ ≈ 0.32).
-pub const PENALTY: f64 = 0.1;
-
-/// κ inside implicit Euler's solve, where the pair is a linearised spring like any other
-/// ([`crate::integrators::implicit_euler::system`]): backward Euler damps any stiffness, and
-/// a stiff penalty keeps the overlap under load small at large steps (κ = 100 lets a pile at
-/// h = 1/60 s sink to 0.89 R; 10⁴ makes the linearisation at the step start too coarse and the
-/// pile never settles).
-pub const PENALTY_IMPLICIT: f64 = 1000.0;
-
-/// The overlap, as a fraction of R, that the response leaves to the penalty force. A push is
-/// a move without a force, which the springs around it answer with elastic energy, so pushes
-/// must stay rare, and short: at 5%, implicit Euler's pile in the bowl at h = 1/60 s gains up
-/// to 1.5 J in a step, at 10% 0.08 J (of 206 J), and 1.25 J when a push triggered at 10% goes
-/// on to 5%.
-pub const SLOP: f64 = 0.1;
+pub use softbody_scene::model::{PENALTY, PENALTY_IMPLICIT, SLOP};
 
 /// Forces between particles that the explicit stages add to the springs' (a generic parameter
 /// of the integrators, so that a model whose bodies cannot touch pays nothing).

@@ -27,24 +27,17 @@
 //! run to run. Implicit Euler with contact between bodies runs on the CPU only (its solve would
 //! need the pairs inside its linear system).
 
-use softbody_scene::model::SELF_CONTACT_EXCLUSION;
-use softbody_scene::{FrictionModel, Model};
+use softbody_scene::Model;
+use softbody_scene::model::{PENALTY, SELF_CONTACT_EXCLUSION, SLOP};
 
 use crate::broad_phase::{BroadPhase, Snapshot, count_words};
 use crate::buffers::ModelBuffers;
 use crate::builder::Setup;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources};
-use crate::layout::{ContactParams, ContactParticleGpu};
+use crate::layout::{ContactParams, ContactParticleGpu, friction_code};
 use crate::shaders::Stage;
 use crate::{GpuError, VEC4};
-
-/// κ: the penalty's stiffness in units of m_red/h², twin of `softbody_cpu::body_contact::PENALTY`.
-pub const PENALTY: f32 = 0.1;
-
-/// The overlap, as a fraction of R, that the response leaves to the penalty force, twin of
-/// `softbody_cpu::body_contact::SLOP`.
-pub const SLOP: f32 = 0.1;
 
 /// The grid's cell over 2·r_max: enough that f32 rounding of x/s cannot put two particles
 /// closer than r_i + r_j two cells apart.
@@ -170,12 +163,9 @@ impl BodyContact {
             buckets: buckets as u32,
             restitution: c.laws.restitution as f32,
             friction: c.laws.friction as f32,
-            friction_model: match c.laws.friction_model {
-                FrictionModel::Coulomb => ContactParams::COULOMB,
-                FrictionModel::Viscous => ContactParams::VISCOUS,
-            },
-            penalty: PENALTY,
-            slop: SLOP,
+            friction_model: friction_code(c.laws.friction_model),
+            penalty: PENALTY as f32,
+            slop: SLOP as f32,
             exclusion: SELF_CONTACT_EXCLUSION,
         };
         let b = s.builder;

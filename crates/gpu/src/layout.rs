@@ -4,7 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use softbody_scene::implicit::Constraint;
-use softbody_scene::{Model, Springs};
+use softbody_scene::{FrictionModel, Model, Springs};
 
 /// The run's constants: twin of `Params` in `shaders/common.wgsl` (`@group(0) @binding(0)` of
 /// every kernel). WGSL aligns `vec3<f32>` to 16 bytes and rounds a uniform struct to 16, hence
@@ -259,7 +259,7 @@ pub struct ContactParams {
     pub restitution: f32,
     /// μ or k_f between bodies.
     pub friction: f32,
-    /// [`ContactParams::COULOMB`] or [`ContactParams::VISCOUS`].
+    /// [`friction_code`] of the laws between bodies.
     pub friction_model: u32,
     /// κ: the penalty stiffness in units of m_red/h².
     pub penalty: f32,
@@ -269,12 +269,19 @@ pub struct ContactParams {
     pub exclusion: i32,
 }
 
-impl ContactParams {
-    /// Coulomb friction between bodies (`FRICTION_COULOMB` in the WGSL).
-    pub const COULOMB: u32 = 0;
-    /// Viscous friction between bodies (`FRICTION_VISCOUS` in the WGSL).
-    pub const VISCOUS: u32 = 1;
+/// A friction model as every shader reads it (terrain and bodies alike): `FRICTION_COULOMB`
+/// and `FRICTION_VISCOUS` in `shaders/common.wgsl`.
+pub fn friction_code(model: FrictionModel) -> u32 {
+    match model {
+        FrictionModel::Coulomb => FRICTION_COULOMB,
+        FrictionModel::Viscous => FRICTION_VISCOUS,
+    }
 }
+
+/// [`friction_code`] of Coulomb friction.
+pub const FRICTION_COULOMB: u32 = 0;
+/// [`friction_code`] of viscous friction.
+pub const FRICTION_VISCOUS: u32 = 1;
 
 /// A particle's contact data: twin of `ContactParticle` in `shaders/neighbours.wgsl`.
 #[repr(C)]

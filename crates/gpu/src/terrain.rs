@@ -23,7 +23,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
-use softbody_scene::{FrictionModel, Terrain, TerrainShape, rotation_from_degrees};
+use softbody_scene::{Terrain, TerrainShape, rotation_from_degrees};
+
+use crate::layout::{FRICTION_COULOMB, friction_code};
 use softbody_terrain::Surface;
 use softbody_terrain::sdf::SdfGrid;
 
@@ -43,11 +45,6 @@ pub const KIND_MESH: u32 = 5;
 /// validation would refuse), and of the placeholder bound when a scene has no terrain:
 /// φ = `TERRAIN_FAR` (3e38), N = +y.
 pub const KIND_NONE: u32 = 6;
-
-/// `SurfaceGpu::friction_model` for Coulomb friction.
-pub const FRICTION_COULOMB: u32 = 0;
-/// `SurfaceGpu::friction_model` for viscous friction.
-pub const FRICTION_VISCOUS: u32 = 1;
 
 /// Degenerate-normal threshold of the GPU, relative to the shape's coordinate magnitude M
 /// (the CPU's is 1e-9, for f64): within max(1e-4·M, [`NORMAL_EPS_ABS`]) of the surface the
@@ -70,7 +67,7 @@ pub const HF_MAX_HALF_WINDOW: u32 = 8;
 pub struct SurfaceGpu {
     /// One of the `KIND_*` constants.
     pub kind: u32,
-    /// [`FRICTION_COULOMB`] or [`FRICTION_VISCOUS`].
+    /// [`friction_code`] of the surface's model.
     pub friction_model: u32,
     /// Coefficient of restitution k_r.
     pub restitution: f32,
@@ -176,10 +173,7 @@ pub fn pack(terrain: &[Terrain]) -> TerrainBuffers {
         } else {
             pack_geometry(&t.shape, &cpu, &mut data)
         };
-        s.friction_model = match t.friction_model {
-            FrictionModel::Coulomb => FRICTION_COULOMB,
-            FrictionModel::Viscous => FRICTION_VISCOUS,
-        };
+        s.friction_model = friction_code(t.friction_model);
         s.restitution = t.restitution as f32;
         s.friction = t.friction as f32;
         surfaces.push(s);
@@ -264,7 +258,8 @@ fn pack_geometry(shape: &TerrainShape, cpu: &Surface, data: &mut Vec<f32>) -> Su
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softbody_scene::{Heightfield, TriangleMesh};
+    use crate::layout::FRICTION_VISCOUS;
+    use softbody_scene::{FrictionModel, Heightfield, TriangleMesh};
 
     fn terrain(shape: TerrainShape) -> Terrain {
         Terrain {
@@ -305,8 +300,6 @@ mod tests {
             ("HEIGHTFIELD", KIND_HEIGHTFIELD),
             ("MESH", KIND_MESH),
             ("NONE", KIND_NONE),
-            ("FRICTION_COULOMB", FRICTION_COULOMB),
-            ("FRICTION_VISCOUS", FRICTION_VISCOUS),
         ] {
             assert!(
                 shader.contains(&format!("const TERRAIN_{name}: u32 = {value}u;")),

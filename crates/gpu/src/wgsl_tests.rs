@@ -423,8 +423,14 @@ fn contact_layouts_match() {
     let constant = |name| wgsl_const(Stage::BodyContact, name) as u32;
     assert_eq!(constant("SELF_CONTACT"), ContactParticleGpu::SELF_CONTACT);
     assert_eq!(constant("LATTICE"), ContactParticleGpu::LATTICE);
-    assert_eq!(constant("FRICTION_COULOMB"), ContactParams::COULOMB);
-    assert_eq!(constant("FRICTION_VISCOUS"), ContactParams::VISCOUS);
+    assert_eq!(
+        constant("FRICTION_COULOMB"),
+        crate::layout::FRICTION_COULOMB
+    );
+    assert_eq!(
+        constant("FRICTION_VISCOUS"),
+        crate::layout::FRICTION_VISCOUS
+    );
 }
 
 #[test]

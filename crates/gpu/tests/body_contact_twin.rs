@@ -40,7 +40,6 @@ use softbody_testkit::{Backend, Failed, GpuTest, Rng, all, ensure};
 
 fn main() -> ExitCode {
     let tests: &[(&str, GpuTest)] = &[
-        ("the_constants_are_the_cpus", constants),
         ("the_pairs_of_a_random_cloud_are_the_cpus", |gpu| {
             pairs_twin(gpu, 600, 0.5, 1)
         }),
@@ -251,20 +250,6 @@ fn doubtful(model: &Model, x: &[DVec3], pairs: &Pairs, near: &[[u32; 2]]) -> BTr
 
 // ---------------------------------------------------------------------------------------------
 // The tests
-
-/// The penalty's κ and the response's slop are the CPU's, and the clouds' radii reach the
-/// lattice exclusion (so the rule is exercised).
-fn constants(_gpu: &Arc<Gpu>) -> Result<(), Failed> {
-    use softbody_cpu::body_contact as cpu;
-    use softbody_gpu::body_contact as gpu;
-    ensure(
-        f64::from(gpu::PENALTY) == cpu::PENALTY as f32 as f64,
-        || format!("GPU κ {} against the CPU's {}", gpu::PENALTY, cpu::PENALTY),
-    )?;
-    ensure(f64::from(gpu::SLOP) == cpu::SLOP as f32 as f64, || {
-        format!("GPU slop {} against the CPU's {}", gpu::SLOP, cpu::SLOP)
-    })
-}
 
 /// The GPU's pairs of a cloud (`loose` particles of the loose body, in a cube of `size`) are the
 /// CPU's, but for a few within rounding of R; every rule of admission is exercised.
