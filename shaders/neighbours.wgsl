@@ -106,16 +106,21 @@ fn admits(lo: u32, hi: u32, a: ContactParticle, b: ContactParticle) -> bool {
     return true;
 }
 
-// The search of the 27 cells around a cell: the buckets still to read and the run being read.
+// The search of the 27 cells around a cell: the cells still to read and the run being read.
+//
+// Two of the 27 cells may hash to one bucket, and a bucket holds other cells' particles too:
+// a candidate counts only where its own cell is the cell being read (`current`), so each
+// particle of the 27 cells comes out once, at its own cell's offset, and no other does. (A
+// list of the buckets already read would do the same at 351 comparisons per search and a
+// 27-word array per thread, which costs software adapters half the contact step.)
 struct Neighbours {
     cell: vec3<i32>,
     // The next of the 27 cell offsets.
     next: u32,
-    // The run being read, [at, end) of `sorted`.
+    // The cell being read, and its bucket's run [at, end) of `sorted`.
+    current: vec3<i32>,
     at: u32,
     end: u32,
-    // The buckets of the offsets read so far: two cells may share a bucket, read once.
-    seen: array<u32, 27>,
 }
 
 fn neighbours_of(p: vec3<f32>) -> Neighbours {
@@ -127,14 +132,19 @@ fn neighbours_of(p: vec3<f32>) -> Neighbours {
     return it;
 }
 
-// The next particle of the buckets around the cell (i itself included), or NONE at the end.
-fn next_candidate(it: ptr<function, Neighbours>) -> u32 {
+// The next particle of the 27 cells around the cell (i itself included) in the snapshot at
+// `base`, whose grid `it` searches, or NONE at the end.
+fn next_candidate(it: ptr<function, Neighbours>, base: u32) -> u32 {
     var j = NONE;
     loop {
         if (*it).at < (*it).end {
-            j = sorted[(*it).at];
+            let q = sorted[(*it).at];
             (*it).at += 1u;
-            break;
+            if all(cell_of(snapshot_x[base + q].xyz) == (*it).current) {
+                j = q;
+                break;
+            }
+            continue;
         }
         let k = (*it).next;
         if k == 27u {
@@ -142,15 +152,8 @@ fn next_candidate(it: ptr<function, Neighbours>) -> u32 {
         }
         (*it).next = k + 1u;
         let offset = vec3<i32>(i32(k % 3u), i32(k / 3u % 3u), i32(k / 9u)) - vec3<i32>(1);
-        let b = bucket_of((*it).cell + offset);
-        (*it).seen[k] = b;
-        var repeated = false;
-        for (var q = 0u; q < k; q++) {
-            repeated = repeated || (*it).seen[q] == b;
-        }
-        if repeated {
-            continue;
-        }
+        (*it).current = (*it).cell + offset;
+        let b = bucket_of((*it).current);
         if b == 0u {
             (*it).at = 0u;
         } else {
@@ -174,9 +177,9 @@ fn in_contact(lo: u32, hi: u32, base: u32) -> bool {
 // The next partner j ≠ i of particle i in the snapshot at `base` (whose grid `it` searches), or
 // NONE at the end.
 fn next_partner(i: u32, it: ptr<function, Neighbours>, base: u32) -> u32 {
-    var j = next_candidate(it);
+    var j = next_candidate(it, base);
     while j != NONE && (j == i || !in_contact(min(i, j), max(i, j), base)) {
-        j = next_candidate(it);
+        j = next_candidate(it, base);
     }
     return j;
 }
