@@ -7,7 +7,9 @@
 //! removes what was staged. A run stopped by an instability is committed like a completed
 //! one: every frame written before it is complete.
 //!
-//! An existing destination is replaced: a file by a rename over it; a directory of frames by
+//! An existing destination is replaced: a regular file by a rename over it (keeping its
+//! permissions; a symbolic link is followed, and a device or a FIFO is written in place, see
+//! [`Staged::file`]); a directory of frames by
 //! moving it aside, renaming the new one in and then deleting the old one. A directory is only
 //! replaced when it holds nothing but frames of the same series (`<stem>_<digits>.<ext>` of
 //! the format being written): `--out ~` must not delete a home directory, and a PLY run must
@@ -46,6 +48,14 @@ pub enum OutputError {
         .0.display(), .1.display(), .2
     )]
     Foreign(PathBuf, PathBuf, Format),
+    /// `--out`'s extension names no format, or another format than `--format`.
+    #[error("{}: {problem}", path.display())]
+    Extension {
+        /// The output path.
+        path: PathBuf,
+        /// What is wrong with it.
+        problem: String,
+    },
     /// Reading or writing failed.
     #[error("{what}")]
     Io {
@@ -59,7 +69,10 @@ pub enum OutputError {
 impl OutputError {
     /// Whether the request itself is wrong (the command line), rather than the file system.
     pub fn is_bad_input(&self) -> bool {
-        matches!(self, OutputError::Stdout(_) | OutputError::BadName(..))
+        matches!(
+            self,
+            OutputError::Stdout(_) | OutputError::BadName(..) | OutputError::Extension { .. }
+        )
     }
 }
 
@@ -85,7 +98,8 @@ impl Output {
     ///
     /// `path` names the file for JSON Lines, CSV and NPZ, the `.pvd` file for VTK (the frames
     /// go to the directory of the same name without the extension beside it), and the
-    /// directory for PLY and OBJ. Checks up front what it can (a series to standard output, a
+    /// directory for PLY and OBJ (a name ending in `.ply` or `.obj` names the directory without
+    /// it, as for VTK). Checks up front what it can (a series to standard output, a
     /// directory that is not ours, a directory where the file should go), so that a run is not
     /// computed for nothing.
     pub fn create(format: Format, path: Option<&Path>) -> Result<Output, OutputError> {
@@ -159,6 +173,8 @@ pub struct Staged {
 
 enum Temp {
     File(NamedTempFile),
+    /// Written in place: a character device or a FIFO, which a rename would replace.
+    Direct,
     Dir {
         files: TempDir,
         stem: String,
@@ -179,15 +195,33 @@ enum Existing {
 
 impl Staged {
     /// A file to be renamed over `path`, and the handle to write it through. Makes the missing
-    /// directories above `path`; refuses a directory at `path`, which the rename at the end
-    /// could not replace.
+    /// directories above `path`.
+    ///
+    /// What is already at `path` decides how: a symbolic link is followed (the file it names
+    /// is written, the link stays); a regular file is replaced at commit and the new one takes
+    /// its permissions (without set-id bits) and, where the process may, its owner; a character
+    /// device or a FIFO (`/dev/null`, `/dev/stdout`, a named pipe) is written directly, as a
+    /// shell redirection would (opening a FIFO waits for its reader); a directory or anything
+    /// else (a block device, a socket) is refused, since the rename at the end would replace it.
     pub fn file(path: &Path) -> Result<(Staged, fs::File), OutputError> {
+        let path = &follow_links(path)?;
         let parent = create_parent(path)?;
-        if path.is_dir() {
-            return Err(OutputError::Io {
-                what: format!("cannot write {}", path.display()),
-                source: io::Error::new(io::ErrorKind::IsADirectory, "it is a directory"),
-            });
+        let existing = match fs::metadata(path) {
+            Err(e) if e.kind() == io::ErrorKind::NotFound => None,
+            other => Some(io_context(other, || format!("cannot read {}", path.display()))?),
+        };
+        if let Some(meta) = existing.filter(|m| !m.is_file()) {
+            if is_stream(&meta) {
+                let file = io_context(fs::OpenOptions::new().write(true).open(path), || {
+                    format!("cannot write {}", path.display())
+                })?;
+                let staged = Staged {
+                    temp: Temp::Direct,
+                    destination: path.to_owned(),
+                };
+                return Ok((staged, file));
+            }
+            return Err(not_a_file(path, &meta));
         }
         let temp = temp_file(parent)?;
         let file = io_context(temp.reopen(), || {
@@ -236,6 +270,7 @@ impl Staged {
     pub fn path(&self) -> &Path {
         match &self.temp {
             Temp::File(file) => file.path(),
+            Temp::Direct => &self.destination,
             Temp::Dir { files, .. } => files.path(),
         }
     }
@@ -245,10 +280,19 @@ impl Staged {
     pub fn commit(self) -> Result<(), OutputError> {
         let path = self.destination;
         match self.temp {
-            Temp::File(temp) => temp.persist(&path).map(drop).map_err(|e| OutputError::Io {
-                what: format!("cannot write {}", path.display()),
-                source: e.error,
-            }),
+            Temp::File(temp) => {
+                // Checked again: the destination may have changed during the run.
+                match fs::symlink_metadata(&path) {
+                    Ok(meta) if meta.is_file() => keep_mode_and_owner(temp.as_file(), &meta),
+                    Ok(meta) => return Err(not_a_file(&path, &meta)),
+                    Err(_) => {}
+                }
+                temp.persist(&path).map(drop).map_err(|e| OutputError::Io {
+                    what: format!("cannot write {}", path.display()),
+                    source: e.error,
+                })
+            }
+            Temp::Direct => Ok(()),
             Temp::Dir {
                 files,
                 stem,
@@ -256,6 +300,78 @@ impl Staged {
             } => place_dir(files, &path, &stem, &existing),
         }
     }
+}
+
+/// The path a chain of symbolic links at `path` ends in (`path` itself when it is not a link),
+/// which may not exist yet. Only the last component is resolved: the directories above are the
+/// operating system's to follow.
+fn follow_links(path: &Path) -> Result<PathBuf, OutputError> {
+    // As Linux's ELOOP limit.
+    const MAX_LINKS: usize = 40;
+    let mut at = path.to_owned();
+    for _ in 0..MAX_LINKS {
+        match fs::symlink_metadata(&at) {
+            Ok(meta) if meta.file_type().is_symlink() => {
+                let target = io_context(fs::read_link(&at), || {
+                    format!("cannot read the link {}", at.display())
+                })?;
+                // A relative target is relative to the link's directory.
+                at = parent_of(&at).join(target);
+            }
+            _ => return Ok(at),
+        }
+    }
+    Err(OutputError::Io {
+        what: format!("cannot write {}", path.display()),
+        source: io::Error::other(format!("more than {MAX_LINKS} symbolic links")),
+    })
+}
+
+/// Whether `meta` is a file written as a stream rather than replaced: a character device or a
+/// FIFO.
+fn is_stream(meta: &fs::Metadata) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let kind = meta.file_type();
+        kind.is_char_device() || kind.is_fifo()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = meta;
+        false
+    }
+}
+
+/// The refusal to replace `path`, which `meta` says is not a regular file.
+fn not_a_file(path: &Path, meta: &fs::Metadata) -> OutputError {
+    let (kind, what) = if meta.is_dir() {
+        (io::ErrorKind::IsADirectory, "it is a directory")
+    } else {
+        (
+            io::ErrorKind::InvalidInput,
+            "it is not a regular file (a block device or a socket), which would be replaced",
+        )
+    };
+    OutputError::Io {
+        what: format!("cannot write {}", path.display()),
+        source: io::Error::new(kind, what),
+    }
+}
+
+/// Gives the staged `file` the permissions (less the set-id and sticky bits) and, where the
+/// process may, the owner of the regular file `meta` it replaces. Best effort: a file the
+/// process may not chown becomes its own, as any rename-into-place leaves it.
+fn keep_mode_and_owner(file: &fs::File, meta: &fs::Metadata) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::{MetadataExt, PermissionsExt};
+        let _ = std::os::unix::fs::fchown(file, Some(meta.uid()), Some(meta.gid()));
+        // After the chown, which clears set-id bits, and of the mode alone.
+        let _ = file.set_permissions(fs::Permissions::from_mode(meta.mode() & 0o777));
+    }
+    #[cfg(not(unix))]
+    let _ = file.set_permissions(meta.permissions());
 }
 
 /// The directory `path` is in (`.` for a bare name).
@@ -276,7 +392,9 @@ fn create_parent(path: &Path) -> Result<&Path, OutputError> {
 
 /// The frames directory of a series written to `path`, and the stem of its file names.
 fn series_names(format: Format, path: &Path) -> Result<(PathBuf, String), OutputError> {
-    let name = if format == Format::Vtk {
+    // `run.pvd` names the directory `run` beside it, and so do `run.ply` and `run.obj`: the
+    // frames of all three are `run/run_<digits>.<ext>`.
+    let name = if Format::from_path(path) == Some(format) {
         path.file_stem()
     } else {
         path.file_name()
@@ -500,6 +618,11 @@ mod tests {
     fn series_names_follow_the_out_path() {
         let (dir, stem) = series_names(Format::Vtk, Path::new("out/run.pvd")).unwrap();
         assert_eq!((dir, stem.as_str()), (PathBuf::from("out/run"), "run"));
+        for format in [Format::Ply, Format::Obj] {
+            let path = format!("out/run.{}", format.extension());
+            let (dir, stem) = series_names(format, Path::new(&path)).unwrap();
+            assert_eq!((dir, stem.as_str()), (PathBuf::from("out/run"), "run"));
+        }
         let (dir, stem) = series_names(Format::Ply, Path::new("out/run.v2")).unwrap();
         assert_eq!(
             (dir, stem.as_str()),

@@ -91,12 +91,50 @@ impl Format {
         matches!(self, Format::Vtk | Format::Ply | Format::Obj)
     }
 
-    /// The format an output path implies by its extension (`.csv`, `.npz`, `.pvd`), if any.
+    /// The format an output path names by its extension, if it names one: `.jsonl`, `.csv`,
+    /// `.npz`, `.pvd` (VTK), `.ply`, `.obj`.
     pub fn from_path(path: &Path) -> Option<Format> {
         let ext = path.extension()?;
-        [Format::Csv, Format::Npz, Format::Vtk]
-            .into_iter()
-            .find(|f| ext == f.extension())
+        Format::ALL.into_iter().find(|f| ext == f.extension())
+    }
+
+    /// The format of an output to `out` (`None`: the default path; `-`: standard output) asked
+    /// for with `--format` `explicit`: the flag, else the extension's ([`Format::from_path`]),
+    /// else JSON Lines for a name without an extension. Refuses a flag that the extension
+    /// contradicts (`--out a.csv --format jsonl`), and an extension that names no format unless
+    /// the flag chooses one (`--out run.txt --format csv` writes CSV to `run.txt`).
+    pub fn for_output(explicit: Option<Format>, out: Option<&Path>) -> Result<Format, OutputError> {
+        let Some(path) = out.filter(|p| *p != Path::new("-")) else {
+            return Ok(explicit.unwrap_or_default());
+        };
+        let named = Format::from_path(path);
+        match (explicit, named, path.extension()) {
+            (Some(flag), Some(named), _) if flag != named => Err(OutputError::Extension {
+                path: path.to_owned(),
+                problem: format!(
+                    "its extension is {named}'s, but --format {flag} was given; make them agree \
+                     or drop one"
+                ),
+            }),
+            (Some(flag), _, _) => Ok(flag),
+            (None, Some(named), _) => Ok(named),
+            (None, None, None) => Ok(Format::default()),
+            (None, None, Some(ext)) => {
+                let hint = match ext.to_str() {
+                    Some("json") => " (JSON Lines files end in .jsonl)",
+                    Some("vtu") => " (VTK output is named by its .pvd collection)",
+                    _ => "",
+                };
+                Err(OutputError::Extension {
+                    path: path.to_owned(),
+                    problem: format!(
+                        ".{} names no output format{hint}; use .jsonl, .csv, .npz, .pvd (vtk), \
+                         .ply or .obj, or choose the format with --format",
+                        ext.to_string_lossy()
+                    ),
+                })
+            }
+        }
     }
 
     /// The default output path of a scene whose file stem is `stem`:
@@ -280,10 +318,40 @@ mod tests {
         );
         assert_eq!(Format::from_path(Path::new("a/b.pvd")), Some(Format::Vtk));
         assert_eq!(Format::from_path(Path::new("b.npz")), Some(Format::Npz));
-        assert_eq!(Format::from_path(Path::new("b.ply")), None);
+        assert_eq!(Format::from_path(Path::new("b.ply")), Some(Format::Ply));
+        assert_eq!(Format::from_path(Path::new("b.vtu")), None);
         assert_eq!(Format::from_path(Path::new("b")), None);
         assert_eq!(Format::Vtk.default_path("s"), Path::new("out/s.pvd"));
         assert_eq!(Format::Obj.default_path("s"), Path::new("out/s"));
         assert!(Format::Ply.is_series() && !Format::Csv.is_series());
+    }
+
+    #[test]
+    fn the_output_format_is_the_flag_or_the_extension_and_they_agree() {
+        let format = |flag: Option<Format>, out: Option<&str>| {
+            Format::for_output(flag, out.map(Path::new)).map_err(|e| e.to_string())
+        };
+        for f in Format::ALL {
+            let name = format!("out/run.{}", f.extension());
+            assert_eq!(format(None, Some(&name)), Ok(f));
+            assert_eq!(format(Some(f), Some(&name)), Ok(f));
+        }
+        assert_eq!(format(None, None), Ok(Format::Jsonl));
+        assert_eq!(format(None, Some("-")), Ok(Format::Jsonl));
+        assert_eq!(format(Some(Format::Csv), Some("-")), Ok(Format::Csv));
+        assert_eq!(format(None, Some("frames")), Ok(Format::Jsonl));
+        assert_eq!(format(Some(Format::Csv), Some("run.txt")), Ok(Format::Csv));
+        assert_eq!(format(Some(Format::Ply), Some("out/run.v2")), Ok(Format::Ply));
+        let e = format(Some(Format::Jsonl), Some("b.npz")).unwrap_err();
+        assert_eq!(
+            e,
+            "b.npz: its extension is npz's, but --format jsonl was given; make them agree or \
+             drop one"
+        );
+        let e = format(None, Some("a.json")).unwrap_err();
+        assert!(e.starts_with("a.json: .json names no output format (JSON Lines files end in .jsonl)"), "{e}");
+        let e = format(None, Some("a.vtu")).unwrap_err();
+        assert!(e.contains("(VTK output is named by its .pvd collection)"), "{e}");
+        assert!(format(None, Some("c.dat")).is_err());
     }
 }

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use clap::Args;
 use softbody::Backend;
-use softbody::output::{Format, Output, OutputError};
+use softbody::output::{Format, Output};
 use softbody::run::RunError;
 
 use crate::args::StepOverrides;
@@ -17,13 +17,14 @@ use crate::{
 pub struct RunArgs {
     /// The scene file (TOML).
     scene: PathBuf,
-    /// Output file (the .pvd for vtk, a directory for ply and obj); `-` writes to standard
-    /// output (single-file formats). Default: out/{scene file stem}.{extension}, or the
-    /// directory out/{scene file stem} for ply and obj.
+    /// Output file (the .pvd for vtk, a directory for ply and obj: NAME.ply and NAME.obj name
+    /// the directory NAME); `-` writes to standard output (single-file formats). An existing
+    /// file is replaced (a link is followed, a device or FIFO written in place). Default:
+    /// out/{scene file stem}.{extension}, or the directory out/{scene file stem} for ply and obj.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Output format: jsonl, csv, npz, vtk, ply or obj; default from the --out extension
-    /// (.csv, .npz, .pvd), else jsonl.
+    /// (.jsonl, .csv, .npz, .pvd, .ply, .obj; another extension needs --format), else jsonl.
     #[arg(long)]
     format: Option<Format>,
     /// CPU threads (default: all cores).
@@ -43,27 +44,21 @@ pub struct RunArgs {
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     let scene = load_with(&args.scene, &(&args.overrides).into())?;
 
-    let format = args
-        .format
-        .or_else(|| args.out.as_deref().and_then(Format::from_path))
-        .unwrap_or_default();
+    let format = Format::for_output(args.format, args.out.as_deref()).map_err(bad_input)?;
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
     let out_path = match &args.out {
         Some(p) => p.clone(),
         None => format.default_path(&file_stem(&args.scene)),
     };
-    // Refused before the run rather than after it.
-    if to_stdout && format.is_series() {
-        return Err(bad_input(OutputError::Stdout(format)));
-    }
+
+    // Before the solver (a GPU takes seconds to open) and the run: a destination that cannot
+    // be written is refused first. The library stages the frames beside the destination and
+    // puts them in place at commit (see `softbody::output::destination`).
+    let mut output = Output::create(format, (!to_stdout).then_some(out_path.as_path()))
+        .map_err(output_failure)?;
 
     let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))
         .map_err(open_failure)?;
-
-    // The library stages the frames beside the destination and puts them in place at commit
-    // (see `softbody::output::destination`).
-    let mut output = Output::create(format, (!to_stdout).then_some(out_path.as_path()))
-        .map_err(output_failure)?;
 
     let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
     let started = Instant::now();

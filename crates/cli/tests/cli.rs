@@ -69,6 +69,105 @@ fn existing_output_file_is_replaced() {
     read_jsonl(&out);
 }
 
+/// A link at --out is followed: the file it names is written (made when missing), the link
+/// stays a link.
+#[cfg(unix)]
+#[test]
+fn a_symbolic_link_at_out_is_followed() {
+    let (sb, scene) = sandbox_with(&Cube::default(), "s");
+    std::fs::create_dir(sb.path().join("data")).unwrap();
+    for (link, target, old) in [
+        ("live.jsonl", "data/live-target.jsonl", Some("old contents\n")),
+        ("dangling.jsonl", "data/dangling-target.jsonl", None),
+    ] {
+        let target_path = sb.path().join(target);
+        if let Some(old) = old {
+            std::fs::write(&target_path, old).unwrap();
+        }
+        let link_path = sb.path().join(link);
+        std::os::unix::fs::symlink(target, &link_path).unwrap();
+        sb.run(&["run", &scene, "--out", link_path.to_str().unwrap(), "--quiet"])
+            .expect_status(EXIT_OK);
+        let meta = std::fs::symlink_metadata(&link_path).unwrap();
+        assert!(meta.file_type().is_symlink(), "{link} was replaced");
+        assert_eq!(std::fs::read_link(&link_path).unwrap(), std::path::Path::new(target));
+        read_jsonl(&target_path);
+    }
+    assert_eq!(
+        entries(&sb.path().join("data")),
+        ["dangling-target.jsonl", "live-target.jsonl"],
+        "nothing staged is left beside the targets"
+    );
+}
+
+/// A replaced file keeps its permissions: a private 0600 file stays private.
+#[cfg(unix)]
+#[test]
+fn a_replaced_file_keeps_its_permissions() {
+    use std::os::unix::fs::PermissionsExt;
+    let (sb, scene) = sandbox_with(&Cube::default(), "s");
+    for mode in [0o600, 0o640, 0o664] {
+        let out = sb.write("private.jsonl", "old\n");
+        std::fs::set_permissions(&out, std::fs::Permissions::from_mode(mode)).unwrap();
+        sb.run(&["run", &scene, "--out", out.to_str().unwrap(), "--quiet"])
+            .expect_status(EXIT_OK);
+        read_jsonl(&out);
+        let got = std::fs::metadata(&out).unwrap().permissions().mode() & 0o7777;
+        assert_eq!(format!("{got:o}"), format!("{mode:o}"));
+    }
+}
+
+/// A FIFO at --out is written in place (its reader gets the frames) and stays a FIFO; as with
+/// a character device such as /dev/null, a rename over it would replace it with a file.
+#[cfg(unix)]
+#[test]
+fn a_fifo_at_out_is_written_not_replaced() {
+    use std::os::unix::fs::FileTypeExt;
+    let (sb, scene) = sandbox_with(&Cube::default(), "s");
+    let fifo = sb.path().join("pipe.jsonl");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read_to_string(fifo).unwrap())
+    };
+    sb.run(&["run", &scene, "--out", fifo.to_str().unwrap(), "--quiet"])
+        .expect_status(EXIT_OK);
+    let text = reader.join().unwrap();
+    let frames = parse_jsonl(&text);
+    assert!(!frames.frames.is_empty(), "the reader got the frames");
+    let kind = std::fs::symlink_metadata(&fifo).unwrap().file_type();
+    assert!(kind.is_fifo(), "the FIFO was replaced");
+    assert_eq!(entries(sb.path()), ["pipe.jsonl", "s.toml"], "nothing staged");
+}
+
+/// A destination that cannot be written is refused before the solver opens or a step runs: a
+/// run of an hour fails at once.
+#[test]
+fn an_unwritable_destination_is_refused_before_the_run() {
+    let sb = Sandbox::new();
+    let scene = sb.write(
+        "long.toml",
+        &Cube {
+            duration: 3600.0,
+            ..Cube::default()
+        }
+        .toml(),
+    );
+    let dir = sb.mkdir("frames.jsonl");
+    let started = std::time::Instant::now();
+    sb.run(&["run", scene.to_str().unwrap(), "--out", dir.to_str().unwrap()])
+        .expect_status(EXIT_OUTPUT);
+    assert!(
+        started.elapsed().as_secs() < 60,
+        "refused after {:?}: the run was simulated first",
+        started.elapsed()
+    );
+}
+
 #[cfg(unix)]
 #[test]
 fn output_file_has_the_permissions_of_an_ordinary_file() {

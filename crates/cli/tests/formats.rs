@@ -242,26 +242,49 @@ fn npz_holds_the_same_numbers_as_jsonl() {
 }
 
 #[test]
-fn format_follows_the_out_extension_and_the_flag_wins() {
+fn format_follows_the_out_extension_and_the_flag_must_agree() {
     let sb = Sandbox::new();
     let path = sb.write("s.toml", &Cube::default().toml());
     assert_eq!(run_to(&sb, &path, "a.csv", &[]), EXIT_OK);
     assert_eq!(run_to(&sb, &path, "b.npz", &[]), EXIT_OK);
-    assert_eq!(run_to(&sb, &path, "c.dat", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "c.jsonl", &[]), EXIT_OK);
     assert_eq!(run_to(&sb, &path, "d.txt", &["--format", "csv"]), EXIT_OK);
-    assert_eq!(run_to(&sb, &path, "e.csv", &["--format", "jsonl"]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "e", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "f.ply", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "g.obj", &[]), EXIT_OK);
     let head = |name: &str| {
         let bytes = std::fs::read(sb.path().join(name)).unwrap();
         bytes[..bytes.len().min(40)].to_vec()
     };
     assert!(head("a.csv").starts_with(b"frame,time,particle,"));
     assert!(head("b.npz").starts_with(b"PK\x03\x04"), "a zip archive");
-    assert!(
-        head("c.dat").starts_with(b"{\"softbody_frames\":1"),
-        "JSON Lines by default"
-    );
+    assert!(head("c.jsonl").starts_with(b"{\"softbody_frames\":1"));
     assert!(head("d.txt").starts_with(b"frame,time,particle,"));
-    assert!(head("e.csv").starts_with(b"{\"softbody_frames\":1"));
+    assert!(
+        head("e").starts_with(b"{\"softbody_frames\":1"),
+        "JSON Lines for a name without an extension"
+    );
+    // NAME.ply and NAME.obj name the directory NAME, as NAME.pvd does for VTK.
+    assert!(head("f/f_000000.ply").starts_with(b"ply\n"));
+    assert!(head("g/g_000000.obj").starts_with(b"# "));
+
+    // A contradiction or an extension that names no format: refused before anything is
+    // written.
+    for (name, flags, says) in [
+        ("h.csv", &["--format", "jsonl"][..], "its extension is csv's, but --format jsonl"),
+        ("i.npz", &["--format", "csv"][..], "its extension is npz's, but --format csv"),
+        ("j.dat", &[][..], ".dat names no output format"),
+        ("k.json", &[][..], "JSON Lines files end in .jsonl"),
+        ("l.vtu", &[][..], "named by its .pvd collection"),
+    ] {
+        let out = sb.path().join(name);
+        let mut args = vec!["run", path.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        args.extend_from_slice(flags);
+        let run = sb.run(&args);
+        run.expect_status(EXIT_BAD_INPUT);
+        assert!(run.stderr.contains(says), "{name}: {}", run.stderr);
+        assert!(!out.exists(), "{name} was written");
+    }
 }
 
 #[test]
