@@ -208,7 +208,9 @@ impl Staged {
         let parent = create_parent(path)?;
         let existing = match fs::metadata(path) {
             Err(e) if e.kind() == io::ErrorKind::NotFound => None,
-            other => Some(io_context(other, || format!("cannot read {}", path.display()))?),
+            other => Some(io_context(other, || {
+                format!("cannot read {}", path.display())
+            })?),
         };
         if let Some(meta) = existing.filter(|m| !m.is_file()) {
             if is_stream(&meta) {

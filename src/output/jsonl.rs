@@ -162,6 +162,22 @@ pub enum ReadError {
         /// What the JSON parser found.
         source: serde_json::Error,
     },
+    /// A frame's number is not above the previous frame's (a duplicated or reordered line):
+    /// its picture or record would silently replace the earlier one's.
+    #[error(
+        "{}:{line}: frame {index} after frame {previous}: frame numbers must increase",
+        file.display()
+    )]
+    Order {
+        /// The file.
+        file: PathBuf,
+        /// 1-based.
+        line: usize,
+        /// This frame's number.
+        index: u64,
+        /// The previous frame's.
+        previous: u64,
+    },
     /// A frame holds another number of positions or velocities than the header's particles.
     #[error("{}:{line}: {found} {what} for {particles} particles", file.display())]
     Particles {
@@ -181,13 +197,16 @@ pub enum ReadError {
 /// Reads frames written by [`JsonlSink`] (`softbody run`'s default output): the header first,
 /// then the frames in file order as an iterator. Numbers come back to the bit as they were
 /// written. Blank lines are skipped; the header's springs, rest lengths and surface are not in
-/// the file and stay empty.
+/// the file and stay empty. Frame numbers must increase from line to line (they need not start
+/// at 0 or be consecutive: a trimmed file reads).
 pub struct Reader<R> {
     lines: io::Lines<R>,
     file: PathBuf,
     /// The last line read, 1-based.
     line: usize,
     header: Header,
+    /// The last frame's number.
+    previous: Option<u64>,
 }
 
 impl Reader<BufReader<File>> {
@@ -233,6 +252,7 @@ impl<R: BufRead> Reader<R> {
             file,
             line: 1,
             header,
+            previous: None,
         })
     }
 
@@ -241,13 +261,22 @@ impl<R: BufRead> Reader<R> {
         &self.header
     }
 
-    fn parse(&self, text: &str) -> Result<FrameData, ReadError> {
+    fn parse(&mut self, text: &str) -> Result<FrameData, ReadError> {
         let record: FrameRecord<'static> =
             serde_json::from_str(text).map_err(|source| ReadError::Frame {
                 file: self.file.clone(),
                 line: self.line,
                 source,
             })?;
+        if let Some(previous) = self.previous.filter(|&p| record.frame <= p) {
+            return Err(ReadError::Order {
+                file: self.file.clone(),
+                line: self.line,
+                index: record.frame,
+                previous,
+            });
+        }
+        self.previous = Some(record.frame);
         let particles = self.header.particles;
         for (what, found) in [
             ("positions", record.positions.len()),
@@ -390,6 +419,33 @@ mod tests {
         let e = reader.next().unwrap().unwrap_err();
         assert!(matches!(e, ReadError::Frame { line: 5, .. }), "{e:?}");
         assert_eq!(e.to_string(), "d/f.jsonl:5: not a frame");
+    }
+
+    #[test]
+    fn frame_numbers_must_increase_but_may_start_anywhere() {
+        let (_, _, bytes) = written(4);
+        let text = String::from_utf8(bytes).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        let path = Path::new("f.jsonl");
+        let read = |order: &[usize]| -> Vec<Result<u64, String>> {
+            let text: Vec<&str> = std::iter::once(lines[0])
+                .chain(order.iter().map(|&k| lines[k + 1]))
+                .collect();
+            Reader::new(text.join("\n").as_bytes(), path)
+                .unwrap()
+                .map(|f| f.map(|f| f.index).map_err(|e| e.to_string()))
+                .collect()
+        };
+        assert_eq!(read(&[2, 3]), [Ok(2), Ok(3)], "trimmed at the start");
+        assert_eq!(read(&[0, 3]), [Ok(0), Ok(3)], "a gap");
+        assert_eq!(
+            read(&[0, 1, 1]).last().unwrap(),
+            &Err("f.jsonl:4: frame 1 after frame 1: frame numbers must increase".to_owned())
+        );
+        assert_eq!(
+            read(&[2, 0]).last().unwrap(),
+            &Err("f.jsonl:3: frame 0 after frame 2: frame numbers must increase".to_owned())
+        );
     }
 
     #[test]

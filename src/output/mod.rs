@@ -341,7 +341,10 @@ mod tests {
         assert_eq!(format(Some(Format::Csv), Some("-")), Ok(Format::Csv));
         assert_eq!(format(None, Some("frames")), Ok(Format::Jsonl));
         assert_eq!(format(Some(Format::Csv), Some("run.txt")), Ok(Format::Csv));
-        assert_eq!(format(Some(Format::Ply), Some("out/run.v2")), Ok(Format::Ply));
+        assert_eq!(
+            format(Some(Format::Ply), Some("out/run.v2")),
+            Ok(Format::Ply)
+        );
         let e = format(Some(Format::Jsonl), Some("b.npz")).unwrap_err();
         assert_eq!(
             e,
@@ -349,9 +352,15 @@ mod tests {
              drop one"
         );
         let e = format(None, Some("a.json")).unwrap_err();
-        assert!(e.starts_with("a.json: .json names no output format (JSON Lines files end in .jsonl)"), "{e}");
+        assert!(
+            e.starts_with("a.json: .json names no output format (JSON Lines files end in .jsonl)"),
+            "{e}"
+        );
         let e = format(None, Some("a.vtu")).unwrap_err();
-        assert!(e.contains("(VTK output is named by its .pvd collection)"), "{e}");
+        assert!(
+            e.contains("(VTK output is named by its .pvd collection)"),
+            "{e}"
+        );
         assert!(format(None, Some("c.dat")).is_err());
     }
 }

@@ -77,7 +77,11 @@ fn a_symbolic_link_at_out_is_followed() {
     let (sb, scene) = sandbox_with(&Cube::default(), "s");
     std::fs::create_dir(sb.path().join("data")).unwrap();
     for (link, target, old) in [
-        ("live.jsonl", "data/live-target.jsonl", Some("old contents\n")),
+        (
+            "live.jsonl",
+            "data/live-target.jsonl",
+            Some("old contents\n"),
+        ),
         ("dangling.jsonl", "data/dangling-target.jsonl", None),
     ] {
         let target_path = sb.path().join(target);
@@ -86,11 +90,20 @@ fn a_symbolic_link_at_out_is_followed() {
         }
         let link_path = sb.path().join(link);
         std::os::unix::fs::symlink(target, &link_path).unwrap();
-        sb.run(&["run", &scene, "--out", link_path.to_str().unwrap(), "--quiet"])
-            .expect_status(EXIT_OK);
+        sb.run(&[
+            "run",
+            &scene,
+            "--out",
+            link_path.to_str().unwrap(),
+            "--quiet",
+        ])
+        .expect_status(EXIT_OK);
         let meta = std::fs::symlink_metadata(&link_path).unwrap();
         assert!(meta.file_type().is_symlink(), "{link} was replaced");
-        assert_eq!(std::fs::read_link(&link_path).unwrap(), std::path::Path::new(target));
+        assert_eq!(
+            std::fs::read_link(&link_path).unwrap(),
+            std::path::Path::new(target)
+        );
         read_jsonl(&target_path);
     }
     assert_eq!(
@@ -141,7 +154,11 @@ fn a_fifo_at_out_is_written_not_replaced() {
     assert!(!frames.frames.is_empty(), "the reader got the frames");
     let kind = std::fs::symlink_metadata(&fifo).unwrap().file_type();
     assert!(kind.is_fifo(), "the FIFO was replaced");
-    assert_eq!(entries(sb.path()), ["pipe.jsonl", "s.toml"], "nothing staged");
+    assert_eq!(
+        entries(sb.path()),
+        ["pipe.jsonl", "s.toml"],
+        "nothing staged"
+    );
 }
 
 /// A destination that cannot be written is refused before the solver opens or a step runs: a
@@ -159,8 +176,13 @@ fn an_unwritable_destination_is_refused_before_the_run() {
     );
     let dir = sb.mkdir("frames.jsonl");
     let started = std::time::Instant::now();
-    sb.run(&["run", scene.to_str().unwrap(), "--out", dir.to_str().unwrap()])
-        .expect_status(EXIT_OUTPUT);
+    sb.run(&[
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+    ])
+    .expect_status(EXIT_OUTPUT);
     assert!(
         started.elapsed().as_secs() < 60,
         "refused after {:?}: the run was simulated first",

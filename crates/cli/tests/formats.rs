@@ -271,14 +271,27 @@ fn format_follows_the_out_extension_and_the_flag_must_agree() {
     // A contradiction or an extension that names no format: refused before anything is
     // written.
     for (name, flags, says) in [
-        ("h.csv", &["--format", "jsonl"][..], "its extension is csv's, but --format jsonl"),
-        ("i.npz", &["--format", "csv"][..], "its extension is npz's, but --format csv"),
+        (
+            "h.csv",
+            &["--format", "jsonl"][..],
+            "its extension is csv's, but --format jsonl",
+        ),
+        (
+            "i.npz",
+            &["--format", "csv"][..],
+            "its extension is npz's, but --format csv",
+        ),
         ("j.dat", &[][..], ".dat names no output format"),
         ("k.json", &[][..], "JSON Lines files end in .jsonl"),
         ("l.vtu", &[][..], "named by its .pvd collection"),
     ] {
         let out = sb.path().join(name);
-        let mut args = vec!["run", path.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        let mut args = vec![
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
         args.extend_from_slice(flags);
         let run = sb.run(&args);
         run.expect_status(EXIT_BAD_INPUT);

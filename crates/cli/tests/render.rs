@@ -286,6 +286,57 @@ fn bad_input_is_refused_with_status_2() {
     );
 }
 
+/// Frames from a JSON Lines file that does not start at frame 0 (trimmed by hand): drawing it
+/// twice into one directory keeps every picture (the second render replaces the first's), and a
+/// duplicated or reordered line, whose picture would replace another, is refused with its line.
+#[test]
+fn trimmed_frames_render_twice_and_out_of_order_frames_are_refused() {
+    let sb = Sandbox::new();
+    sb.write("cube.toml", &cube().toml());
+    sb.run(&["run", "cube.toml", "--out", "all.jsonl", "-q"])
+        .expect_status(EXIT_OK);
+    let text = std::fs::read_to_string(sb.path().join("all.jsonl")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    // The header, then frames 2, 3, 4, 5.
+    let trimmed: Vec<&str> = std::iter::once(lines[0])
+        .chain(lines[3..].iter().copied())
+        .collect();
+    sb.write("trimmed.jsonl", &(trimmed.join("\n") + "\n"));
+    let expected = [
+        "frame_000002.png",
+        "frame_000003.png",
+        "frame_000004.png",
+        "frame_000005.png",
+    ];
+    for _ in 0..2 {
+        sb.run(&[
+            "render",
+            "trimmed.jsonl",
+            "--out",
+            "p",
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "-q",
+        ])
+        .expect_status(EXIT_OK);
+        assert_eq!(pngs(&sb.path().join("p")), expected);
+    }
+    let mut duplicated = lines.clone();
+    duplicated.insert(3, lines[2]);
+    sb.write("duplicated.jsonl", &(duplicated.join("\n") + "\n"));
+    let o = sb.run(&["render", "duplicated.jsonl", "--out", "d", "-q"]);
+    o.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        o.stderr
+            .contains("duplicated.jsonl:4: frame 1 after frame 1"),
+        "{}",
+        o.stderr
+    );
+    assert!(!sb.path().join("d").exists());
+}
+
 #[test]
 fn an_unwritable_destination_is_status_1() {
     let sb = Sandbox::new();
