@@ -6,7 +6,10 @@
 //! more than [`ENERGY_GROWTH_BOUND`] times the scene's energy scale
 //! E_s = K₀ + E_el,₀ + M|g|(D + 1 m) (D: diagonal of the initial bounding box, M: total mass):
 //! no scene of springs, dampers, drag and terrain can gain that much, so it can only be a
-//! diverging integrator. Either way every frame before it has been written.
+//! diverging integrator; and at the first frame whose energy is not a finite number (it
+//! overflowed f64), so that no frame records a non-number. Either way every frame before it has
+//! been written. A scene whose initial energy already overflows (velocities of 1e200 m/s,
+//! gravity of 1e308 m/s²) is refused before anything is written ([`RunError::Overflow`]).
 
 use std::path::Path;
 
@@ -27,6 +30,14 @@ pub enum RunError {
     /// The simulation diverged; frames before it are written.
     #[error("{0}")]
     Unstable(Instability),
+    /// The initial state's energy is not a finite number: the scene's values overflow. Nothing
+    /// was written.
+    #[error(
+        "the initial energy is not a finite number (kinetic {} J, gravitational {} J, elastic \
+         {} J): the scene's velocities, masses, gravity or positions are too large to simulate",
+        .0.kinetic, .0.gravitational, .0.elastic
+    )]
+    Overflow(Energies),
     /// The device failed.
     #[error("{0}")]
     Device(String),
@@ -104,11 +115,14 @@ pub fn run(
     let sim = solver.model().simulation;
     let total = sim.steps();
     let frames = sim.frame_count();
+    let e0 = solver.energies()?;
+    if !e0.total().is_finite() {
+        return Err(RunError::Overflow(e0));
+    }
+    let scale = energy_scale(solver, &e0)?;
     let header = Header::new(solver, frames, scene);
     sink.header(&header)?;
 
-    let e0 = solver.energies()?;
-    let scale = energy_scale(solver, &e0)?;
     let mut summary = Summary {
         frames: 0,
         steps: 0,
@@ -123,7 +137,8 @@ pub fn run(
         }
         let energies = solver.energies()?;
         let step = solver.steps_taken();
-        if energies.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
+        let finite = energies.total().is_finite();
+        if !finite || energies.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
             let state = solver.state()?;
             let (fastest, speed) = state
                 .v
@@ -136,12 +151,21 @@ pub fn run(
                 step,
                 time: step as f64 * sim.dt,
                 particle: fastest as u32,
-                what: format!(
-                    "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, \
-                     more than {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above its initial {:.3e} J",
-                    energies.total(),
-                    e0.total()
-                ),
+                what: if finite {
+                    format!(
+                        "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, \
+                         more than {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above \
+                         its initial {:.3e} J",
+                        energies.total(),
+                        e0.total()
+                    )
+                } else {
+                    format!(
+                        "is the fastest ({speed:.3e} m/s) as the energy overflowed (kinetic {} J, \
+                         gravitational {} J, elastic {} J)",
+                        energies.kinetic, energies.gravitational, energies.elastic
+                    )
+                },
             }));
         }
         let state = solver.state()?;

@@ -453,6 +453,7 @@ fn measure_run(
         Ok(_) => None,
         Err(RunError::Unstable(i)) => Some(i),
         Err(RunError::Device(d)) => return Err(StudyError::Device(d)),
+        Err(e @ RunError::Overflow(_)) => return Err(StudyError::Invalid(e.to_string())),
         // The sink writes nothing; its only error is a frame time without a reference state.
         Err(RunError::Io(e)) => return Err(StudyError::Device(e.to_string())),
     };

@@ -154,6 +154,7 @@ fn run_failure(e: RunError, integrator: Integrator, kept: &str) -> Failure {
             status: status::UNSTABLE,
             error: anyhow::anyhow!("{i}; {}\n{kept}", softbody::Instability::advice(integrator)),
         },
+        RunError::Overflow(_) => bad_input(e),
         RunError::Device(d) => Failure {
             status: status::NO_ADAPTER,
             error: anyhow::anyhow!("device failure: {d}\n{kept}"),

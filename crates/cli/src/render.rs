@@ -134,10 +134,14 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
                 &mut Sink(&mut drawer),
                 &mut |_, _| {},
             );
-            if let Err(RunError::Io(e)) = result {
-                return Err(anyhow::Error::new(e)
-                    .context("cannot write the pictures")
-                    .into());
+            match result {
+                Err(RunError::Io(e)) => {
+                    return Err(anyhow::Error::new(e)
+                        .context("cannot write the pictures")
+                        .into());
+                }
+                Err(e @ RunError::Overflow(_)) => return Err(bad_input(e)),
+                _ => {}
             }
             // The frames before an instability are drawn and kept, as `run` keeps them.
             drawer.finish(&args, "simulated and drawn", started)?;

@@ -69,9 +69,10 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         &mut |done, _| bar.set_position(done),
     );
     bar.finish_and_clear();
-    // Frames that failed to write are discarded (the output is dropped, its staging removed);
-    // a run stopped by an instability or a device failure keeps the frames before it.
-    if !matches!(result, Err(RunError::Io(_))) {
+    // Frames that failed to write, and a scene refused before its first frame, leave nothing
+    // (the output is dropped, its staging removed); a run stopped by an instability or a
+    // device failure keeps the frames before it.
+    if !matches!(result, Err(RunError::Io(_) | RunError::Overflow(_))) {
         output.commit().map_err(output_failure)?;
     }
     let where_ = if to_stdout {

@@ -652,3 +652,41 @@ fn contact_radius_beyond_the_lattice_spacing_is_refused() {
         "{message}"
     );
 }
+
+/// Energies that overflow f64 are never written as JSON `null`: a scene whose initial energy
+/// overflows (a velocity of 1e200 m/s) is refused before anything is written (status 2), and
+/// one whose energy overflows as it runs (falling at 1e308 m/s²) stops as unstable (status 3)
+/// with the frames before it, every number in them finite.
+#[test]
+fn overflowing_energies_are_refused_or_stop_the_run_never_written_as_null() {
+    let sb = Sandbox::new();
+    let fast = Cube {
+        velocity: [1e200, 0.0, 0.0],
+        ..Cube::default()
+    };
+    sb.write("fast.toml", &fast.toml());
+    let o = sb.run(&["run", "fast.toml", "--out", "fast.jsonl"]);
+    o.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        o.stderr.contains("initial energy is not a finite number"),
+        "{}",
+        o.stderr
+    );
+    assert_eq!(entries(sb.path()), ["fast.toml"], "nothing written");
+
+    let falling = Cube {
+        ground: false,
+        ..Cube::default()
+    };
+    let heavy = falling.toml().replace(
+        "[simulation]\n",
+        "[simulation]\ngravity = [0.0, -1e308, 0.0]\n",
+    );
+    sb.write("heavy.toml", &heavy);
+    let o = sb.run(&["run", "heavy.toml", "--out", "heavy.jsonl"]);
+    o.expect_status(EXIT_UNSTABLE);
+    assert!(o.stderr.contains("unstable"), "{}", o.stderr);
+    let text = std::fs::read_to_string(sb.path().join("heavy.jsonl")).unwrap();
+    assert!(!text.contains("null"), "a non-number was written:\n{text}");
+    assert!(!parse_jsonl(&text).frames.is_empty(), "frame 0 is kept");
+}
