@@ -495,7 +495,7 @@ fn mesh_path_is_relative_to_the_scene_file() {
     );
     let path = sb.write(
         "scenes/scene.toml",
-        &format!("{SIM}[[terrain]]\nkind = \"mesh\"\npath = \"ground.obj\"\n"),
+        &format!("{SIM}{PAIR}[[terrain]]\nkind = \"mesh\"\npath = \"ground.obj\"\n"),
     );
     sb.run(&["check", path.to_str().unwrap()])
         .expect_status(EXIT_OK);
@@ -689,4 +689,23 @@ fn overflowing_energies_are_refused_or_stop_the_run_never_written_as_null() {
     let text = std::fs::read_to_string(sb.path().join("heavy.jsonl")).unwrap();
     assert!(!text.contains("null"), "a non-number was written:\n{text}");
     assert!(!parse_jsonl(&text).frames.is_empty(), "frame 0 is kept");
+}
+
+/// A scene without a body is refused (docs/scene-format.md), by `check` and `run` alike.
+#[test]
+fn a_scene_without_a_body_is_refused() {
+    let sb = Sandbox::new();
+    let text = format!("{SIM}\n[[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\n");
+    let scene = sb.write("empty.toml", &text);
+    let scene = scene.to_str().unwrap();
+    for args in [&["check", scene][..], &["run", scene, "--out", "f.jsonl"][..]] {
+        let o = sb.run(args);
+        o.expect_status(EXIT_BAD_INPUT);
+        assert!(
+            o.stderr.contains("empty.toml") && o.stderr.contains("the scene has no [[body]]"),
+            "{args:?}: {}",
+            o.stderr
+        );
+    }
+    assert_eq!(entries(sb.path()), ["empty.toml"], "nothing written");
 }

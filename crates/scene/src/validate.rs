@@ -196,6 +196,13 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         non_negative(at.key("friction"), t.friction)?;
         terrain_values(&at, &t.shape)?;
     }
+    // Last, so that the values of a scene under construction (terrain alone) are checked too.
+    if scene.bodies.is_empty() {
+        return Err(Invalid::new(
+            KeyPath::root(),
+            "the scene has no [[body]]: nothing to simulate",
+        ));
+    }
     Ok(())
 }
 
