@@ -38,6 +38,7 @@ pub mod compare;
 pub mod output;
 mod overrides;
 pub mod run;
+pub mod warnings;
 
 use std::fmt;
 use std::str::FromStr;

@@ -7,6 +7,7 @@ use clap::Args;
 use softbody::Backend;
 use softbody::output::{Format, Output};
 use softbody::run::RunError;
+use softbody::warnings::Warning;
 
 use crate::args::StepOverrides;
 use crate::{
@@ -59,6 +60,26 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
 
     let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))
         .map_err(open_failure)?;
+    // Said even with --quiet: they are about the results, not the progress. The step's
+    // estimate is left to `check`: a run that becomes unstable says so itself, with the step.
+    let x = solver
+        .state()
+        .map_err(|e| {
+            run_failure(
+                e.into(),
+                scene.simulation.integrator,
+                "no frame was written",
+            )
+        })?
+        .x
+        .clone();
+    let warnings = softbody::warnings::warnings(solver.model(), &x);
+    for w in warnings
+        .iter()
+        .filter(|w| matches!(w, Warning::InsideTerrain { .. }))
+    {
+        eprintln!("warning: {w}");
+    }
 
     let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
     let started = Instant::now();

@@ -829,3 +829,50 @@ fn check_warns_when_dt_is_above_the_stable_step() {
         run.stdout_text()
     );
 }
+
+/// A body that starts inside the terrain is valid but warned about, by `check` (text and
+/// `--json`) and by `run` (on stderr, also with --quiet, and the run goes on); one placed on the
+/// ground is not.
+#[test]
+fn a_body_starting_inside_the_terrain_is_warned_about() {
+    let sb = Sandbox::new();
+    let sunk = Cube {
+        center: [0.0, 0.25, 0.0],
+        ..Cube::default()
+    };
+    let on = Cube {
+        center: [0.0, 0.5, 0.0],
+        ..Cube::default()
+    };
+    sb.write("sunk.toml", &sunk.toml());
+    sb.write("on.toml", &on.toml());
+    let says = "body `cube` starts with 9 of its 27 particles inside terrain[0]";
+
+    let check = sb.run(&["check", "sunk.toml"]);
+    check.expect_status(EXIT_OK);
+    assert!(
+        check.stdout_text().contains(&format!("warning     {says}")),
+        "{}",
+        check.stdout_text()
+    );
+    let json = sb.run(&["check", "sunk.toml", "--json"]);
+    let v: Value = serde_json::from_str(&json.stdout_text()).unwrap();
+    let warnings = v["warnings"].as_array().unwrap();
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(warnings[0].as_str().unwrap().starts_with(says));
+
+    let run = sb.run(&["run", "sunk.toml", "--out", "f.jsonl", "--quiet"]);
+    run.expect_status(EXIT_OK);
+    assert!(
+        run.stderr.contains(&format!("warning: {says}")),
+        "{}",
+        run.stderr
+    );
+
+    let json = sb.run(&["check", "on.toml", "--json"]);
+    let v: Value = serde_json::from_str(&json.stdout_text()).unwrap();
+    assert_eq!(v["warnings"], serde_json::json!([]));
+    let run = sb.run(&["run", "on.toml", "--out", "g.jsonl", "--quiet"]);
+    run.expect_status(EXIT_OK);
+    assert_eq!(run.stderr, "", "no warning for a body on the ground");
+}

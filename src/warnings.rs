@@ -1,0 +1,147 @@
+//! What a valid scene may still get wrong, said before it runs (`softbody check` lists it,
+//! `softbody run` prints it): bodies that start inside the terrain, and a time step above the
+//! explicit integrators' stable estimate.
+
+use std::fmt;
+
+use glam::DVec3;
+use softbody_scene::{Integrator, Model};
+use softbody_terrain::Surface;
+
+/// Depth below which a particle counts as inside a terrain shape, metres: a body placed
+/// exactly on the ground (φ = 0 up to rounding) is not inside it.
+const INSIDE: f64 = 1e-9;
+
+/// A warning about a valid scene.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Warning {
+    /// Particles of a body start inside a terrain shape: the contact response pushes them out
+    /// in the first steps, which adds energy the scene did not have.
+    InsideTerrain {
+        /// The body's name.
+        body: String,
+        /// The terrain shape's index in the scene.
+        terrain: usize,
+        /// Particles of the body inside it.
+        inside: usize,
+        /// The body's particles.
+        of: u32,
+        /// The deepest of them, metres below the surface.
+        depth: f64,
+    },
+    /// An explicit integrator's dt is above the stable estimate
+    /// ([`Model::stable_dt`], an estimate from the stiffest spring).
+    StepAboveStable {
+        /// The scene's dt, seconds.
+        dt: f64,
+        /// The estimate, seconds.
+        stable: f64,
+    },
+}
+
+impl fmt::Display for Warning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::InsideTerrain {
+                body,
+                terrain,
+                inside,
+                of,
+                depth,
+            } => write!(
+                f,
+                "body `{body}` starts with {inside} of its {of} particles inside terrain[{terrain}] \
+                 (up to {depth:.3e} m deep): contact pushes them out in the first steps, adding \
+                 energy the scene did not have"
+            ),
+            Warning::StepAboveStable { dt, stable } => write!(
+                f,
+                "dt = {dt} s is above the stable estimate of about {stable:.3e} s for the explicit \
+                 integrators: expect this run to become unstable"
+            ),
+        }
+    }
+}
+
+/// The warnings about running `model` from the positions `x` (its initial state's), bodies
+/// before the step.
+pub fn warnings(model: &Model, x: &[DVec3]) -> Vec<Warning> {
+    let mut found = Vec::new();
+    for (t, terrain) in model.terrain.iter().enumerate() {
+        let surface = Surface::new(terrain);
+        for body in &model.bodies {
+            let range = body.first as usize..(body.first + body.count) as usize;
+            let depths: Vec<f64> = x[range]
+                .iter()
+                .filter_map(|&x| surface.query(x, -INSIDE))
+                .map(|c| -c.phi)
+                .collect();
+            if !depths.is_empty() {
+                found.push(Warning::InsideTerrain {
+                    body: body.name.clone(),
+                    terrain: t,
+                    inside: depths.len(),
+                    of: body.count,
+                    depth: depths.iter().copied().fold(0.0, f64::max),
+                });
+            }
+        }
+    }
+    let sim = &model.simulation;
+    if let Some(stable) = model.stable_dt()
+        && sim.integrator != Integrator::ImplicitEuler
+        && sim.dt > stable
+    {
+        found.push(Warning::StepAboveStable { dt: sim.dt, stable });
+    }
+    found
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softbody_scene::Scene;
+
+    fn scene(center_y: f64, dt: f64) -> Scene {
+        let text = format!(
+            "[simulation]\ndt = {dt:?}\nduration = 0.1\n\
+             [[body]]\nname = \"cube\"\nkind = \"cuboid\"\nsize = [1.0, 1.0, 1.0]\n\
+             resolution = [3, 3, 3]\ncenter = [0.0, {center_y:?}, 0.0]\nmass = 1.0\n\
+             structural = {{ stiffness = 100.0, damping = 0.1 }}\n\
+             [[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\n"
+        );
+        Scene::from_toml(&text, "t.toml".as_ref()).unwrap()
+    }
+
+    #[test]
+    fn a_body_on_the_ground_is_fine_and_one_in_it_is_named_with_its_depth() {
+        let (model, state) = Model::build(&scene(0.5, 1e-3));
+        assert_eq!(warnings(&model, &state.x), [], "resting exactly on the plane");
+        // The bottom layer 0.25 m deep, the middle one at the surface: 9 of 27 inside.
+        let (model, state) = Model::build(&scene(0.25, 1e-3));
+        let found = warnings(&model, &state.x);
+        let [Warning::InsideTerrain { body, terrain, inside, of, depth }] = &found[..] else {
+            panic!("{found:?}");
+        };
+        assert_eq!((body.as_str(), *terrain, *inside, *of), ("cube", 0, 9, 27));
+        assert!((depth - 0.25).abs() < 1e-12, "{depth}");
+        assert!(found[0].to_string().starts_with(
+            "body `cube` starts with 9 of its 27 particles inside terrain[0] (up to 2.500e-1 m deep)"
+        ));
+    }
+
+    #[test]
+    fn a_step_above_the_stable_estimate_is_named() {
+        let (model, state) = Model::build(&scene(2.0, 1e-3));
+        let stable = model.stable_dt().unwrap();
+        let (model, state) = {
+            let (mut m, s) = (model, state);
+            m.simulation.dt = 2.0 * stable;
+            (m, s)
+        };
+        assert_eq!(
+            warnings(&model, &state.x),
+            [Warning::StepAboveStable { dt: 2.0 * stable, stable }]
+        );
+    }
+}
