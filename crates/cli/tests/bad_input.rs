@@ -698,7 +698,10 @@ fn a_scene_without_a_body_is_refused() {
     let text = format!("{SIM}\n[[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\n");
     let scene = sb.write("empty.toml", &text);
     let scene = scene.to_str().unwrap();
-    for args in [&["check", scene][..], &["run", scene, "--out", "f.jsonl"][..]] {
+    for args in [
+        &["check", scene][..],
+        &["run", scene, "--out", "f.jsonl"][..],
+    ] {
         let o = sb.run(args);
         o.expect_status(EXIT_BAD_INPUT);
         assert!(
