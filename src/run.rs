@@ -12,6 +12,7 @@
 //! gravity of 1e308 m/s²) is refused before anything is written ([`RunError::Overflow`]).
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::DVec3;
 use softbody_scene::{Energies, Instability, Solver, StepError};
@@ -41,6 +42,14 @@ pub enum RunError {
     /// The device failed.
     #[error("{0}")]
     Device(String),
+    /// Stopped on request ([`run_until`]); the frames before it are written.
+    #[error("stopped after {frames} frames ({steps} steps)")]
+    Stopped {
+        /// Frames written.
+        frames: u64,
+        /// Steps of the last frame written.
+        steps: u64,
+    },
     /// Writing frames failed.
     #[error("cannot write frames")]
     Io(#[from] std::io::Error),
@@ -112,6 +121,25 @@ pub fn run(
     sink: &mut dyn FrameSink,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<Summary, RunError> {
+    run_until(solver, scene, sink, progress, &AtomicBool::new(false))
+}
+
+/// [`run`], stopping early once `stop` is set (by a signal handler, another thread): it is
+/// looked at every [`PROGRESS_STEPS`] steps at most, and the run ends with
+/// [`RunError::Stopped`] after the frames written so far, each complete.
+pub fn run_until(
+    solver: &mut dyn Solver,
+    scene: Option<&Path>,
+    sink: &mut dyn FrameSink,
+    progress: &mut dyn FnMut(u64, u64),
+    stop: &AtomicBool,
+) -> Result<Summary, RunError> {
+    let stopped = |summary: &Summary| {
+        stop.load(Ordering::Relaxed).then_some(RunError::Stopped {
+            frames: summary.frames,
+            steps: summary.steps,
+        })
+    };
     let sim = solver.model().simulation;
     let total = sim.steps();
     let frames = sim.frame_count();
@@ -131,6 +159,9 @@ pub fn run(
     for k in 0..frames {
         let target = sim.frame_step(k);
         while solver.steps_taken() < target {
+            if let Some(e) = stopped(&summary) {
+                return Err(e);
+            }
             let n = (target - solver.steps_taken()).min(PROGRESS_STEPS);
             solver.advance(n)?;
             progress(solver.steps_taken(), total);
@@ -182,4 +213,54 @@ pub fn run(
         summary.last_energies = energies;
     }
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::{self, Format};
+
+    /// A stop requested after frame 2 ends the run there: its frames are the first three of
+    /// the uninterrupted run's, byte for byte.
+    #[test]
+    fn a_stopped_run_keeps_the_frames_before_the_stop() {
+        let mut scene = softbody_scene::Scene::from_file(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenes/jelly-on-ground.toml"
+        ))
+        .unwrap();
+        scene.simulation.duration = 0.2;
+        let frames = |stop_after: Option<u64>| {
+            let mut solver = crate::open(&scene, crate::Backend::Cpu, Some(1)).unwrap();
+            let mut bytes = Vec::new();
+            let stop = AtomicBool::new(false);
+            let result = {
+                let mut sink = output::sink(Format::Jsonl, Box::new(&mut bytes)).unwrap();
+                let frame_steps = [0, 1, 2].map(|k| scene.simulation.frame_step(k));
+                let result = run_until(
+                    solver.as_mut(),
+                    None,
+                    sink.as_mut(),
+                    &mut |done, _| {
+                        if stop_after.is_some_and(|k| done >= frame_steps[k as usize]) {
+                            stop.store(true, Ordering::Relaxed);
+                        }
+                    },
+                    &stop,
+                );
+                sink.finish().unwrap();
+                result
+            };
+            (result, String::from_utf8(bytes).unwrap())
+        };
+        let (all, text) = frames(None);
+        assert!(all.unwrap().frames > 3);
+        let (stopped, partial) = frames(Some(2));
+        let Err(RunError::Stopped { frames, steps }) = stopped else {
+            panic!("{stopped:?}");
+        };
+        assert_eq!((frames, steps), (3, scene.simulation.frame_step(2)));
+        let expected: Vec<&str> = text.lines().take(1 + 3).collect();
+        assert_eq!(partial.lines().collect::<Vec<_>>(), expected);
+    }
 }

@@ -455,7 +455,10 @@ fn measure_run(
         Err(RunError::Device(d)) => return Err(StudyError::Device(d)),
         Err(e @ RunError::Overflow(_)) => return Err(StudyError::Invalid(e.to_string())),
         // The sink writes nothing; its only error is a frame time without a reference state.
-        Err(RunError::Io(e)) => return Err(StudyError::Device(e.to_string())),
+        // `run` is never stopped.
+        Err(e @ (RunError::Io(_) | RunError::Stopped { .. })) => {
+            return Err(StudyError::Device(e.to_string()));
+        }
     };
     let (max_error, max_error_time) = sink.samples.iter().fold((0.0f64, 0.0), |(e, t), s| {
         if s.error > e {

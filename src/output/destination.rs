@@ -225,7 +225,7 @@ impl Staged {
             }
             return Err(not_a_file(path, &meta));
         }
-        let temp = temp_file(parent)?;
+        let temp = temp_file(path)?;
         let file = io_context(temp.reopen(), || {
             format!("cannot write in {}", parent.display())
         })?;
@@ -246,7 +246,7 @@ impl Staged {
     }
 
     fn dir(dir: &Path, stem: &str, existing: Existing) -> Result<Staged, OutputError> {
-        let parent = create_parent(dir)?;
+        create_parent(dir)?;
         match &existing {
             Existing::Series(format) => check_replaceable(dir, stem, *format)?,
             Existing::Merge(_) if dir.exists() && !dir.is_dir() => {
@@ -257,7 +257,7 @@ impl Staged {
             }
             Existing::Merge(_) => {}
         }
-        let files = temp_dir(parent)?;
+        let files = temp_dir(dir)?;
         Ok(Staged {
             temp: Temp::Dir {
                 files,
@@ -482,29 +482,87 @@ fn read_dir(dir: &Path) -> Result<Vec<fs::DirEntry>, OutputError> {
         .collect()
 }
 
-/// A builder for staged names: hidden, recognisable, and created with ordinary permissions
-/// (0666 / 0777 less the umask) rather than a temporary file's 0600, since they are renamed
-/// into place as they are.
-fn builder(mode: u32) -> tempfile::Builder<'static, 'static> {
+/// The staged names of files bound for `destination`: `.softbody-<pid>-<random>-<tag>.part`,
+/// hidden, with the process that writes them and a tag of the destination's file name
+/// ([`destination_tag`]), so that a later run can tell its own destination's leftovers from a
+/// killed process ([`remove_stale`]) from another run's work in progress. Made with ordinary
+/// permissions (0666 / 0777 less the umask) rather than a temporary file's 0600, since they are
+/// renamed into place as they are.
+fn staged<T>(
+    destination: &Path,
+    mode: u32,
+    make: impl FnOnce(&tempfile::Builder<'_, '_>, &Path) -> io::Result<T>,
+) -> Result<T, OutputError> {
+    let dir = parent_of(destination);
+    remove_stale(dir, destination);
+    let prefix = format!("{STAGED_PREFIX}{}-", std::process::id());
+    let suffix = format!("-{}{STAGED_SUFFIX}", destination_tag(destination));
     let mut builder = tempfile::Builder::new();
-    builder.prefix(".softbody-").suffix(".part");
+    builder.prefix(&prefix).suffix(&suffix);
     #[cfg(unix)]
     builder.permissions(<fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(mode));
     #[cfg(not(unix))]
     let _ = mode;
-    builder
-}
-
-fn temp_file(dir: &Path) -> Result<NamedTempFile, OutputError> {
-    io_context(builder(0o666).tempfile_in(dir), || {
+    io_context(make(&builder, dir), || {
         format!("cannot write in {}", dir.display())
     })
 }
 
-fn temp_dir(dir: &Path) -> Result<TempDir, OutputError> {
-    io_context(builder(0o777).tempdir_in(dir), || {
-        format!("cannot write in {}", dir.display())
-    })
+const STAGED_PREFIX: &str = ".softbody-";
+const STAGED_SUFFIX: &str = ".part";
+
+/// 16 hex digits of the FNV-1a hash of `destination`'s file name: short whatever the name's
+/// length, and the same in every build.
+fn destination_tag(destination: &Path) -> String {
+    let name = destination.file_name().unwrap_or(destination.as_os_str());
+    let hash = name
+        .as_encoded_bytes()
+        .iter()
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+            (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+        });
+    format!("{hash:016x}")
+}
+
+/// Removes from `dir` what a process that no longer runs staged for `destination` (killed
+/// before it could clean up: SIGKILL, a power cut). Where it cannot tell whether a process runs
+/// (no `/proc`), and whatever it cannot remove, it leaves.
+fn remove_stale(dir: &Path, destination: &Path) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    let suffix = format!("-{}{STAGED_SUFFIX}", destination_tag(destination));
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name
+            .to_str()
+            .filter(|n| n.ends_with(&suffix))
+            .and_then(|n| n.strip_prefix(STAGED_PREFIX))
+            .and_then(|n| n.split('-').next())
+            .and_then(|pid| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid == std::process::id() || Path::new("/proc").join(pid.to_string()).exists() {
+            continue;
+        }
+        let path = entry.path();
+        let _ = match entry.file_type() {
+            Ok(t) if t.is_dir() => fs::remove_dir_all(&path),
+            _ => fs::remove_file(&path),
+        };
+    }
+}
+
+fn temp_file(destination: &Path) -> Result<NamedTempFile, OutputError> {
+    staged(destination, 0o666, |b, dir| b.tempfile_in(dir))
+}
+
+fn temp_dir(destination: &Path) -> Result<TempDir, OutputError> {
+    staged(destination, 0o777, |b, dir| b.tempdir_in(dir))
 }
 
 /// Renames the staged directory `files` to `dir`, or into it (see [`Existing`]).
@@ -526,7 +584,7 @@ fn place_dir(
             // A directory cannot be renamed over a non-empty one: move the old one into a
             // temporary directory (deleted with it) first.
             if dir.exists() {
-                let aside = temp_dir(parent_of(dir))?;
+                let aside = temp_dir(dir)?;
                 io_context(fs::rename(dir, aside.path().join("old")), cannot)?;
                 Some(aside)
             } else {

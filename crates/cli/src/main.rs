@@ -5,7 +5,8 @@
 //! arguments, or a scene beyond what `--backend gpu` runs: the adapter's limits);
 //! 3 the simulation became unstable (the frames before it are written); 4 `--backend gpu`
 //! found no usable GPU adapter, or the device failed during the run (the frames before it are
-//! written).
+//! written); 130 / 143 `run` stopped by SIGINT (Ctrl-C) / SIGTERM (the frames before it are
+//! written; a second signal ends the process at once).
 
 mod args;
 mod bench;
@@ -31,6 +32,9 @@ mod status {
     pub const BAD_INPUT: u8 = 2;
     pub const UNSTABLE: u8 = 3;
     pub const NO_ADAPTER: u8 = 4;
+    /// 128 + the signal's number, as a shell reports a process the signal ended.
+    pub const INTERRUPTED: u8 = 130;
+    pub const TERMINATED: u8 = 143;
 }
 
 #[derive(Parser)]
@@ -155,6 +159,10 @@ fn run_failure(e: RunError, integrator: Integrator, kept: &str) -> Failure {
             error: anyhow::anyhow!("{i}; {}\n{kept}", softbody::Instability::advice(integrator)),
         },
         RunError::Overflow(_) => bad_input(e),
+        RunError::Stopped { .. } => Failure {
+            status: status::INTERRUPTED,
+            error: anyhow::anyhow!("{e}\n{kept}"),
+        },
         RunError::Device(d) => Failure {
             status: status::NO_ADAPTER,
             error: anyhow::anyhow!("device failure: {d}\n{kept}"),

@@ -1,6 +1,8 @@
 //! `softbody run`: run a scene and write its frames.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use clap::Args;
@@ -12,6 +14,7 @@ use softbody::warnings::Warning;
 use crate::args::StepOverrides;
 use crate::{
     Failure, bad_input, file_stem, load_with, open_failure, output_failure, progress, run_failure,
+    status,
 };
 
 #[derive(Args)]
@@ -43,6 +46,7 @@ pub struct RunArgs {
 }
 
 pub fn run(args: RunArgs) -> Result<(), Failure> {
+    let signals = Signals::register()?;
     let scene = load_with(&args.scene, &(&args.overrides).into())?;
 
     let format = Format::for_output(args.format, args.out.as_deref()).map_err(bad_input)?;
@@ -83,17 +87,24 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
 
     let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
     let started = Instant::now();
-    let result = softbody::run::run(
+    let result = softbody::run::run_until(
         solver.as_mut(),
         Some(&args.scene),
         output.sink(),
         &mut |done, _| bar.set_position(done),
+        &signals.stop,
     );
     bar.finish_and_clear();
-    // Frames that failed to write, and a scene refused before its first frame, leave nothing
-    // (the output is dropped, its staging removed); a run stopped by an instability or a
-    // device failure keeps the frames before it.
-    if !matches!(result, Err(RunError::Io(_) | RunError::Overflow(_))) {
+    // Frames that failed to write, a scene refused before its first frame, and a run stopped
+    // before it leave nothing (the output is dropped, its staging removed, an existing file
+    // untouched); a run stopped by an instability, a device failure or a signal keeps the
+    // frames before it.
+    let keep = match &result {
+        Err(RunError::Io(_) | RunError::Overflow(_)) => false,
+        Err(RunError::Stopped { frames, .. }) => *frames > 0,
+        _ => true,
+    };
+    if keep {
         output.commit().map_err(output_failure)?;
     }
     let where_ = if to_stdout {
@@ -116,10 +127,48 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             }
             Ok(())
         }
-        Err(e) => Err(run_failure(
-            e,
-            scene.simulation.integrator,
-            &format!("the frames before it are in {where_}"),
-        )),
+        Err(e) => {
+            let kept = if keep {
+                format!("the frames before it are in {where_}")
+            } else {
+                format!("nothing was written to {where_}")
+            };
+            let mut failure = run_failure(e, scene.simulation.integrator, &kept);
+            if signals.terminated.load(Ordering::Relaxed) {
+                failure.status = status::TERMINATED;
+            }
+            Err(failure)
+        }
+    }
+}
+
+/// SIGINT (Ctrl-C) and SIGTERM (`kill`) stop a run after its complete frames instead of
+/// killing it mid-write: the first sets `stop`, which the run looks at every few hundred steps;
+/// a second ends the process at once (status 128 + the signal), leaving its staged files to the
+/// next run to the same destination to remove.
+struct Signals {
+    stop: Arc<AtomicBool>,
+    /// SIGTERM was the signal (status 143 rather than 130).
+    terminated: Arc<AtomicBool>,
+}
+
+impl Signals {
+    fn register() -> Result<Signals, Failure> {
+        use signal_hook::consts::{SIGINT, SIGTERM};
+        let signals = Signals {
+            stop: Arc::new(AtomicBool::new(false)),
+            terminated: Arc::new(AtomicBool::new(false)),
+        };
+        for signal in [SIGINT, SIGTERM] {
+            // In this order: the shutdown looks at the flag the first signal set.
+            signal_hook::flag::register_conditional_shutdown(
+                signal,
+                128 + signal,
+                Arc::clone(&signals.stop),
+            )?;
+            signal_hook::flag::register(signal, Arc::clone(&signals.stop))?;
+        }
+        signal_hook::flag::register(SIGTERM, Arc::clone(&signals.terminated))?;
+        Ok(signals)
     }
 }

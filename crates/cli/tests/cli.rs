@@ -876,3 +876,104 @@ fn a_body_starting_inside_the_terrain_is_warned_about() {
     run.expect_status(EXIT_OK);
     assert_eq!(run.stderr, "", "no warning for a body on the ground");
 }
+
+// ---------------------------------------------------------------- signals
+
+/// Starts `softbody run` on an hour-long scene writing `f.jsonl` in `sb`, and waits until it
+/// has staged some frames (its `.softbody-*.part` file has grown past the header).
+#[cfg(unix)]
+// The child is returned, and its callers wait for it.
+#[allow(clippy::zombie_processes)]
+fn start_a_long_run(sb: &Sandbox) -> std::process::Child {
+    let long = Cube {
+        duration: 3600.0,
+        ..Cube::default()
+    };
+    sb.write("long.toml", &long.toml());
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_softbody"))
+        .args(["run", "long.toml", "--out", "f.jsonl", "--quiet"])
+        .current_dir(sb.path())
+        .stdin(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    loop {
+        let staged = staged_files(sb);
+        let grown = staged
+            .iter()
+            .any(|n| std::fs::metadata(sb.path().join(n)).is_ok_and(|m| m.len() > 4096));
+        if grown {
+            return child;
+        }
+        if started.elapsed().as_secs() >= 60 {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("no frames staged after a minute");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+#[cfg(unix)]
+fn staged_files(sb: &Sandbox) -> Vec<String> {
+    entries(sb.path())
+        .into_iter()
+        .filter(|n| n.starts_with(".softbody-"))
+        .collect()
+}
+
+#[cfg(unix)]
+fn signal(child: &std::process::Child, name: &str) {
+    let sent = std::process::Command::new("kill")
+        .args([&format!("-{name}"), &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+}
+
+/// SIGINT and SIGTERM stop a run after complete frames: exit 130 / 143, every frame written so
+/// far kept (a valid JSON Lines file, frames 0, 1, … in order), nothing staged left behind.
+#[cfg(unix)]
+#[test]
+fn a_signal_stops_the_run_keeping_its_complete_frames() {
+    for (name, status) in [("INT", 130), ("TERM", 143)] {
+        let sb = Sandbox::new();
+        let child = start_a_long_run(&sb);
+        signal(&child, name);
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(status), "SIG{name}: {stderr}");
+        assert!(stderr.contains("stopped after"), "SIG{name}: {stderr}");
+        let frames = read_jsonl(&sb.path().join("f.jsonl"));
+        assert!(!frames.frames.is_empty(), "SIG{name}: no frame kept");
+        for (k, frame) in frames.frames.iter().enumerate() {
+            assert_eq!(frame["frame"], k, "SIG{name}");
+        }
+        assert_eq!(staged_files(&sb), Vec::<String>::new(), "SIG{name}");
+    }
+}
+
+/// A run killed outright (SIGKILL) leaves its staged file; the next run to the same
+/// destination removes it, and leaves another destination's staging alone.
+#[cfg(unix)]
+#[test]
+fn the_next_run_removes_what_a_killed_run_staged() {
+    let sb = Sandbox::new();
+    let mut child = start_a_long_run(&sb);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let left = staged_files(&sb);
+    assert_eq!(left.len(), 1, "{left:?}");
+    // Another destination's (a run still going: this process) stays.
+    let other = format!(
+        ".softbody-{}-abcdef-0123456789abcdef.part",
+        std::process::id()
+    );
+    sb.write(&other, "someone else's");
+    sb.write("short.toml", &Cube::default().toml());
+    sb.run(&["run", "short.toml", "--out", "f.jsonl", "--quiet"])
+        .expect_status(EXIT_OK);
+    read_jsonl(&sb.path().join("f.jsonl"));
+    assert_eq!(staged_files(&sb), [other]);
+}
