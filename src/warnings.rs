@@ -116,11 +116,24 @@ mod tests {
     #[test]
     fn a_body_on_the_ground_is_fine_and_one_in_it_is_named_with_its_depth() {
         let (model, state) = Model::build(&scene(0.5, 1e-3));
-        assert_eq!(warnings(&model, &state.x), [], "resting exactly on the plane");
+        assert_eq!(
+            warnings(&model, &state.x),
+            [],
+            "resting exactly on the plane"
+        );
         // The bottom layer 0.25 m deep, the middle one at the surface: 9 of 27 inside.
         let (model, state) = Model::build(&scene(0.25, 1e-3));
         let found = warnings(&model, &state.x);
-        let [Warning::InsideTerrain { body, terrain, inside, of, depth }] = &found[..] else {
+        let [
+            Warning::InsideTerrain {
+                body,
+                terrain,
+                inside,
+                of,
+                depth,
+            },
+        ] = &found[..]
+        else {
             panic!("{found:?}");
         };
         assert_eq!((body.as_str(), *terrain, *inside, *of), ("cube", 0, 9, 27));
@@ -141,7 +154,10 @@ mod tests {
         };
         assert_eq!(
             warnings(&model, &state.x),
-            [Warning::StepAboveStable { dt: 2.0 * stable, stable }]
+            [Warning::StepAboveStable {
+                dt: 2.0 * stable,
+                stable
+            }]
         );
     }
 }
