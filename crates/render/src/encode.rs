@@ -2,8 +2,11 @@
 //!
 //! GIF holds at most 256 colours per frame: each frame gets its own palette from NeuQuant
 //! (the `gif` crate's `Frame::from_rgb_speed`, a deterministic neural-net quantizer), and the
-//! frames are shown 1/frame_rate apart, rounded to GIF's hundredths of a second (at least 2,
-//! since viewers slow shorter delays down), looping forever.
+//! frames are shown 1/frame_rate apart in GIF's hundredths of a second, looping forever. Each
+//! delay is rounded so that the first k pictures take round(100·k/frame_rate) hundredths in all
+//! (at 30 pictures/s: 3, 4, 3, 3, 4, 3, …, never drifting from the simulated time), but is at
+//! least 2 hundredths, since viewers slow shorter delays down: above 50 pictures/s a GIF plays
+//! slower than real time.
 
 use std::io::{self, Write};
 
@@ -72,7 +75,11 @@ pub struct GifWriter<W: Write> {
     encoder: gif::Encoder<W>,
     width: u16,
     height: u16,
-    delay: u16,
+    /// Pictures per second.
+    frame_rate: f64,
+    /// Pictures written so far, and the hundredths of a second their delays add up to.
+    pictures: u64,
+    shown: u64,
 }
 
 impl<W: Write> std::fmt::Debug for GifWriter<W> {
@@ -80,7 +87,8 @@ impl<W: Write> std::fmt::Debug for GifWriter<W> {
         f.debug_struct("GifWriter")
             .field("width", &self.width)
             .field("height", &self.height)
-            .field("delay", &self.delay)
+            .field("frame_rate", &self.frame_rate)
+            .field("pictures", &self.pictures)
             .finish_non_exhaustive()
     }
 }
@@ -109,22 +117,25 @@ impl<W: Write> GifWriter<W> {
         encoder
             .set_repeat(gif::Repeat::Infinite)
             .map_err(gif_error)?;
-        let delay = if frame_rate.is_finite() && frame_rate > 0.0 {
-            (100.0 / frame_rate).round().clamp(2.0, 65535.0) as u16
-        } else {
-            10
-        };
         Ok(GifWriter {
             encoder,
             width,
             height,
-            delay,
+            frame_rate: if frame_rate.is_finite() && frame_rate > 0.0 {
+                frame_rate
+            } else {
+                10.0
+            },
+            pictures: 0,
+            shown: 0,
         })
     }
 
-    /// The delay between pictures, hundredths of a second.
-    pub fn delay(&self) -> u16 {
-        self.delay
+    /// The delay after the next picture, hundredths of a second: what brings the pictures'
+    /// total to round(100·k/frame_rate), at least 2.
+    fn next_delay(&self) -> u16 {
+        let due = (100.0 * (self.pictures + 1) as f64 / self.frame_rate).round() as u64;
+        due.saturating_sub(self.shown).clamp(2, u64::from(u16::MAX)) as u16
     }
 
     /// Appends a picture (the size given to [`GifWriter::new`]).
@@ -137,8 +148,11 @@ impl<W: Write> GifWriter<W> {
         }
         let mut frame =
             gif::Frame::from_rgb_speed(self.width, self.height, &image.pixels, QUANTIZER_SPEED);
-        frame.delay = self.delay;
-        self.encoder.write_frame(&frame).map_err(gif_error)
+        frame.delay = self.next_delay();
+        self.encoder.write_frame(&frame).map_err(gif_error)?;
+        self.pictures += 1;
+        self.shown += u64::from(frame.delay);
+        Ok(())
     }
 
     /// Ends the file and returns the writer.
@@ -166,7 +180,6 @@ mod tests {
         assert_eq!(&back[..info.buffer_size()], &pixels[..]);
 
         let mut gif_writer = GifWriter::new(Vec::new(), 6, 4, 30.0).unwrap();
-        assert_eq!(gif_writer.delay(), 3);
         for _ in 0..3 {
             gif_writer.add(&image).unwrap();
         }
@@ -175,11 +188,33 @@ mod tests {
         let mut options = gif::DecodeOptions::new();
         options.set_color_output(gif::ColorOutput::RGBA);
         let mut decoder = options.read_info(io::Cursor::new(bytes)).unwrap();
-        let mut frames = 0;
+        let mut delays = Vec::new();
         while let Some(frame) = decoder.read_next_frame().unwrap() {
-            assert_eq!((frame.width, frame.height, frame.delay), (6, 4, 3));
-            frames += 1;
+            assert_eq!((frame.width, frame.height), (6, 4));
+            delays.push(frame.delay);
         }
-        assert_eq!(frames, 3);
+        assert_eq!(delays, [3, 4, 3], "a tenth of a second for 3 pictures at 30/s");
+    }
+
+    /// The delays add up to the simulated time, to the nearest hundredth, after every picture
+    /// (at up to 50 pictures per second; faster ones get the 2-hundredth minimum).
+    #[test]
+    fn gif_delays_add_up_to_the_simulated_time() {
+        let image = Image::from_rows(1, 1, vec![0; 3]);
+        for frame_rate in [7.0, 24.0, 29.97, 30.0, 50.0, 60.0] {
+            let mut gif = GifWriter::new(Vec::new(), 1, 1, frame_rate).unwrap();
+            let mut shown = 0u64;
+            for k in 1..=200u64 {
+                let delay = gif.next_delay();
+                gif.add(&image).unwrap();
+                shown += u64::from(delay);
+                let due = (100.0 * k as f64 / frame_rate).round() as u64;
+                if frame_rate <= 50.0 {
+                    assert_eq!(shown, due, "{frame_rate}/s after {k} pictures");
+                } else {
+                    assert_eq!(delay, 2, "{frame_rate}/s");
+                }
+            }
+        }
     }
 }
