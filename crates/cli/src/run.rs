@@ -117,12 +117,12 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         Ok(summary) => {
             if !args.quiet {
                 eprintln!(
-                    "{} frames, {} steps of {} on {} in {seconds:.2} s ({:.0} steps/s): {where_}",
+                    "{} frames, {} steps of {} on {} in {seconds:.2} s ({} steps/s): {where_}",
                     summary.frames,
                     summary.steps,
                     scene.simulation.integrator,
                     solver.device(),
-                    summary.steps as f64 / seconds.max(1e-9),
+                    progress::whole(summary.steps as f64 / seconds.max(1e-9)),
                 );
             }
             Ok(())

@@ -40,8 +40,25 @@ impl fmt::Display for Instability {
         write!(
             f,
             "the simulation became unstable at step {} (t = {} s): particle {} {}",
-            self.step, self.time, self.particle, self.what
+            self.step,
+            four_digits(self.time),
+            self.particle,
+            self.what
         )
+    }
+}
+
+/// `x` to four significant digits, for people (the step says it exactly): 0.1667, 12.35, 2500,
+/// 1.235e-5.
+fn four_digits(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return x.to_string();
+    }
+    let magnitude = x.abs().log10().floor() as i32;
+    match 3 - magnitude {
+        decimals @ 0..=8 => format!("{x:.*}", decimals as usize),
+        ..0 => format!("{x:.0}"),
+        _ => format!("{x:.3e}"),
     }
 }
 
@@ -222,4 +239,25 @@ pub fn check_state_len(model: &Model, state: &State) -> Result<(), StepError> {
         )));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod four_digits_tests {
+    use super::four_digits;
+
+    #[test]
+    fn times_are_rounded_to_four_significant_digits() {
+        for (x, text) in [
+            (0.0, "0"),
+            (1.0 / 6.0, "0.1667"),
+            (0.16, "0.1600"),
+            (12.345678, "12.35"),
+            (2500.4, "2500"),
+            (123456.7, "123457"),
+            (1.2346e-5, "0.00001235"),
+            (1.2346e-9, "1.235e-9"),
+        ] {
+            assert_eq!(four_digits(x), text, "{x}");
+        }
+    }
 }
