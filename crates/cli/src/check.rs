@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use clap::Args;
 use softbody::Model;
 
-use crate::{Failure, emit, load};
+use crate::args::StepOverrides;
+use crate::{Failure, emit, load_with};
 
 #[derive(Args)]
 pub struct CheckArgs {
@@ -14,10 +15,13 @@ pub struct CheckArgs {
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
+    // Last: the heading applies to every option after it.
+    #[command(flatten, next_help_heading = "Overrides of the scene (as for run)")]
+    overrides: StepOverrides,
 }
 
 pub fn check(args: CheckArgs) -> Result<(), Failure> {
-    let scene = load(&args.scene)?;
+    let scene = load_with(&args.scene, &(&args.overrides).into())?;
     // Printed in one write at the end, so that a closed pipe (`| head -1`) is one error to
     // handle instead of a panic in `println!`.
     let mut out = String::new();

@@ -20,15 +20,16 @@ use softbody::{Backend, Model, Overrides, Scene};
 use softbody_render::animation::{self, Animation, Animator, CameraPlan};
 use softbody_render::{GifWriter, Image, RenderOptions};
 
-use crate::args::{SceneOverrides, positive};
+use crate::args::{StepOverrides, positive};
 use crate::{
     Failure, bad_input, file_stem, load_with, open_failure, output_failure, progress, run_failure,
 };
 
 #[derive(Args)]
 pub struct RenderArgs {
-    /// A scene (.toml: simulated on the CPU) or the frames of a run (.jsonl, written by
-    /// `softbody run`; its scene file must still be where the header says).
+    /// A scene (.toml: simulated on --backend) or the frames of a run (.jsonl, written by
+    /// `softbody run`; its scene file must still be where the header says, or be given with
+    /// --scene).
     input: PathBuf,
     /// Where to draw: a directory of PNG files (DIR/frame_000000.png, …) or an animated GIF
     /// (a name ending in .gif); give it twice for both. Default: out/{input file stem}/.
@@ -65,6 +66,13 @@ pub struct RenderArgs {
     /// particle position), and by default frames about three times the bodies' first-frame size.
     #[arg(long)]
     follow: bool,
+    /// The scene of a .jsonl input, when it is no longer where the frames' header says (moved,
+    /// or the frames come from another machine): it gives the terrain and the surface.
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    /// Solver backend for a .toml input: cpu (f64) or gpu (wgpu compute shaders, f32).
+    #[arg(long, default_value = "cpu")]
+    backend: Backend,
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
@@ -73,7 +81,7 @@ pub struct RenderArgs {
         flatten,
         next_help_heading = "Overrides of the scene (.toml input only)"
     )]
-    overrides: SceneOverrides,
+    overrides: StepOverrides,
 }
 
 fn point(s: &str) -> Result<DVec3, String> {
@@ -109,9 +117,16 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
         }
     };
     let overrides = Overrides::from(&args.overrides);
-    if input == Input::Frames && !overrides.is_empty() {
+    if input == Input::Frames && (!overrides.is_empty() || args.backend != Backend::Cpu) {
         return Err(bad_input(anyhow!(
-            "--duration and --fps apply to a scene; frames from {} are drawn as they were run",
+            "--integrator, --dt, --duration, --fps and --backend apply to a scene; frames from \
+             {} are drawn as they were run",
+            args.input.display()
+        )));
+    }
+    if input == Input::Scene && args.scene.is_some() {
+        return Err(bad_input(anyhow!(
+            "--scene names the scene of a .jsonl input; {} is a scene itself",
             args.input.display()
         )));
     }
@@ -127,7 +142,7 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
             let (model, _) = Model::build(&scene);
             let sim = scene.simulation;
             let mut drawer = Drawer::new(&args, &model, &outs, sim.frame_rate, sim.frame_count())?;
-            let mut solver = softbody::open(&scene, Backend::Cpu, None).map_err(open_failure)?;
+            let mut solver = softbody::open(&scene, args.backend, None).map_err(open_failure)?;
             let result = softbody::run::run(
                 solver.as_mut(),
                 Some(&args.input),
@@ -153,15 +168,26 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
             let path = &args.input;
             let frames = jsonl::Reader::open(path).map_err(bad_input)?;
             let header = frames.header();
-            let Some(scene_path) = &header.scene else {
+            let named = args.scene.as_ref().map(|p| p.display().to_string());
+            let Some(scene_path) = named.as_ref().or(header.scene.as_ref()) else {
                 return Err(bad_input(anyhow!(
                     "{}: the header names no scene file (frames of a scene built in code), so the \
-                     terrain and surface are unknown; render the scene itself instead",
+                     terrain and surface are unknown; give it with --scene, or render the scene \
+                     itself",
                     path.display()
                 )));
             };
-            let scene = Scene::from_file(scene_path)
-                .map_err(|e| bad_input(anyhow!("the scene of {}: {e}", path.display())))?;
+            let scene = Scene::from_file(scene_path).map_err(|e| {
+                bad_input(anyhow!(
+                    "the scene of {}: {e}{}",
+                    path.display(),
+                    if named.is_none() {
+                        " (give its new place with --scene)"
+                    } else {
+                        ""
+                    }
+                ))
+            })?;
             let (model, _) = Model::build(&scene);
             if model.len() != header.particles {
                 return Err(bad_input(anyhow!(

@@ -981,3 +981,33 @@ fn the_next_run_removes_what_a_killed_run_staged() {
     read_jsonl(&sb.path().join("f.jsonl"));
     assert_eq!(staged_files(&sb), [other]);
 }
+
+/// `check` takes the overrides `run` takes (here `--dt 1/60` as a fraction and
+/// `--integrator`), and describes the scene as it would run.
+#[test]
+fn check_takes_the_overrides_of_run() {
+    let (sb, scene) = sandbox_with(&Cube::default(), "s");
+    let o = sb.run(&[
+        "check",
+        &scene,
+        "--json",
+        "--dt",
+        "1/60",
+        "--integrator",
+        "implicit-euler",
+        "--duration",
+        "1",
+        "--fps",
+        "30",
+    ]);
+    o.expect_status(EXIT_OK);
+    let v: Value = serde_json::from_str(&o.stdout_text()).unwrap();
+    assert_eq!(v["dt"].as_f64(), Some(1.0 / 60.0));
+    assert_eq!(v["integrator"], "implicit-euler");
+    assert_eq!(
+        (v["steps"].as_u64(), v["frames"].as_u64()),
+        (Some(60), Some(31))
+    );
+    sb.run(&["check", &scene, "--dt", "-1"])
+        .expect_status(EXIT_BAD_INPUT);
+}

@@ -49,3 +49,34 @@ fn no_adapter_exits_4_with_advice_and_writes_nothing() {
         entries(&out_dir)
     );
 }
+
+/// `render --backend gpu` simulates on the GPU: without an adapter it stops with status 4 before
+/// drawing anything.
+#[test]
+#[cfg(target_os = "linux")]
+fn render_takes_the_backend() {
+    let sandbox = Sandbox::new();
+    sandbox.write(
+        "scene.toml",
+        "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nkind = \"particles\"\n\
+         positions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n",
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_softbody"))
+        .args([
+            "render",
+            "scene.toml",
+            "--backend",
+            "gpu",
+            "--out",
+            "p",
+            "-q",
+        ])
+        .current_dir(sandbox.path())
+        .env("WGPU_BACKEND", "metal")
+        .stdin(Stdio::null())
+        .output()
+        .expect("the softbody binary starts");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(4), "stderr: {stderr}");
+    assert!(!sandbox.path().join("p").exists(), "nothing drawn");
+}

@@ -337,6 +337,46 @@ fn trimmed_frames_render_twice_and_out_of_order_frames_are_refused() {
     assert!(!sb.path().join("d").exists());
 }
 
+/// Frames whose scene moved render with `--scene` naming its new place (and without it the
+/// error says so); the overrides of a simulation do not apply to frames.
+#[test]
+fn frames_whose_scene_moved_render_with_scene() {
+    let sb = Sandbox::new();
+    sb.write("old/cube.toml", &cube().toml());
+    sb.run(&["run", "old/cube.toml", "--out", "f.jsonl", "-q"])
+        .expect_status(EXIT_OK);
+    std::fs::rename(sb.path().join("old"), sb.path().join("new")).unwrap();
+    let o = sb.run(&["render", "f.jsonl", "--out", "p", "-q"]);
+    o.expect_status(EXIT_BAD_INPUT);
+    assert!(o.stderr.contains("--scene"), "{}", o.stderr);
+    let args = [
+        "render",
+        "f.jsonl",
+        "--scene",
+        "new/cube.toml",
+        "--out",
+        "p",
+    ];
+    sb.run(&[&args[..], &["--width", "32", "--height", "24", "-q"]].concat())
+        .expect_status(EXIT_OK);
+    assert_eq!(pngs(&sb.path().join("p")).len(), 6);
+    for extra in [
+        &["--dt", "1/2000"][..],
+        &["--integrator", "rk4"],
+        &["--backend", "gpu"],
+    ] {
+        let o = sb.run(&[&args[..], extra].concat());
+        o.expect_status(EXIT_BAD_INPUT);
+        assert!(
+            o.stderr.contains("apply to a scene"),
+            "{extra:?}: {}",
+            o.stderr
+        );
+    }
+    let o = sb.run(&["render", "new/cube.toml", "--scene", "new/cube.toml"]);
+    o.expect_status(EXIT_BAD_INPUT);
+}
+
 #[test]
 fn an_unwritable_destination_is_status_1() {
     let sb = Sandbox::new();
