@@ -82,6 +82,19 @@ impl Overrides {
         *self == Overrides::default()
     }
 
+    /// The overrides as a file-name part: `rk4-dt0.0001-2s-60fps` (empty when there are none).
+    /// Default output names carry it, so that a run with other settings does not replace the
+    /// scene's own run's frames.
+    pub fn label(&self) -> String {
+        let parts = [
+            self.integrator.map(|i| i.to_string()),
+            self.dt.map(|x| format!("dt{x}")),
+            self.duration.map(|x| format!("{x}s")),
+            self.frame_rate.map(|x| format!("{x}fps")),
+        ];
+        parts.into_iter().flatten().collect::<Vec<_>>().join("-")
+    }
+
     /// `scene` with the overrides in place of its own settings, validated again as a whole;
     /// `origin` names the scene file in the error.
     pub fn apply_to(&self, mut scene: Scene, origin: &Path) -> Result<Scene, OverrideError> {
@@ -137,6 +150,23 @@ impl fmt::Display for Overrides {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_label_names_each_override() {
+        assert_eq!(Overrides::default().label(), "");
+        let all = Overrides {
+            integrator: Some(Integrator::Rk4),
+            dt: Some(1e-4),
+            duration: Some(2.0),
+            frame_rate: Some(60.0),
+        };
+        assert_eq!(all.label(), "rk4-dt0.0001-2s-60fps");
+        let dt = Overrides {
+            dt: Some(1.0 / 60.0),
+            ..Overrides::default()
+        };
+        assert_eq!(dt.label(), "dt0.016666666666666666");
+    }
 
     fn scene() -> Scene {
         Scene::from_toml(

@@ -127,6 +127,18 @@ fn file_stem(path: &Path) -> Cow<'_, str> {
         .map_or("frames".into(), |s| s.to_string_lossy())
 }
 
+/// The default output name of a run of the scene file `path` with `overrides` on `backend`:
+/// the file's stem, then what differs from the scene's own run (`jelly-rk4-dt0.0001-gpu`), so
+/// that runs with other settings do not replace each other's frames.
+fn output_stem(path: &Path, overrides: &Overrides, backend: softbody::Backend) -> String {
+    let mut parts = vec![file_stem(path).into_owned(), overrides.label()];
+    if backend != softbody::Backend::Cpu {
+        parts.push(backend.to_string());
+    }
+    parts.retain(|p| !p.is_empty());
+    parts.join("-")
+}
+
 /// A solver that cannot be opened: no usable GPU (4), a scene the GPU does not run (2), or CPU
 /// threads that cannot start (1, as before).
 fn open_failure(e: softbody::OpenError) -> Failure {

@@ -22,7 +22,8 @@ use softbody_render::{GifWriter, Image, RenderOptions};
 
 use crate::args::{StepOverrides, positive};
 use crate::{
-    Failure, bad_input, file_stem, load_with, open_failure, output_failure, progress, run_failure,
+    Failure, bad_input, file_stem, load_with, open_failure, output_failure, output_stem, progress,
+    run_failure,
 };
 
 #[derive(Args)]
@@ -32,7 +33,8 @@ pub struct RenderArgs {
     /// --scene).
     input: PathBuf,
     /// Where to draw: a directory of PNG files (DIR/frame_000000.png, …) or an animated GIF
-    /// (a name ending in .gif); give it twice for both. Default: out/{input file stem}/.
+    /// (a name ending in .gif); give it twice for both. Default: out/{input file stem}-pictures/
+    /// (with the overrides and a GPU backend named after the stem, as `run` names its output).
     #[arg(long)]
     out: Vec<PathBuf>,
     /// Picture width, pixels (1 to 8192).
@@ -131,7 +133,12 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
         )));
     }
     let outs = if args.out.is_empty() {
-        vec![PathBuf::from("out").join(file_stem(&args.input).as_ref())]
+        // Not out/<stem>/, where `run --format ply|obj` and VTK's frames go.
+        let stem = match input {
+            Input::Scene => output_stem(&args.input, &overrides, args.backend),
+            Input::Frames => file_stem(&args.input).into_owned(),
+        };
+        vec![PathBuf::from("out").join(format!("{stem}-pictures"))]
     } else {
         args.out.clone()
     };

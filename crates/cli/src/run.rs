@@ -13,8 +13,8 @@ use softbody::warnings::Warning;
 
 use crate::args::StepOverrides;
 use crate::{
-    Failure, bad_input, file_stem, load_with, open_failure, output_failure, progress, run_failure,
-    status,
+    Failure, bad_input, load_with, open_failure, output_failure, output_stem, progress,
+    run_failure, status,
 };
 
 #[derive(Args)]
@@ -24,7 +24,8 @@ pub struct RunArgs {
     /// Output file (the .pvd for vtk, a directory for ply and obj: NAME.ply and NAME.obj name
     /// the directory NAME); `-` writes to standard output (single-file formats). An existing
     /// file is replaced (a link is followed, a device or FIFO written in place). Default:
-    /// out/{scene file stem}.{extension}, or the directory out/{scene file stem} for ply and obj.
+    /// out/{name}.{extension}, or the directory out/{name} for ply and obj, where {name} is the
+    /// scene file's stem followed by the overrides and a GPU backend (jelly-rk4-dt0.0001-gpu).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Output format: jsonl, csv, npz, vtk, ply or obj; default from the --out extension
@@ -47,13 +48,14 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     let signals = Signals::register()?;
-    let scene = load_with(&args.scene, &(&args.overrides).into())?;
+    let overrides = (&args.overrides).into();
+    let scene = load_with(&args.scene, &overrides)?;
 
     let format = Format::for_output(args.format, args.out.as_deref()).map_err(bad_input)?;
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
     let out_path = match &args.out {
         Some(p) => p.clone(),
-        None => format.default_path(&file_stem(&args.scene)),
+        None => format.default_path(&output_stem(&args.scene, &overrides, args.backend)),
     };
 
     // Before the solver (a GPU takes seconds to open) and the run: a destination that cannot

@@ -818,8 +818,23 @@ fn default_paths_and_replacing_an_earlier_series() {
     assert_eq!(entries(&out.join("jelly")).len(), frames);
     assert_eq!(read_pvd(&out.join("jelly.pvd")).len(), frames);
 
-    // A shorter run replaces the series whole: no frame of the old one is left.
+    // A run with other settings gets a name of its own: the scene's own run stays.
     run(&sb, &path, &["--format", "vtk", "--duration", "0.02"]).expect_status(EXIT_OK);
+    assert_eq!(
+        entries(&out),
+        ["jelly", "jelly-0.02s", "jelly-0.02s.pvd", "jelly.pvd"]
+    );
+    assert_eq!(entries(&out.join("jelly")).len(), frames);
+
+    // A shorter run to the same name replaces the series whole: no frame of the old one is
+    // left.
+    let pvd = out.join("jelly.pvd");
+    run(
+        &sb,
+        &path,
+        &["--out", pvd.to_str().unwrap(), "--duration", "0.02"],
+    )
+    .expect_status(EXIT_OK);
     let shorter = frame_schedule(cube.dt, 0.02, cube.frame_rate).len();
     assert!(shorter < frames);
     assert_eq!(entries(&out.join("jelly")).len(), shorter);

@@ -377,6 +377,28 @@ fn frames_whose_scene_moved_render_with_scene() {
     o.expect_status(EXIT_BAD_INPUT);
 }
 
+/// The default destinations of `render` and `run --format ply` differ (out/NAME-pictures/ and
+/// out/NAME/), and overrides name their own: no command replaces another's output.
+#[test]
+fn default_destinations_do_not_collide() {
+    let sb = Sandbox::new();
+    sb.write("cube.toml", &cube().toml());
+    let small = ["--width", "32", "--height", "24", "-q"];
+    sb.run(&[&["render", "cube.toml"][..], &small].concat())
+        .expect_status(EXIT_OK);
+    sb.run(&[&["render", "cube.toml", "--fps", "50"][..], &small].concat())
+        .expect_status(EXIT_OK);
+    sb.run(&["run", "cube.toml", "--format", "ply", "-q"])
+        .expect_status(EXIT_OK);
+    let out = sb.path().join("out");
+    assert_eq!(
+        entries(&out),
+        ["cube", "cube-50fps-pictures", "cube-pictures"]
+    );
+    assert_eq!(pngs(&out.join("cube-pictures")).len(), 6);
+    assert_eq!(pngs(&out.join("cube-50fps-pictures")).len(), 3);
+}
+
 #[test]
 fn an_unwritable_destination_is_status_1() {
     let sb = Sandbox::new();
