@@ -4,6 +4,10 @@ use serde_json::{Value, json};
 
 use super::Report;
 
+/// The table's error and drift of an unstable run: measured only over the frames before its
+/// blow-up, they would look better than those of a stable run.
+const NOT_COMPARABLE: &str = "unstable";
+
 impl Report {
     /// The report as one JSON object (keys in the README, "Comparing integrators").
     pub fn to_json(&self, scene: &str) -> Value {
@@ -37,6 +41,9 @@ impl Report {
                     "particle": i.particle,
                     "what": i.what,
                 })),
+                // An unstable run's frames stop before its blow-up: its error over them is
+                // no measure of the integrator at that step.
+                "comparable": r.instability.is_none(),
                 "max_error": r.max_error,
                 "max_error_time": r.max_error_time,
                 "energy_drift": r.energy_drift,
@@ -92,8 +99,16 @@ impl Report {
                     r.instability.as_ref().map_or("-".to_owned(), |i| {
                         format!("step {} ({:.4} s)", i.step, i.time)
                     }),
-                    format!("{:.3e}", r.max_error),
-                    format!("{:.3e}", r.energy_drift),
+                    if r.instability.is_some() {
+                        NOT_COMPARABLE.to_owned()
+                    } else {
+                        format!("{:.3e}", r.max_error)
+                    },
+                    if r.instability.is_some() {
+                        NOT_COMPARABLE.to_owned()
+                    } else {
+                        format!("{:.3e}", r.energy_drift)
+                    },
                     r.deepest_penetration
                         .map_or("-".to_owned(), |d| format!("{d:.3e}")),
                     format!("{:.3e}", r.final_max_speed),
@@ -137,7 +152,8 @@ impl Report {
             out.push_str(&line(&row.iter().map(String::as_str).collect::<Vec<_>>()));
         }
         out.push_str(&format!(
-            "\nmax error: max over frames and particles of |x - x_ref|.\n\
+            "\nmax error: max over frames and particles of |x - x_ref| (`unstable`: the run blew up, and\n  \
+             its error before that is not comparable with the others').\n\
              energy drift: max |E - E0| / E_s over the frames, E_s = {:.4e} J (the energy scale of the\n  \
              instability guard); it measures the integrator only in undamped scenes: damping,\n  \
              friction and contacts remove energy on purpose.\n\

@@ -8,8 +8,8 @@ use clap::Args;
 use softbody::compare::{Report, Study, StudyError};
 use softbody::{Backend, Integrator, Overrides};
 
-use crate::args::time_step;
-use crate::{Failure, bad_input, emit, load, open_failure, progress, status};
+use crate::args::{SceneOverrides, time_step};
+use crate::{Failure, bad_input, emit, load_with, open_failure, progress, status};
 
 #[derive(Args)]
 pub struct CompareArgs {
@@ -41,6 +41,9 @@ pub struct CompareArgs {
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
+    // Last: the heading applies to every option after it.
+    #[command(flatten, next_help_heading = "Overrides of the scene")]
+    overrides: SceneOverrides,
 }
 
 fn integrators(s: &str) -> Result<Vec<Integrator>, String> {
@@ -52,7 +55,7 @@ fn integrators(s: &str) -> Result<Vec<Integrator>, String> {
 }
 
 pub fn compare(args: CompareArgs) -> Result<(), Failure> {
-    let scene = load(&args.scene)?;
+    let scene = load_with(&args.scene, &(&args.overrides).into())?;
     // A plot that cannot be written is found out before minutes of simulation, not after.
     if let Some(path) = &args.plot {
         if !plot::AVAILABLE {

@@ -15,7 +15,7 @@ fn cube() -> Cube {
     }
 }
 
-const RUN_KEYS: [&str; 15] = [
+const RUN_KEYS: [&str; 16] = [
     "integrator",
     "dt",
     "steps",
@@ -23,6 +23,7 @@ const RUN_KEYS: [&str; 15] = [
     "seconds",
     "steps_per_second",
     "unstable",
+    "comparable",
     "max_error",
     "max_error_time",
     "energy_drift",
@@ -267,10 +268,37 @@ fn unstable_runs_exit_0_and_are_reported() {
             assert_eq!(unstable["time"].as_f64(), Some(step as f64 * dt));
             assert_eq!(run["steps"].as_u64(), Some(step));
             assert!(run["at_rest"].is_null());
+            assert_eq!(run["comparable"], false);
         } else {
             assert!(unstable.is_null(), "{run}");
+            assert_eq!(run["comparable"], true);
         }
     }
+    // The table does not show an unstable run's error over its frames before the blow-up,
+    // which would look better than a stable run's: it says `unstable` instead.
+    let out = sandbox.run(&[
+        "compare",
+        scene.to_str().unwrap(),
+        "--integrators",
+        "explicit-euler",
+        "--dt",
+        "0.01",
+        "--quiet",
+        "--duration",
+        "0.5",
+    ]);
+    out.expect_status(EXIT_OK);
+    let table = out.stdout_text();
+    let row = table
+        .lines()
+        .find(|l| l.starts_with("explicit-euler"))
+        .unwrap_or_else(|| panic!("{table}"));
+    assert_eq!(
+        row.matches(" unstable").count(),
+        2,
+        "error and drift: {row}"
+    );
+    assert!(table.contains(", 0.5 s at"), "--duration applies: {table}");
 }
 
 /// A reference that diverges leaves nothing to measure against: exit 3, saying so.
