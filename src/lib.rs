@@ -58,6 +58,18 @@ pub use softbody_scene::{
 };
 /// The terrain crate: point queries, the heightfield split rule, signed-distance grids.
 pub use softbody_terrain as terrain;
+/// The vector types of the API (`State::x` is a `Vec<glam::DVec3>`), so that an embedder uses
+/// the same version.
+pub use glam;
+
+// Every Rust snippet of the README and of docs/scene-format.md compiles as a doc-test (and
+// runs, unless it says `no_run`); docs/physics.md holds equations, no code.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+struct Readme;
+#[cfg(doctest)]
+#[doc = include_str!("../docs/scene-format.md")]
+struct SceneFormat;
 
 /// Which solver runs a scene.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -22,8 +22,8 @@ use crate::output::{Frame, FrameSink, Header};
 /// How many energy scales a run may gain before it is called unstable.
 pub const ENERGY_GROWTH_BOUND: f64 = 10.0;
 
-/// Steps advanced between progress reports at most.
-const PROGRESS_STEPS: u64 = 256;
+/// Steps advanced between progress reports (and looks at [`run_until`]'s stop flag) at most.
+pub const PROGRESS_STEPS: u64 = 256;
 
 /// Why a run stopped early.
 #[derive(Debug, thiserror::Error)]
