@@ -712,3 +712,41 @@ fn a_scene_without_a_body_is_refused() {
     }
     assert_eq!(entries(sb.path()), ["empty.toml"], "nothing written");
 }
+
+/// Under an address-space limit (`ulimit -v`, as batch schedulers set) a scene that needs more
+/// is refused up front with the limit named (status 2), instead of aborting on an allocation.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_scene_beyond_the_address_space_limit_is_refused() {
+    let sb = Sandbox::new();
+    // About 2.6 GiB of model; the limit is 1 GiB.
+    let text = format!(
+        "{SIM}[[body]]\nkind = \"cuboid\"\nsize = [1.0, 1.0, 1.0]\nresolution = [100, 100, 100]\n\
+         center = [0.0, 1.0, 0.0]\nmass = 1.0\n\
+         structural = {{ stiffness = 100.0, damping = 0.1 }}\n\
+         shear = {{ stiffness = 100.0, damping = 0.1 }}\n\
+         bending = {{ stiffness = 100.0, damping = 0.1 }}\n"
+    );
+    sb.write("big.toml", &text);
+    for command in ["check big.toml", "run big.toml --out f.jsonl"] {
+        let out = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!("ulimit -v 1048576 && exec \"$0\" {command}"))
+            .arg(env!("CARGO_BIN_EXE_softbody"))
+            .current_dir(sb.path())
+            .stdin(std::process::Stdio::null())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(
+            out.status.code(),
+            Some(EXIT_BAD_INPUT),
+            "{command}: {stderr}"
+        );
+        assert!(
+            stderr.contains("body[0].resolution") && stderr.contains("address-space limit"),
+            "{command}: {stderr}"
+        );
+    }
+    assert_eq!(entries(sb.path()), ["big.toml"], "nothing written");
+}

@@ -179,11 +179,11 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         ));
     }
     let need = model::estimated_bytes(particles, springs);
-    if let Some(have) = model::available_memory().filter(|&have| need > have) {
+    if let Some((have, what)) = model::available_memory().filter(|&(have, _)| need > have) {
         return Err(Invalid::new(
             blame(),
             format!(
-                "the scene needs about {:.1} GiB ({particles} particles, {springs} springs) and this machine has {:.1} GiB available",
+                "the scene needs about {:.1} GiB ({particles} particles, {springs} springs) and {:.1} GiB are {what}",
                 need as f64 / (1u64 << 30) as f64,
                 have as f64 / (1u64 << 30) as f64
             ),
