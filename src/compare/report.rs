@@ -153,7 +153,7 @@ impl Report {
         }
         out.push_str(&format!(
             "\nmax error: max over frames and particles of |x - x_ref| (`unstable`: the run blew up, and\n  \
-             its error before that is not comparable with the others').\n\
+             its error before that is not comparable with the others).\n\
              energy drift: max |E - E0| / E_s over the frames, E_s = {:.4e} J (the energy scale of the\n  \
              instability guard); it measures the integrator only in undamped scenes: damping,\n  \
              friction and contacts remove energy on purpose.\n\

@@ -443,7 +443,8 @@ mod plot {
         }
 
         // Energy panel: the range of the stable runs (a diverging run would flatten the others
-        // to a line), unstable runs clipped to it.
+        // to a line). An unstable run's line ends where it leaves that range, at the edge, with
+        // a triangle there: drawn clamped, a blow-up would look like a bounded plateau.
         let drifts = |stable_only: bool| {
             report
                 .runs
@@ -480,13 +481,23 @@ mod plot {
             .axis_desc_style(("sans-serif", 17))
             .draw()?;
         for (r, look) in report.runs.iter().zip(&looks) {
-            let points = r
-                .samples
-                .iter()
-                .filter(|s| s.drift.is_finite())
-                .map(|s| (s.time, s.drift.clamp(d_lo, d_hi)))
-                .collect();
+            let mut points = Vec::new();
+            let mut left = None;
+            for s in &r.samples {
+                if (d_lo..=d_hi).contains(&s.drift) {
+                    points.push((s.time, s.drift));
+                } else {
+                    // NaN too: an energy that is not a number has left every range.
+                    let edge = if s.drift < d_lo { d_lo } else { d_hi };
+                    points.push((s.time, edge));
+                    left = Some((s.time, edge));
+                    break;
+                }
+            }
             series(&mut chart, points, look)?;
+            if let Some(at) = left {
+                chart.draw_series([TriangleMarker::new(at, 7, look.colour.filled())])?;
+            }
         }
         root.present()?;
         Ok(())
