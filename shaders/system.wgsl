@@ -22,6 +22,12 @@
 // - `apply_springs`: z_s = B_s (p_a − p_b) into `per_spring_out`;
 // - `apply_particles`: out_i = m(1 + h·drag) p_i + Σ± z_s: out = A p.
 //
+// With contact between bodies, the pairs in contact at the step's start are springs of the
+// system too (body_contact.wgsl, `pair_system` and `pair_products`, which need the grid's
+// bindings and so run as kernels of their own): they leave each particle's pair terms in `b`,
+// `diag` and `out`, and `assemble_particles_with_pairs` and `apply_particles_with_pairs` add
+// them after the springs' (the CPU's order: springs, then pairs).
+//
 // Every per-particle sum is a gather in ascending spring order (no float atomics). The inverse
 // is the adjugate over the determinant, in f32: D_i is symmetric positive definite and
 // diagonally dominated by the mass part for every scene the solver takes.
@@ -81,16 +87,15 @@ fn assemble_springs(id: Invocation) {
     blocks[j] = SpringBlock(u, h * spring.damping + h * h * ks * (1.0 - alpha), h * h * ks * alpha);
 }
 
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn assemble_particles(id: Invocation) {
-    let i = thread_of(id);
-    if i >= params.n_particles {
-        return;
-    }
+// b_i and the inverse diagonal block of particle i, with the pairs' share of the force
+// (the right-hand side over h) `pair_force` and of the block, (xx, yy, zz) `pair_dd` and
+// (xy, xz, yz) `pair_off`.
+fn assemble_particle(i: u32, pair_force: vec3<f32>, pair_dd: vec3<f32>, pair_off: vec3<f32>) {
     let h = params.dt;
     let m = mass[i].x;
     let md = m * (1.0 + h * params.drag);
-    b[i] = vec4<f32>(h * (m * params.gravity - params.drag * m * v[i].xyz + gather(i)), 0.0);
+    let f = m * params.gravity - params.drag * m * v[i].xyz + gather(i);
+    b[i] = vec4<f32>(h * (f + pair_force), 0.0);
     // The diagonal block's upper triangle: (xx, yy, zz) and (xy, xz, yz).
     var dd = vec3<f32>(md);
     var off = vec3<f32>(0.0);
@@ -102,6 +107,8 @@ fn assemble_particles(id: Invocation) {
         dd += blk.beta * u * u + vec3<f32>(blk.gamma);
         off += blk.beta * vec3<f32>(u.x * u.y, u.x * u.z, u.y * u.z);
     }
+    dd += pair_dd;
+    off += pair_off;
     // Cofactors of the symmetric block [[a, d, e], [d, b, f], [e, f, c]].
     let a = dd.x;
     let bb = dd.y;
@@ -121,6 +128,24 @@ fn assemble_particles(id: Invocation) {
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
+fn assemble_particles(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        assemble_particle(i, vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    }
+}
+
+// For models whose bodies touch: `pair_system` (body_contact.wgsl) has left the pairs' terms in
+// b and diag.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn assemble_particles_with_pairs(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        assemble_particle(i, b[i].xyz, diag[2u * i].xyz, diag[2u * i + 1u].xyz);
+    }
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_springs(id: Invocation) {
     let j = thread_of(id);
     if j >= chunk.count {
@@ -135,8 +160,17 @@ fn apply_springs(id: Invocation) {
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles(id: Invocation) {
     let i = thread_of(id);
-    if i >= params.n_particles {
-        return;
+    if i < params.n_particles {
+        out[i] = vec4<f32>(diag[2u * i].w * p[i].xyz + gather(i), 0.0);
     }
-    out[i] = vec4<f32>(diag[2u * i].w * p[i].xyz + gather(i), 0.0);
+}
+
+// For models whose bodies touch: `pair_products` (body_contact.wgsl) has left the pairs' terms
+// in out.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn apply_particles_with_pairs(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        out[i] = vec4<f32>((diag[2u * i].w * p[i].xyz + gather(i)) + out[i].xyz, 0.0);
+    }
 }

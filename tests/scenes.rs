@@ -6,8 +6,7 @@
 //! integrators, use a step within `softbody check`'s stable-step estimate.
 //!
 //! A scene added to `scenes/` is picked up automatically; the scenes the README lists must
-//! exist. A scene whose bodies touch each other with implicit Euler must be refused by the GPU,
-//! naming the CPU backend (there contact between bodies runs on the CPU only for now).
+//! exist.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -94,17 +93,9 @@ fn check(backend: &Backend, path: &Path) -> Result<String, String> {
     let surfaces: Vec<Surface> = scene.terrain.iter().map(Surface::new).collect();
     let eps = sim.contact_distance;
 
-    let opened = backend
+    let mut solver = backend
         .solver(&scene)
-        .map_err(|e| e.message().unwrap_or("cannot open a solver").to_owned());
-    if backend.is_gpu() && model.contact.enabled() && !explicit {
-        return match opened {
-            Err(why) if why.contains("--backend cpu") => Ok(format!("refused: {why}")),
-            Err(why) => Err(format!("refused without naming the CPU backend: {why}")),
-            Ok(_) => Err("the GPU accepted implicit Euler with bodies that touch".to_owned()),
-        };
-    }
-    let mut solver = opened?;
+        .map_err(|e| e.message().unwrap_or("cannot open a solver").to_owned())?;
     let e0 = solver.energies().map_err(|e| e.to_string())?;
     let steps = ((SIMULATED / sim.dt).round() as u64).clamp(1, sim.steps().max(1));
     solver

@@ -42,7 +42,8 @@
 
 use glam::DVec3;
 use rayon::prelude::*;
-use softbody_scene::{Adjacency, FrictionModel, Integrator, Model, State};
+use softbody_scene::model::penalty as penalty_kappa;
+use softbody_scene::{Adjacency, FrictionModel, Model, State};
 
 use crate::broad_phase::BroadPhase;
 use crate::vec_bytes;
@@ -161,15 +162,6 @@ fn penalty_coefficients(kappa: f64, h: f64, m_red: f64) -> (f64, f64) {
     (k, 2.0 * (k * m_red).sqrt())
 }
 
-/// κ of the penalty in `integrator`'s steps.
-fn kappa(integrator: Integrator) -> f64 {
-    if integrator == Integrator::ImplicitEuler {
-        PENALTY_IMPLICIT
-    } else {
-        PENALTY
-    }
-}
-
 /// The broad phase, the stages' partners and the per-pair results of the response.
 #[derive(Debug, Default)]
 pub struct BodyContact {
@@ -270,7 +262,7 @@ fn pair(
     if un >= 0.0 {
         return (DVec3::ZERO, push);
     }
-    let (k, c_damp) = penalty_coefficients(kappa(sim.integrator), h, 1.0 / w);
+    let (k, c_damp) = penalty_coefficients(penalty_kappa(sim.integrator), h, 1.0 / w);
     let pressed = h * (k * (reach - d).max(0.0) - c_damp * un).max(0.0);
     let laws = &c.laws;
     let u0 = start.v[i] - start.v[j];

@@ -1,14 +1,17 @@
 //! `shaders/body_contact.wgsl` ↔ `softbody_cpu::body_contact`: contact between particles of
-//! bodies, for the explicit integrators (docs/physics.md, "Contact between bodies").
+//! bodies, for every integrator (docs/physics.md, "Contact between bodies").
 //!
 //! A pair (i, j) touches when admitted (different bodies, or one body with self-contact beyond
 //! its rest neighbourhood) and d = |x_i − x_j| < R = r_i + r_j. Per step:
 //!
 //! 1. at the start, the grid of the start state (`broad_phase`, which keeps a snapshot of it);
-//! 2. in every stage, `pair_forces`: per particle, the critically damped penalty force
-//!    F = max(0, k (R − d) − c (u·n)) n, k = κ m_red/h², c = 2√(k m_red), of each pair in
-//!    contact at the start, evaluated at the stage state, into `a`, which
-//!    `accelerations_with_pairs` adds to the spring forces (`forces`);
+//! 2. the critically damped penalty F = max(0, k (R − d) − c (u·n)) n, k = κ m_red/h²,
+//!    c = 2√(k m_red), of each pair in contact at the start: in every stage of the explicit
+//!    integrators, `pair_forces` evaluates it at the stage state into `a`, which
+//!    `accelerations_with_pairs` adds to the spring forces (`forces`); implicit Euler takes it
+//!    into its linear system as a spring along n, linearised at the start (`pair_system` and
+//!    `pair_products` before the system's per-particle kernels,
+//!    `integrators::implicit_euler::system`);
 //! 3. after the step and its terrain collision response, the grid of the end state and
 //!    `body_contact_response`: per particle, the Jacobi sum of ±w·(P, Δ) over its pairs in
 //!    contact at the end, P the normal (restitution on a fresh impact) and friction impulse and
@@ -24,11 +27,12 @@
 //! Every pair is evaluated in the orientation (min, max) by both of its particles' threads, so
 //! the two get bit-equal and opposite forces, impulses and pushes, and each thread sums its own
 //! in the search's order (a function of the positions alone): no float atomics, the same bits
-//! run to run. Implicit Euler with contact between bodies runs on the CPU only (its solve would
-//! need the pairs inside its linear system).
+//! run to run. Implicit Euler's products search the start grid again each time (its pairs'
+//! blocks are a function of the start snapshot, which nothing writes until the step's end), so
+//! its matrix is the same, and symmetric, in every product of a step.
 
 use softbody_scene::Model;
-use softbody_scene::model::{PENALTY, SELF_CONTACT_EXCLUSION, SLOP};
+use softbody_scene::model::{SELF_CONTACT_EXCLUSION, SLOP, penalty};
 
 use crate::broad_phase::{BroadPhase, Snapshot, count_words};
 use crate::buffers::ModelBuffers;
@@ -164,7 +168,7 @@ impl BodyContact {
             restitution: c.laws.restitution as f32,
             friction: c.laws.friction as f32,
             friction_model: friction_code(c.laws.friction_model),
-            penalty: PENALTY as f32,
+            penalty: penalty(model.simulation.integrator) as f32,
             slop: SLOP as f32,
             exclusion: SELF_CONTACT_EXCLUSION,
         };

@@ -213,12 +213,14 @@ impl GpuSolver {
         submitter.healthy()
     }
 
-    /// Implicit Euler's buffers and calls, and the submitter.
-    fn implicit(&mut self) -> Result<(&mut ImplicitEuler, &mut Submitter), StepError> {
+    /// Implicit Euler's buffers and calls, the submitter and the contact between bodies.
+    fn implicit(
+        &mut self,
+    ) -> Result<(&mut ImplicitEuler, &mut Submitter, Option<&BodyContact>), StepError> {
         self.state_fresh = false;
         self.submitter.healthy()?;
         match &mut self.stepper {
-            Stepper::Implicit(im) => Ok((im, &mut self.submitter)),
+            Stepper::Implicit(im) => Ok((im, &mut self.submitter, self.body_contact.as_ref())),
             Stepper::Explicit(_) => Err(StepError::Invalid(
                 "not an implicit-euler solver".to_owned(),
             )),
@@ -226,16 +228,17 @@ impl GpuSolver {
     }
 
     /// Implicit Euler's system at the current state, and its product with `p`: the assembly
-    /// and one product alone.
+    /// (with the pairs of bodies in contact there, for a model whose bodies touch) and one
+    /// product alone.
     pub fn debug_implicit_system(&mut self, p: &[DVec3]) -> Result<ImplicitSystem, StepError> {
         let n = self.model_len();
-        let (im, submitter) = self.implicit()?;
+        let (im, submitter, contact) = self.implicit()?;
         let b = im.buffers();
         submitter
             .queue()
             .write_buffer(&b.dv, 0, bytemuck::cast_slice(&vec4s(p)));
         let encoder = submitter.encode_pass("implicit system", |pass| {
-            im.encode_assemble(pass);
+            im.encode_assemble(pass, contact);
             im.encode_apply_dv(pass);
         });
         let bytes = submitter.submit_and_read(
@@ -260,7 +263,7 @@ impl GpuSolver {
     ) -> Result<(Vec<DVec3>, CgScalars), StepError> {
         let n = self.model_len();
         let packed: Vec<[f32; 4]> = constraints.iter().map(|&c| constraint_vec4(c)).collect();
-        let (im, submitter) = self.implicit()?;
+        let (im, submitter, contact) = self.implicit()?;
         let b = im.buffers();
         let queue = submitter.queue();
         queue.write_buffer(&b.constraints, 0, bytemuck::cast_slice(&packed));
@@ -268,7 +271,7 @@ impl GpuSolver {
         queue.write_buffer(&b.z, 0, bytemuck::cast_slice(&vec4s(z)));
         queue.write_buffer(&b.dv, 0, bytemuck::cast_slice(&vec4s(dv)));
         let encoder = submitter.encode_pass("cg solve", |pass| {
-            im.encode_assemble(pass);
+            im.encode_assemble(pass, contact);
             im.encode_round(pass, false);
             im.encode_batch(pass, true);
         });

@@ -13,7 +13,9 @@
 //! terrain) by the terrain's record of the next step's start, which that response changed. [`STEPS_PER_SUBMISSION`] steps go into one command buffer; after each
 //! submission the host reads back the 12-byte status only. Implicit Euler cannot know its CG
 //! iterations and active-set rounds in advance: it synchronises at least once per step on a
-//! 68-byte read-back, and reads the status after [`STEPS_PER_SUBMISSION`] steps.
+//! 68-byte read-back, and reads the status after [`STEPS_PER_SUBMISSION`] steps; where bodies
+//! touch, it builds the start's grid before its assembly (its pairs are springs of its system)
+//! and ends with the response between bodies before `check_finite`.
 //!
 //! # Instability
 //!
@@ -107,28 +109,10 @@ const _: fn() = || {
     send::<GpuSolver>();
 };
 
-/// Refuses what the GPU solver does not do yet: contact between bodies with implicit Euler
-/// (ARCHITECTURE.md, "What is left").
-fn supported(model: &Model) -> Result<(), GpuError> {
-    if model.contact.enabled()
-        && model.simulation.integrator == softbody_scene::Integrator::ImplicitEuler
-    {
-        return Err(GpuError::Unsupported(
-            "contact between bodies (two bodies with a contact radius, or self_contact) with \
-             implicit-euler runs on the CPU only for now: run with --backend cpu, use an \
-             explicit integrator, or set contact_radius = 0 on the bodies"
-                .to_owned(),
-        ));
-    }
-    Ok(())
-}
-
 impl GpuSolver {
     /// Opens a device of its own and uploads `model` and `state`: [`GpuSolver::on`] with
     /// [`Gpu::open`].
     pub fn new(model: Model, state: State) -> Result<GpuSolver, GpuError> {
-        // Refused before a device is opened for it.
-        supported(&model)?;
         GpuSolver::on(&Gpu::open()?, model, state)
     }
 
@@ -151,7 +135,6 @@ impl GpuSolver {
         mut state: State,
         options: GpuOptions,
     ) -> Result<GpuSolver, GpuError> {
-        supported(&model)?;
         let integrator = model.simulation.integrator;
         let implicit = integrator == softbody_scene::Integrator::ImplicitEuler;
         let mut limits = gpu.limits.clone();
@@ -355,7 +338,14 @@ impl GpuSolver {
             Stepper::Implicit(im) => {
                 // Each step synchronises on its CG read-backs; the status is read at the end.
                 for k in 0..batch {
-                    im.step(&mut self.submitter, &self.check, k, &mut self.timings)?;
+                    let contact = self.body_contact.as_ref();
+                    im.step(
+                        &mut self.submitter,
+                        &self.check,
+                        contact,
+                        k,
+                        &mut self.timings,
+                    )?;
                 }
                 self.submitter.encoder("status")
             }

@@ -77,7 +77,7 @@ fn every_entry_point_reflects_within_webgpu_limits() {
             kernels += 1;
         }
     }
-    assert_eq!(kernels, 43);
+    assert_eq!(kernels, 47);
 }
 
 /// Reflection reads what an entry point uses through the functions it calls, with the access
@@ -139,6 +139,26 @@ fn reflection_reads_each_kernels_own_bindings() {
                 "counts",
                 "sorted",
                 "snapshot_x",
+                "rest_neighbours"
+            ]),
+            false
+        )
+    );
+    // Implicit Euler's pair terms: the same search, the start snapshot's velocities (whether
+    // the penalty pushes), the product's vector and its result.
+    assert_eq!(
+        names(Stage::BodyContact, one, "pair_products"),
+        (
+            strings(&[
+                "params",
+                "p",
+                "out",
+                "contact",
+                "particles",
+                "counts",
+                "sorted",
+                "snapshot_x",
+                "snapshot_v",
                 "rest_neighbours"
             ]),
             false
@@ -321,10 +341,13 @@ fn chunked_gathers_validate_and_read_every_chunk() {
                 let extra =
                     |base: &'static str| (1..chunking.count).map(move |c| format!("{base}_{c}"));
                 let expected: Vec<String> = match entry {
-                    "accelerations" | "accelerations_with_pairs" | "apply_particles" => {
-                        extra("per_spring").collect()
+                    "accelerations"
+                    | "accelerations_with_pairs"
+                    | "apply_particles"
+                    | "apply_particles_with_pairs" => extra("per_spring").collect(),
+                    "assemble_particles" | "assemble_particles_with_pairs" => {
+                        extra("per_spring").chain(extra("block")).collect()
                     }
-                    "assemble_particles" => extra("per_spring").chain(extra("block")).collect(),
                     _ => Vec::new(),
                 };
                 let mut sorted = chunk_reads.clone();

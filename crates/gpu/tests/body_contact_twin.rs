@@ -1,6 +1,7 @@
 //! Contact between bodies on the GPU against its CPU twin (`softbody_cpu::{broad_phase,
 //! body_contact}`) on the same f32-exact input: the pairs of random clouds as sets, the penalty
-//! forces, one response, and the same bits run after run and on every grid width. (What both
+//! forces, one response, implicit Euler's system with the pairs in it, and the same bits run
+//! after run and on every grid width. (What both
 //! backends must do on their own — momentum, restitution, stacks, self-contact — is tested once
 //! for both in the top-level `tests/body_contact.rs`.)
 //!
@@ -65,6 +66,10 @@ fn main() -> ExitCode {
             one_step_twin(gpu, Integrator::Midpoint)
         }),
         ("one_step_rk4", |gpu| one_step_twin(gpu, Integrator::Rk4)),
+        (
+            "implicit_eulers_system_with_pairs_is_the_cpus",
+            implicit_system_twin,
+        ),
         (
             "body_contact_gives_the_same_bits_every_run_and_grid_width",
             same_bits,
@@ -573,6 +578,190 @@ fn one_step_twin(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
     );
     if touching < 10 {
         failures.push(format!("only {touching} particles touch"));
+    }
+    all(failures)
+}
+
+/// Two 10 cm cubes of 4³ particles pressed into each other (2 kg and 1 kg, contact radius 1.67
+/// cm), the upper one turned by 45° and its lowest layer 60% of R above the lower one's top,
+/// positions perturbed by up to 2 mm and velocities by up to 2 m/s (so that some pairs in
+/// contact pull apart: F ≤ 0, left out of the system), one particle of the lower cube pinned,
+/// drag 0.2, implicit Euler at h = 1/60 s; f32-exact.
+fn pressed_cubes() -> (Model, State) {
+    let params = softbody_scene::SpringParams {
+        stiffness: 800.0,
+        damping: 2.0,
+    };
+    let lower = cuboid(DVec3::splat(0.1), [4, 4, 4], DVec3::ZERO, 2.0, params);
+    let reach = 0.1 / 3.0;
+    let mut upper = cuboid(
+        DVec3::splat(0.1),
+        [4, 4, 4],
+        DVec3::new(0.01, 0.1 + 0.6 * reach, -0.005),
+        1.0,
+        params,
+    );
+    upper.rotation = DVec3::new(0.0, 45.0, 0.0);
+    let mut lower = cuboid_body(lower);
+    lower.pinned = vec![3];
+    let mut upper = cuboid_body(upper);
+    upper.name = "upper".into();
+    let mut sim = simulation(Integrator::ImplicitEuler, 1.0 / 60.0);
+    sim.drag = 0.2;
+    let (model, mut state) = Model::build(&scene(sim, vec![lower, upper], Vec::new()));
+    let mut rng = Rng::new(11);
+    for i in 0..model.len() {
+        state.x[i] += rng.vec(0.002);
+        if model.inv_mass[i] > 0.0 {
+            state.v[i] += rng.vec(2.0);
+        }
+    }
+    (model, f32_exact(&state))
+}
+
+/// Implicit Euler's system at the pressed cubes' state with the pairs in contact there: the
+/// GPU's assembly (b, block-Jacobi inverse) and product A p (`pair_system`, `pair_products`
+/// and the `…_with_pairs` particle kernels) against the CPU's `System` with the `Partners` of
+/// the same state, on the same f32-exact input and p.
+///
+/// Both compute each pair's penalty from the same f32 positions: the GPU in f32, where
+/// d = |x_i − x_j| has an absolute error of a few ulp(R), so F = k(R − d) − c (u·n) one of
+/// k·R·u (u = 2⁻²⁴) plus c|u_ij|·u. The errors are compared as the stage twins' (`tolerance()`,
+/// 1e-5 relative, about 170 u) against the scale of their terms: b against
+/// h(m|g| + drag·m|v| + Σ|g_s|) + h Σ_pairs (k R + (c + h k)|v_i − v_j|), A p against
+/// m(1 + h·drag)|p_i| + Σ_springs (β + γ)(|p_a| + |p_b|) + Σ_pairs β (|p_i| + |p_j|), each
+/// inverse block against its largest entry. A pair whose d is within rounding of R, or whose F
+/// at the start is within 1e-4 of its scale of 0 (in the system on one side only), would leave
+/// its particles out; the scene has none (checked), and at least 20 pairs push and some pull.
+/// Measured on lavapipe: 29 pairs (26 push, 3 pull), largest errors 1.7e-7 (b), 1.2e-7 (A p)
+/// and 4.2e-7 (inverse blocks) of the scales.
+fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    use softbody_cpu::integrators::implicit_euler::system::System;
+    let (model, state) = pressed_cubes();
+    let n = model.len();
+    let mut rng = Rng::new(12);
+    let p: Vec<DVec3> = (0..n).map(|_| rng.vec(1.0).as_vec3().as_dvec3()).collect();
+    let mut g = open(gpu, &model, &state)?;
+    let (gb, gdiag, gap) = g.debug_implicit_system(&p).map_err(step_error)?;
+    let gpu_pairs = g.debug_contact_pairs().map_err(step_error)?;
+
+    let mut contact = BodyContact::new();
+    contact.prepare(&model, &state);
+    let mut sys = System::new(&model);
+    let mut b = vec![DVec3::ZERO; n];
+    sys.assemble(&model, Some(contact.partners()), &state.x, &state.v, &mut b);
+    // The springs' g_s = f_s − h K_s (v_a − v_b), before the product overwrites them.
+    let per_spring = sys.per_spring.clone();
+    let mut ap = vec![DVec3::ZERO; n];
+    sys.apply(&model, &p, &mut ap);
+
+    let cpu_pairs = contact.partners().pairs().to_vec();
+    let (pairs, near) = agreeing_pairs(&model, &state.x, &gpu_pairs, &cpu_pairs)?;
+    let mut doubtful = doubtful(&model, &state.x, &pairs, &near);
+    let sim = &model.simulation;
+    let (h, kappa) = (sim.dt, softbody_scene::model::penalty(sim.integrator));
+    let blocks = sys.pairs.as_ref().ok_or("the CPU's system has no pairs")?;
+    let mut b_scale: Vec<f64> = (0..n)
+        .map(|i| {
+            let m = model.mass[i];
+            let springs: f64 = model
+                .adjacency
+                .of(i)
+                .iter()
+                .map(|&e| per_spring[(e >> 1) as usize].length())
+                .sum();
+            h * (m * sim.gravity.length() + sim.drag * m * state.v[i].length() + springs)
+        })
+        .collect();
+    let sp = &model.springs;
+    let mut ap_scale: Vec<f64> = (0..n)
+        .map(|i| {
+            let springs: f64 = model
+                .adjacency
+                .of(i)
+                .iter()
+                .map(|&e| {
+                    let s = (e >> 1) as usize;
+                    (sys.beta[s] + sys.gamma[s])
+                        * (p[sp.a[s] as usize].length() + p[sp.b[s] as usize].length())
+                })
+                .sum();
+            sys.mass_diag[i] * p[i].length() + springs
+        })
+        .collect();
+    let (mut pushing, mut pulling) = (0, 0);
+    for (k, &[i, j]) in blocks.ends.iter().enumerate() {
+        let (i, j) = (i as usize, j as usize);
+        let w = model.inv_mass[i] + model.inv_mass[j];
+        if w == 0.0 {
+            continue;
+        }
+        let m_red = 1.0 / w;
+        let stiffness = kappa * m_red / (h * h);
+        let damping = 2.0 * (stiffness * m_red).sqrt();
+        let r = reach(&model, [i as u32, j as u32]);
+        let offset = state.x[i] - state.x[j];
+        let u = state.v[i] - state.v[j];
+        let force = stiffness * (r - offset.length()) - damping * u.dot(offset.normalize());
+        let scale = stiffness * r + damping * u.length();
+        if force.abs() <= 1e-4 * scale {
+            doubtful.extend([i as u32, j as u32]);
+        }
+        if blocks.beta[k] > 0.0 {
+            pushing += 1;
+        } else {
+            pulling += 1;
+        }
+        for (a, other) in [(i, j), (j, i)] {
+            b_scale[a] += h * (scale + h * stiffness * u.length());
+            ap_scale[a] += blocks.beta[k] * (p[a].length() + p[other].length());
+        }
+    }
+    let tolerance = Backend::gpu(gpu.clone()).tolerance();
+    let (mut worst_b, mut worst_ap, mut worst_inv, mut failures) =
+        (0.0f64, 0.0f64, 0.0f64, Vec::new());
+    for i in 0..n {
+        let eb = (gb[i].as_dvec3() - b[i]).length();
+        let eap = (gap[i].as_dvec3() - ap[i]).length();
+        let d = gdiag[i].map(f64::from);
+        let inv =
+            glam::DMat3::from_cols_array(&[d[0], d[4], d[5], d[4], d[1], d[6], d[5], d[6], d[2]]);
+        let want = sys.inv_diag[i].to_cols_array();
+        let largest = want.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+        let einv = (inv - sys.inv_diag[i])
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, x| a.max(x.abs()));
+        worst_b = worst_b.max(eb / b_scale[i]);
+        worst_ap = worst_ap.max(eap / ap_scale[i]);
+        worst_inv = worst_inv.max(einv / largest);
+        if !tolerance.allows(eb, b_scale[i])
+            || !tolerance.allows(eap, ap_scale[i])
+            || !tolerance.allows(einv, largest)
+        {
+            failures.push(format!(
+                "particle {i}: b GPU {} CPU {} (scale {:e}), A p GPU {} CPU {} (scale {:e}), \
+                 inverse block error {einv:e} of {largest:e}",
+                gb[i], b[i], b_scale[i], gap[i], ap[i], ap_scale[i]
+            ));
+        }
+    }
+    println!(
+        "{n} particles, {} pairs in contact ({pushing} pushing, {pulling} pulling: left out); \
+         largest errors of the scales: b {worst_b:.2e}, A p {worst_ap:.2e}, inverse blocks \
+         {worst_inv:.2e} (bound {:e})",
+        pairs.len(),
+        tolerance.rel
+    );
+    if !doubtful.is_empty() {
+        failures.push(format!(
+            "particles {doubtful:?} have a pair within rounding of R or of F = 0: move the scene"
+        ));
+    }
+    if pushing < 20 || pulling == 0 {
+        failures.push(format!(
+            "{pushing} pairs push and {pulling} pull: the system's pairs are not exercised"
+        ));
     }
     all(failures)
 }

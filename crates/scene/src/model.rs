@@ -294,6 +294,16 @@ pub const PENALTY: f64 = 0.1;
 /// linearisation at the step start too coarse and the pile never settles).
 pub const PENALTY_IMPLICIT: f64 = 1000.0;
 
+/// κ of the penalty in `integrator`'s steps ([`PENALTY_IMPLICIT`] for implicit Euler, else
+/// [`PENALTY`]); the response between bodies presses its friction with the same penalty.
+pub fn penalty(integrator: crate::Integrator) -> f64 {
+    if integrator == crate::Integrator::ImplicitEuler {
+        PENALTY_IMPLICIT
+    } else {
+        PENALTY
+    }
+}
+
 /// The overlap, as a fraction of R, that the response between bodies leaves to the penalty
 /// force. A push is a move without a force, which the springs around it answer with elastic
 /// energy, so pushes must stay rare, and short: at 5%, implicit Euler's pile in the bowl at

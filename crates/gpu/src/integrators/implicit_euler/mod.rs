@@ -7,10 +7,10 @@
 //!
 //! | submission | dispatches | read back |
 //! |---|---|---|
-//! | first | assemble (springs, particles) → candidates (terrain) → round → batch | scalars, changed |
+//! | first | start grid (bodies) → assemble (springs, pairs, particles) → candidates (terrain) → round → batch | scalars, changed |
 //! | while CG runs | batch | scalars, changed |
 //! | next round (active set changed) | round → batch | scalars, changed |
-//! | last | finish → `check_finite` | nothing (the status at the end of `advance`) |
+//! | last | finish → end grid and response (bodies) → `check_finite` | nothing (the status at the end of `advance`) |
 //!
 //! where a round is `implicit_constrain` → the CG's start, and a batch is a run of CG
 //! iterations (the first batch of a solve as many as the last solve took plus 2, later ones
@@ -22,6 +22,11 @@
 //!
 //! The CG stopping rule is the CPU's (relative preconditioned residual, round-off growth, cap),
 //! with the tolerance [`CG_TOLERANCE_F32`]: the CPU's 1e-8 is below what f32 resolves.
+//!
+//! Where bodies touch ([`crate::body_contact`]), as on the CPU: the pairs in contact at the
+//! step's start push apart inside the solve, as springs of the system (the grid of the start
+//! state is built before the assembly and searched by every product, [`system`]), and after
+//! the update comes the response between bodies of the explicit integrators.
 
 pub mod cg;
 pub mod system;
@@ -31,6 +36,7 @@ use softbody_scene::{Statistics, StepError, Timings};
 
 use self::cg::Cg;
 use self::system::{System, Vector};
+use crate::body_contact::BodyContact;
 use crate::builder::Setup;
 use crate::check_finite::CheckFinite;
 use crate::grid::Grid;
@@ -238,9 +244,13 @@ impl ImplicitEuler {
         &self.buffers
     }
 
-    /// Linearises at the current (x, v): b, the spring blocks and the preconditioner; with
-    /// terrain, the contact candidates.
-    pub fn encode_assemble(&self, pass: &mut wgpu::ComputePass<'_>) {
+    /// Linearises at the current (x, v): b, the spring blocks and the preconditioner, with the
+    /// pairs of bodies in contact there (`contact`: given exactly when the model has contact
+    /// between bodies), whose grid it builds first; with terrain, the contact candidates.
+    pub fn encode_assemble(&self, pass: &mut wgpu::ComputePass<'_>, contact: Option<&BodyContact>) {
+        if let Some(contact) = contact {
+            contact.encode_start(pass);
+        }
         self.system.encode_assemble(pass);
         if let Some(contacts) = &self.contacts {
             contacts.candidates.run(pass, self.particles);
@@ -327,11 +337,13 @@ impl ImplicitEuler {
     }
 
     /// Step `k` (0-based) of a submission of `advance`: the solves until the active set
-    /// settles (at most [`ACTIVE_SET_ROUNDS`]), then the update and `check`.
+    /// settles (at most [`ACTIVE_SET_ROUNDS`]), then the update, the response between bodies
+    /// (`contact`, given exactly when the model has contact between bodies) and `check`.
     pub fn step(
         &mut self,
         submitter: &mut Submitter,
         check: &CheckFinite,
+        contact: Option<&BodyContact>,
         k: u64,
         timings: &mut Timings,
     ) -> Result<(), StepError> {
@@ -340,7 +352,7 @@ impl ImplicitEuler {
         }
         let started = std::time::Instant::now();
         let encoder = submitter.encode_pass("implicit step", |pass| {
-            self.encode_assemble(pass);
+            self.encode_assemble(pass, contact);
             self.encode_round(pass, true);
             self.encode_batch(pass, true);
         });
@@ -357,6 +369,9 @@ impl ImplicitEuler {
         timings.add("assemble + cg (device)", started.elapsed().as_secs_f64());
         let encoder = submitter.encode_pass("implicit finish", |pass| {
             self.finish.run(pass, self.particles);
+            if let Some(contact) = contact {
+                contact.encode_response(pass);
+            }
             check.encode(pass, k);
         });
         submitter.submit(encoder);

@@ -6,6 +6,11 @@
 //! kept matrix-free as one block B_s = β uuᵀ + γ I per spring (`assemble_springs`), gathered per
 //! particle into b and the block-Jacobi preconditioner (`assemble_particles`); A p is a
 //! per-spring product and a gather (`apply_springs`, `apply_particles`).
+//!
+//! Where bodies touch, each pair in contact at the step's start whose penalty pushes there is a
+//! block β nnᵀ too (β = h c + h² k) with the share ±h(F − h k (u·n)) n of b: `pair_system` and
+//! `pair_products` (`shaders/body_contact.wgsl`, which searches the start grid) leave each
+//! particle's pair terms for the `…_with_pairs` variants of the per-particle kernels.
 
 use super::{Buffers, Slots};
 use crate::GpuError;
@@ -18,6 +23,8 @@ use crate::shaders::Stage;
 struct Apply {
     /// One call per spring chunk.
     springs: Vec<Call>,
+    /// The pairs' terms, for models whose bodies touch.
+    pairs: Option<Call>,
     particles: Call,
 }
 
@@ -33,6 +40,8 @@ pub(crate) enum Vector {
 /// The assembly and the products A Δv and A c.
 pub(crate) struct System {
     assemble_springs: Vec<Call>,
+    /// The pairs' terms, for models whose bodies touch.
+    assemble_pairs: Option<Call>,
     assemble_particles: Call,
     apply_dv: Apply,
     apply_c: Apply,
@@ -57,15 +66,33 @@ impl System {
             let r = im.resources(s.buffers.resources()).buffer("p", p);
             s.builder.call(Stage::System, entry, &r)
         };
+        // The pairs' kernels search the start grid: the contact's buffers with implicit Euler's.
+        let pairs = |entry, p: &wgpu::Buffer| {
+            s.body_contact
+                .map(|contact| {
+                    let r = im.resources(contact.resources(s.buffers)).buffer("p", p);
+                    s.builder.call(Stage::BodyContact, entry, &r)
+                })
+                .transpose()
+        };
+        let (assemble, product) = match s.body_contact {
+            Some(_) => (
+                "assemble_particles_with_pairs",
+                "apply_particles_with_pairs",
+            ),
+            None => ("assemble_particles", "apply_particles"),
+        };
         let apply = |p| -> Result<Apply, GpuError> {
             Ok(Apply {
                 springs: per_chunk("apply_springs", p)?,
-                particles: gather("apply_particles", p)?,
+                pairs: pairs("pair_products", p)?,
+                particles: gather(product, p)?,
             })
         };
         Ok(System {
             assemble_springs: per_chunk("assemble_springs", &im.dv)?,
-            assemble_particles: gather("assemble_particles", &im.dv)?,
+            assemble_pairs: pairs("pair_system", &im.dv)?,
+            assemble_particles: gather(assemble, &im.dv)?,
             apply_dv: apply(&im.dv)?,
             apply_c: apply(&im.c)?,
             spring_grids: s.chunks.grids.clone(),
@@ -78,6 +105,9 @@ impl System {
     pub fn encode_assemble(&self, pass: &mut wgpu::ComputePass<'_>) {
         for (call, grid) in self.assemble_springs.iter().zip(&self.spring_grids) {
             call.run(pass, *grid);
+        }
+        if let Some(pairs) = &self.assemble_pairs {
+            pairs.run(pass, self.particles);
         }
         self.assemble_particles.run(pass, self.particles);
     }
@@ -101,11 +131,11 @@ impl System {
                 None => call.run(pass, *grid),
             }
         }
-        match slots {
-            Some(slots) => apply
-                .particles
-                .run_indirect(pass, &self.dispatch, slots.particles),
-            None => apply.particles.run(pass, self.particles),
+        for call in apply.pairs.iter().chain([&apply.particles]) {
+            match slots {
+                Some(slots) => call.run_indirect(pass, &self.dispatch, slots.particles),
+                None => call.run(pass, self.particles),
+            }
         }
     }
 }
