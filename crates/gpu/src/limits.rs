@@ -7,6 +7,8 @@
 //! springs per 128 MiB). The per-spring arrays are chunked ([`crate::chunks`]) up to what one
 //! kernel may bind.
 
+use softbody_scene::{Model, State};
+
 use crate::chunks::{Chunking, MAX_SPRING_CHUNKS, plan_chunks};
 use crate::grid::Grid;
 use crate::shaders::{BLOCK_CHUNK_BINDING, PER_SPRING_CHUNK_BINDING};
@@ -39,6 +41,61 @@ fn limit_error(
         needed,
         available,
     }
+}
+
+/// Refuses a scene whose values the GPU's f32 cannot hold: a position, velocity, gravity,
+/// time step, mass or spring parameter beyond f32's range (|x| > 3.4e38), or a non-zero one
+/// that rounds to zero (a time step, a mass, a rest length below 1.2e-38, which the kernels
+/// divide by). Without it such a scene runs on infinities and writes frame 0 with no numbers.
+pub(crate) fn check_f32(model: &Model, state: &State) -> Result<(), GpuError> {
+    let refuse = |what: String, value: f64| {
+        Err(GpuError::Unsupported(format!(
+            "{what} = {value:e} does not fit in f32, in which the GPU computes (|x| from \
+             {:e} to {:e}); use --backend cpu (f64)",
+            f32::MIN_POSITIVE,
+            f32::MAX
+        )))
+    };
+    let fits = |x: f64| (x as f32).is_finite();
+    let divisor = |x: f64| fits(x) && (x == 0.0 || (x as f32).abs() >= f32::MIN_POSITIVE);
+    for (i, (x, v)) in state.x.iter().zip(&state.v).enumerate() {
+        if let Some(c) = x.to_array().into_iter().find(|&c| !fits(c)) {
+            return refuse(
+                format!("a position coordinate of particle {i}, in metres,"),
+                c,
+            );
+        }
+        if let Some(c) = v.to_array().into_iter().find(|&c| !fits(c)) {
+            return refuse(format!("a velocity component of particle {i}, in m/s,"), c);
+        }
+    }
+    for (i, &m) in model.mass.iter().enumerate() {
+        if !divisor(m) {
+            return refuse(format!("the mass of particle {i}, in kg,"), m);
+        }
+    }
+    let sim = &model.simulation;
+    if let Some(c) = sim.gravity.to_array().into_iter().find(|&c| !fits(c)) {
+        return refuse("a gravity component, in m/s²,".to_owned(), c);
+    }
+    if !divisor(sim.dt) {
+        return refuse("dt, in seconds,".to_owned(), sim.dt);
+    }
+    let springs = &model.springs;
+    for s in 0..springs.len() {
+        let (k, d, r) = (springs.stiffness[s], springs.damping[s], springs.rest[s]);
+        if !fits(k) || !fits(d) || !divisor(r) {
+            let (what, value) = if !fits(k) {
+                ("stiffness, in N/m,", k)
+            } else if !fits(d) {
+                ("damping, in N·s/m,", d)
+            } else {
+                ("rest length, in metres,", r)
+            };
+            return refuse(format!("the {what} of spring {s}"), value);
+        }
+    }
+    Ok(())
 }
 
 /// Refuses a scene that exceeds the adapter's limits, naming the limit and the figures.
@@ -239,6 +296,34 @@ pub(crate) fn check_chunks(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Values beyond f32's range are refused, naming what and where; a scene in range passes.
+    #[test]
+    fn values_beyond_f32_are_refused() {
+        let scene = |velocity: &str, gravity: &str, mass: &str| {
+            let text = format!(
+                "[simulation]\ndt = 0.001\nduration = 0.01\ngravity = {gravity}\n\
+                 [[body]]\nkind = \"particles\"\npositions = [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]\n\
+                 masses = [1.0, {mass}]\nvelocities = [{velocity}, [0.0, 0.0, 0.0]]\n\
+                 springs = [{{ a = 0, b = 1, stiffness = 10.0 }}]\n"
+            );
+            let scene = softbody_scene::Scene::from_toml(&text, "t.toml".as_ref()).unwrap();
+            let (model, state) = Model::build(&scene);
+            check_f32(&model, &state).map_err(|e| e.to_string())
+        };
+        let ok = "[0.0, 0.0, 0.0]";
+        assert_eq!(scene(ok, "[0.0, -9.81, 0.0]", "1.0"), Ok(()));
+        let e = scene("[1e40, 0.0, 0.0]", "[0.0, -9.81, 0.0]", "1.0").unwrap_err();
+        assert!(
+            e.starts_with("a velocity component of particle 0, in m/s, = 1e40"),
+            "{e}"
+        );
+        assert!(e.contains("--backend cpu"), "{e}");
+        let e = scene(ok, "[0.0, -1e300, 0.0]", "1.0").unwrap_err();
+        assert!(e.starts_with("a gravity component"), "{e}");
+        let e = scene(ok, "[0.0, -9.81, 0.0]", "1e-50").unwrap_err();
+        assert!(e.starts_with("the mass of particle 1"), "{e}");
+    }
 
     /// Bytes of a `vec4<f32>`.
     const VEC4: u64 = 16;

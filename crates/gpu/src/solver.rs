@@ -56,7 +56,7 @@ use crate::energy::Energy;
 use crate::grid::Grid;
 use crate::integrators::Stepper;
 use crate::layout::{CandidateGpu, NONE, SpringBlockGpu, SpringGpu, Status};
-use crate::limits::{Need, check_chunks, check_limits};
+use crate::limits::{Need, check_chunks, check_f32, check_limits};
 use crate::submit::Submitter;
 use crate::{GpuError, VEC4, WORKGROUP_SIZE, terrain};
 
@@ -120,7 +120,8 @@ impl GpuSolver {
     /// scenes on one device).
     ///
     /// Fails with [`GpuError::Limit`] when the scene exceeds the adapter's limits,
-    /// [`GpuError::Unsupported`] for implicit Euler on an adapter without indirect dispatch
+    /// [`GpuError::Unsupported`] for values beyond f32's range and for implicit Euler on an
+    /// adapter without indirect dispatch
     /// (`DownlevelFlags::INDIRECT_EXECUTION`), and [`GpuError::Device`] when the buffers and
     /// pipelines cannot be created.
     pub fn on(gpu: &Arc<Gpu>, model: Model, state: State) -> Result<GpuSolver, GpuError> {
@@ -155,6 +156,7 @@ impl GpuSolver {
                  integrator"
             )));
         }
+        check_f32(&model, &state)?;
         let n = model.len() as u64;
         let m = model.springs.len() as u64;
         let packed = terrain::pack(&model.terrain);
