@@ -30,9 +30,14 @@
 //   Σ± β n n·(p_lo − p_hi).
 //
 // Pairs are not stored (as for `pair_forces`): every product searches the start grid again and
-// evaluates its pairs from the start snapshot, which no kernel writes until the step's end, so
-// every product of a step has the same pairs and bit-equal blocks, and lo's and hi's terms are
-// bit-equal and opposite: A stays symmetric.
+// evaluates its pairs from the start snapshot, whose positions and velocities no kernel writes
+// until the step's end, so every product of a step has the same pairs and bit-equal blocks,
+// and lo's and hi's terms are bit-equal and opposite: A stays symmetric. Only the particles
+// with a pushing pair search: `pair_system` leaves their number in the w of the start
+// snapshot's velocity (a lane that is 0 in every state vector and that nothing else reads),
+// and a particle without one has no pair terms — skipping its search gives the same zero bits,
+// and saves a software adapter most of a product where few particles touch (the search costs
+// lavapipe more than the rest of a CG iteration).
 //
 // `body_contact_response`, after the step and its terrain collision response, for the pairs in
 // contact at the end (the grid of the end snapshot): with w = 1/m,
@@ -149,6 +154,7 @@ fn pair_system(id: Invocation) {
     var g = vec3<f32>(0.0);
     var dd = vec3<f32>(0.0);
     var off = vec3<f32>(0.0);
+    var pushing = 0u;
     if particles[i].radius > 0.0 {
         var it = neighbours_of(snapshot_x[i].xyz);
         loop {
@@ -165,8 +171,10 @@ fn pair_system(id: Invocation) {
             let n = s.normal;
             dd += s.beta * n * n;
             off += s.beta * vec3<f32>(n.x * n.y, n.x * n.z, n.y * n.z);
+            pushing += u32(s.beta > 0.0);
         }
     }
+    snapshot_v[i].w = f32(pushing);
     b[i] = vec4<f32>(g, 0.0);
     diag[2u * i] = vec4<f32>(dd, 0.0);
     diag[2u * i + 1u] = vec4<f32>(off, 0.0);
@@ -179,7 +187,7 @@ fn pair_products(id: Invocation) {
         return;
     }
     var z = vec3<f32>(0.0);
-    if particles[i].radius > 0.0 {
+    if snapshot_v[i].w > 0.0 {
         var it = neighbours_of(snapshot_x[i].xyz);
         loop {
             let j = next_partner(i, &it, 0u);
