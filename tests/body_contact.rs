@@ -339,7 +339,7 @@ fn a_stack_comes_to_rest(backend: &Backend) -> Result<(), Failed> {
 /// come closer than 90% of the sum of their radii (4 cm) at any 10 ms; without it the folds
 /// pass through each other (closer than half of it) — so the case does test something (on the
 /// CPU). Symplectic Euler (the scene's), midpoint and RK4 at the scene's step, implicit Euler at
-/// `step_for`'s 1e-3 s (at 1e-4 s one run takes lavapipe 7 minutes, and the bar folds alike).
+/// `step_for`'s 1e-3 s (at 1e-4 s one run takes lavapipe 6 minutes, and the bar folds alike).
 /// Measured: 0.040 m with, 0.003 m without; implicit Euler 0.0389 m and 0.0008 m (GPU, f32,
 /// lavapipe: 0.0389 m with).
 fn self_contact_keeps_a_folding_bar_apart(backend: &Backend) -> Result<(), Failed> {
