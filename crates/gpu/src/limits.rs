@@ -56,7 +56,10 @@ pub(crate) fn check_f32(model: &Model, state: &State) -> Result<(), GpuError> {
             f32::MAX
         )))
     };
-    let fits = |x: f64| (x as f32).is_finite();
+    // A value that is already infinite or NaN (a state handed over by `set_state`) is the
+    // solver's to report as an instability, as the CPU does: only finite values that f32 loses
+    // are refused.
+    let fits = |x: f64| !x.is_finite() || (x as f32).is_finite();
     let divisor = |x: f64| fits(x) && (x == 0.0 || (x as f32).abs() >= f32::MIN_POSITIVE);
     for (i, (x, v)) in state.x.iter().zip(&state.v).enumerate() {
         if let Some(c) = x.to_array().into_iter().find(|&c| !fits(c)) {
