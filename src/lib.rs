@@ -43,6 +43,9 @@ pub mod warnings;
 use std::fmt;
 use std::str::FromStr;
 
+/// The vector types of the API (`State::x` is a `Vec<glam::DVec3>`), so that an embedder uses
+/// the same version.
+pub use glam;
 pub use overrides::{OverrideError, Overrides};
 /// The CPU solver crate.
 pub use softbody_cpu as cpu;
@@ -58,9 +61,6 @@ pub use softbody_scene::{
 };
 /// The terrain crate: point queries, the heightfield split rule, signed-distance grids.
 pub use softbody_terrain as terrain;
-/// The vector types of the API (`State::x` is a `Vec<glam::DVec3>`), so that an embedder uses
-/// the same version.
-pub use glam;
 
 // Every Rust snippet of the README and of docs/scene-format.md compiles as a doc-test (and
 // runs, unless it says `no_run`); docs/physics.md holds equations, no code.

@@ -56,8 +56,9 @@ impl fmt::Display for Warning {
             ),
             Warning::StepAboveStable { dt, stable } => write!(
                 f,
-                "dt = {dt} s is above the stable estimate of about {stable:.3e} s for the explicit \
-                 integrators: expect this run to become unstable"
+                "dt = {dt} s is above the stable estimate of {stable:.3e} s for the explicit \
+                 integrators, a conservative bound (damped lattices often run stably at a few times \
+                 it): this run may become unstable"
             ),
         }
     }

@@ -93,7 +93,8 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
     );
     match stable_dt {
         Some(h) => line!(
-            "  stable dt   about {h:.3e} s for the explicit integrators (implicit-euler: any)"
+            "  stable dt   {h:.3e} s or more for the explicit integrators (a conservative bound; \
+             implicit-euler: any)"
         ),
         None => line!("  stable dt   unlimited (no springs)"),
     }

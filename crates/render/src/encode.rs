@@ -193,7 +193,11 @@ mod tests {
             assert_eq!((frame.width, frame.height), (6, 4));
             delays.push(frame.delay);
         }
-        assert_eq!(delays, [3, 4, 3], "a tenth of a second for 3 pictures at 30/s");
+        assert_eq!(
+            delays,
+            [3, 4, 3],
+            "a tenth of a second for 3 pictures at 30/s"
+        );
     }
 
     /// The delays add up to the simulated time, to the nearest hundredth, after every picture
