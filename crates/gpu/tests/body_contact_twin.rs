@@ -29,7 +29,7 @@ use std::collections::BTreeSet;
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use common::step_error;
+use common::{inverse_block, product_scale, rhs_scale, step_error};
 use glam::DVec3;
 use softbody_cpu::CpuSolver;
 use softbody_cpu::body_contact::{BodyContact, PairForces};
@@ -185,6 +185,24 @@ fn open(gpu: &Arc<Gpu>, model: &Model, state: &State) -> Result<GpuSolver, Faile
     GpuSolver::on(gpu, model.clone(), state.clone()).map_err(|e| e.to_string().into())
 }
 
+/// The penalty's stiffness k = κ m_red/h² and critical damping c = 2√(k m_red) of the pair
+/// (i, j) at step h (docs/physics.md, "Contact between bodies"); `None` when both are pinned.
+fn penalty_coefficients(
+    model: &Model,
+    kappa: f64,
+    h: f64,
+    i: usize,
+    j: usize,
+) -> Option<(f64, f64)> {
+    let w = model.inv_mass[i] + model.inv_mass[j];
+    if w == 0.0 {
+        return None;
+    }
+    let m_red = 1.0 / w;
+    let k = kappa * m_red / (h * h);
+    Some((k, 2.0 * (k * m_red).sqrt()))
+}
+
 /// R = r_i + r_j of a pair, in f64.
 fn reach(model: &Model, [i, j]: [u32; 2]) -> f64 {
     model.contact.radius[i as usize] + model.contact.radius[j as usize]
@@ -334,13 +352,9 @@ fn pair_forces_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let mut scale = vec![0.0f64; model.len()];
     for &[i, j] in &pairs {
         let (i, j) = (i as usize, j as usize);
-        let w = model.inv_mass[i] + model.inv_mass[j];
-        if w == 0.0 {
+        let Some((k, c)) = penalty_coefficients(&model, kappa, DT, i, j) else {
             continue;
-        }
-        let m_red = 1.0 / w;
-        let k = kappa * m_red / (DT * DT);
-        let c = 2.0 * (k * m_red).sqrt();
+        };
         let term = k * reach(&model, [i as u32, j as u32])
             + c * (state.v[i].length() + state.v[j].length());
         scale[i] += term;
@@ -661,44 +675,14 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let sim = &model.simulation;
     let (h, kappa) = (sim.dt, softbody_scene::model::penalty(sim.integrator));
     let blocks = sys.pairs.as_ref().ok_or("the CPU's system has no pairs")?;
-    let mut b_scale: Vec<f64> = (0..n)
-        .map(|i| {
-            let m = model.mass[i];
-            let springs: f64 = model
-                .adjacency
-                .of(i)
-                .iter()
-                .map(|&e| per_spring[(e >> 1) as usize].length())
-                .sum();
-            h * (m * sim.gravity.length() + sim.drag * m * state.v[i].length() + springs)
-        })
-        .collect();
-    let sp = &model.springs;
-    let mut ap_scale: Vec<f64> = (0..n)
-        .map(|i| {
-            let springs: f64 = model
-                .adjacency
-                .of(i)
-                .iter()
-                .map(|&e| {
-                    let s = (e >> 1) as usize;
-                    (sys.beta[s] + sys.gamma[s])
-                        * (p[sp.a[s] as usize].length() + p[sp.b[s] as usize].length())
-                })
-                .sum();
-            sys.mass_diag[i] * p[i].length() + springs
-        })
-        .collect();
+    let mut b_scale = rhs_scale(&model, &state.v, &per_spring);
+    let mut ap_scale = product_scale(&model, &sys, &p);
     let (mut pushing, mut pulling) = (0, 0);
     for (k, &[i, j]) in blocks.ends.iter().enumerate() {
         let (i, j) = (i as usize, j as usize);
-        let w = model.inv_mass[i] + model.inv_mass[j];
-        if w == 0.0 {
+        let Some((stiffness, damping)) = penalty_coefficients(&model, kappa, h, i, j) else {
             continue;
-        }
-        let m_red = 1.0 / w;
-        let stiffness = kappa * m_red / (h * h);
-        let damping = 2.0 * (stiffness * m_red).sqrt();
+        };
         let r = reach(&model, [i as u32, j as u32]);
         let offset = state.x[i] - state.x[j];
         let u = state.v[i] - state.v[j];
@@ -723,9 +707,7 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     for i in 0..n {
         let eb = (gb[i].as_dvec3() - b[i]).length();
         let eap = (gap[i].as_dvec3() - ap[i]).length();
-        let d = gdiag[i].map(f64::from);
-        let inv =
-            glam::DMat3::from_cols_array(&[d[0], d[4], d[5], d[4], d[1], d[6], d[5], d[6], d[2]]);
+        let inv = inverse_block(gdiag[i]);
         let want = sys.inv_diag[i].to_cols_array();
         let largest = want.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         let einv = (inv - sys.inv_diag[i])

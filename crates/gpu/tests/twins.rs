@@ -28,7 +28,7 @@ mod common;
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use common::{BOUNCY_PLANE, PLANE, SLOPE, step_error};
+use common::{BOUNCY_PLANE, PLANE, SLOPE, inverse_block, product_scale, rhs_scale, step_error};
 use glam::DVec3;
 use softbody_cpu::{CpuSolver, collision_response, energy, forces, spring_forces};
 use softbody_gpu::{Gpu, GpuSolver};
@@ -834,8 +834,6 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let per_spring_g = sys.per_spring.clone();
     let mut ap = vec![DVec3::ZERO; n];
     sys.apply(&model, &p, &mut ap);
-    let sim = &model.simulation;
-    let h = sim.dt;
     let compressed = (0..model.springs.len())
         .filter(|&s| sys.gamma[s] == 0.0)
         .count();
@@ -843,41 +841,21 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         "{n} particles, {} springs ({compressed} compressed: γ = 0)",
         model.springs.len()
     );
-    let b_scale = (0..n).map(|i| {
-        let m = model.mass[i];
-        let springs: f64 = model
-            .adjacency
-            .of(i)
-            .iter()
-            .map(|&e| per_spring_g[(e >> 1) as usize].length())
-            .sum();
-        h * (m * sim.gravity.length() + sim.drag * m * state.v[i].length() + springs)
-    });
-    let (rb, ab) = max_errors(gb.iter().map(|v| v.as_dvec3()), b.iter().copied(), b_scale);
-    let sp = &model.springs;
-    let ap_scale = (0..n).map(|i| {
-        let springs: f64 = model
-            .adjacency
-            .of(i)
-            .iter()
-            .map(|&e| {
-                let s = (e >> 1) as usize;
-                (sys.beta[s] + sys.gamma[s])
-                    * (p[sp.a[s] as usize].length() + p[sp.b[s] as usize].length())
-            })
-            .sum();
-        sys.mass_diag[i] * p[i].length() + springs
-    });
+    let b_scale = rhs_scale(&model, &state.v, &per_spring_g);
+    let (rb, ab) = max_errors(
+        gb.iter().map(|v| v.as_dvec3()),
+        b.iter().copied(),
+        b_scale.into_iter(),
+    );
+    let ap_scale = product_scale(&model, &sys, &p);
     let (rap, aap) = max_errors(
         gap.iter().map(|v| v.as_dvec3()),
         ap.iter().copied(),
-        ap_scale,
+        ap_scale.into_iter(),
     );
     let (mut rinv, mut ainv, mut rmd) = (0.0f64, 0.0f64, 0.0f64);
     for (i, d) in gdiag.iter().enumerate() {
-        let d = d.map(f64::from);
-        let gm =
-            glam::DMat3::from_cols_array(&[d[0], d[4], d[5], d[4], d[1], d[6], d[5], d[6], d[2]]);
+        let gm = inverse_block(*d);
         let cm = sys.inv_diag[i];
         let largest = cm
             .to_cols_array()
@@ -889,7 +867,7 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
             .fold(0.0f64, |a, x| a.max(x.abs()));
         ainv = ainv.max(err);
         rinv = rinv.max(err / largest);
-        rmd = rmd.max((d[3] - sys.mass_diag[i]).abs() / sys.mass_diag[i]);
+        rmd = rmd.max((f64::from(d[3]) - sys.mass_diag[i]).abs() / sys.mass_diag[i]);
     }
     check("implicit system: b", rb, ab, STAGE_BOUND)?;
     check("implicit system: A p", rap, aap, STAGE_BOUND)?;

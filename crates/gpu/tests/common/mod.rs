@@ -41,3 +41,58 @@ normal = [0.4, 1.0, 0.0]
 friction = 0.3
 restitution = 0.0
 "#;
+
+/// The springs' share of the scale of implicit Euler's right-hand side at each particle, which
+/// the GPU's b is compared against: h(m|g| + drag·m|v_i| + Σ_{s ∋ i} |g_s|), with g_s the
+/// per-spring terms of the CPU's assembly (`System::per_spring` right after `assemble`).
+pub fn rhs_scale(
+    model: &softbody_scene::Model,
+    v: &[glam::DVec3],
+    per_spring: &[glam::DVec3],
+) -> Vec<f64> {
+    let sim = &model.simulation;
+    (0..model.len())
+        .map(|i| {
+            let m = model.mass[i];
+            let springs: f64 = model
+                .adjacency
+                .of(i)
+                .iter()
+                .map(|&e| per_spring[(e >> 1) as usize].length())
+                .sum();
+            sim.dt * (m * sim.gravity.length() + sim.drag * m * v[i].length() + springs)
+        })
+        .collect()
+}
+
+/// The springs' share of the scale of the product A p at each particle:
+/// m(1 + h·drag)|p_i| + Σ_{s ∋ i} (β_s + γ_s)(|p_a| + |p_b|).
+pub fn product_scale(
+    model: &softbody_scene::Model,
+    sys: &softbody_cpu::integrators::implicit_euler::system::System,
+    p: &[glam::DVec3],
+) -> Vec<f64> {
+    let sp = &model.springs;
+    (0..model.len())
+        .map(|i| {
+            let springs: f64 = model
+                .adjacency
+                .of(i)
+                .iter()
+                .map(|&e| {
+                    let s = (e >> 1) as usize;
+                    (sys.beta[s] + sys.gamma[s])
+                        * (p[sp.a[s] as usize].length() + p[sp.b[s] as usize].length())
+                })
+                .sum();
+            sys.mass_diag[i] * p[i].length() + springs
+        })
+        .collect()
+}
+
+/// The inverse diagonal block of one particle from the GPU's `diag` pair read back
+/// (P⁻¹xx, P⁻¹yy, P⁻¹zz, m(1 + h·drag), P⁻¹xy, P⁻¹xz, P⁻¹yz, 0).
+pub fn inverse_block(d: [f32; 8]) -> glam::DMat3 {
+    let d = d.map(f64::from);
+    glam::DMat3::from_cols_array(&[d[0], d[4], d[5], d[4], d[1], d[6], d[5], d[6], d[2]])
+}
