@@ -3,33 +3,42 @@
 
 mod common;
 
-use std::process::{Command, Stdio};
+use std::process::{Command, Output, Stdio};
 
 use common::{Sandbox, entries};
 
-/// `WGPU_BACKEND=metal` on a machine without Metal (any Linux) leaves wgpu no adapter at all,
-/// whatever drivers are installed: the one way to test the missing-adapter path everywhere.
+/// One falling particle: any backend runs it.
+const ONE_PARTICLE: &str = "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\n\
+                            kind = \"particles\"\npositions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n";
+
+/// `softbody ARGS` in `sandbox` with `WGPU_BACKEND=metal`, which on a machine without Metal (any
+/// Linux) leaves wgpu no adapter at all, whatever drivers are installed: the one way to test
+/// the missing-adapter path everywhere.
+fn without_an_adapter(sandbox: &Sandbox, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_softbody"))
+        .args(args)
+        .current_dir(sandbox.path())
+        .env("WGPU_BACKEND", "metal")
+        .stdin(Stdio::null())
+        .output()
+        .expect("the softbody binary starts")
+}
+
 #[test]
 #[cfg(target_os = "linux")]
 fn no_adapter_exits_4_with_advice_and_writes_nothing() {
     let sandbox = Sandbox::new();
-    let scene = sandbox.write(
-        "scene.toml",
-        "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nkind = \"particles\"\n\
-         positions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n",
-    );
+    sandbox.write("scene.toml", ONE_PARTICLE);
     let out_dir = sandbox.mkdir("frames");
-    let out = Command::new(env!("CARGO_BIN_EXE_softbody"))
-        .arg("run")
-        .arg(&scene)
-        .arg("--backend")
-        .arg("gpu")
-        .arg("--out")
-        .arg(out_dir.join("f.jsonl"))
-        .env("WGPU_BACKEND", "metal")
-        .stdin(Stdio::null())
-        .output()
-        .expect("the softbody binary starts");
+    let args = [
+        "run",
+        "scene.toml",
+        "--backend",
+        "gpu",
+        "--out",
+        "frames/f.jsonl",
+    ];
+    let out = without_an_adapter(&sandbox, &args);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(4), "stderr: {stderr}");
     for hint in [
@@ -56,26 +65,17 @@ fn no_adapter_exits_4_with_advice_and_writes_nothing() {
 #[cfg(target_os = "linux")]
 fn render_takes_the_backend() {
     let sandbox = Sandbox::new();
-    sandbox.write(
+    sandbox.write("scene.toml", ONE_PARTICLE);
+    let args = [
+        "render",
         "scene.toml",
-        "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nkind = \"particles\"\n\
-         positions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n",
-    );
-    let out = Command::new(env!("CARGO_BIN_EXE_softbody"))
-        .args([
-            "render",
-            "scene.toml",
-            "--backend",
-            "gpu",
-            "--out",
-            "p",
-            "-q",
-        ])
-        .current_dir(sandbox.path())
-        .env("WGPU_BACKEND", "metal")
-        .stdin(Stdio::null())
-        .output()
-        .expect("the softbody binary starts");
+        "--backend",
+        "gpu",
+        "--out",
+        "p",
+        "-q",
+    ];
+    let out = without_an_adapter(&sandbox, &args);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(4), "stderr: {stderr}");
     assert!(!sandbox.path().join("p").exists(), "nothing drawn");

@@ -25,6 +25,9 @@ fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
     (info.width, info.height, buf)
 }
 
+/// Pictures small enough to draw quickly, and no progress or summary.
+const SMALL: [&str; 5] = ["--width", "32", "--height", "24", "-q"];
+
 fn pngs(dir: &Path) -> Vec<String> {
     entries(dir)
         .into_iter()
@@ -309,18 +312,8 @@ fn trimmed_frames_render_twice_and_out_of_order_frames_are_refused() {
         "frame_000005.png",
     ];
     for _ in 0..2 {
-        sb.run(&[
-            "render",
-            "trimmed.jsonl",
-            "--out",
-            "p",
-            "--width",
-            "32",
-            "--height",
-            "24",
-            "-q",
-        ])
-        .expect_status(EXIT_OK);
+        sb.run(&[&["render", "trimmed.jsonl", "--out", "p"][..], &SMALL].concat())
+            .expect_status(EXIT_OK);
         assert_eq!(pngs(&sb.path().join("p")), expected);
     }
     let mut duplicated = lines.clone();
@@ -357,8 +350,7 @@ fn frames_whose_scene_moved_render_with_scene() {
         "--out",
         "p",
     ];
-    sb.run(&[&args[..], &["--width", "32", "--height", "24", "-q"]].concat())
-        .expect_status(EXIT_OK);
+    sb.run(&[&args[..], &SMALL].concat()).expect_status(EXIT_OK);
     assert_eq!(pngs(&sb.path().join("p")).len(), 6);
     for extra in [
         &["--dt", "1/2000"][..],
@@ -383,10 +375,9 @@ fn frames_whose_scene_moved_render_with_scene() {
 fn default_destinations_do_not_collide() {
     let sb = Sandbox::new();
     sb.write("cube.toml", &cube().toml());
-    let small = ["--width", "32", "--height", "24", "-q"];
-    sb.run(&[&["render", "cube.toml"][..], &small].concat())
+    sb.run(&[&["render", "cube.toml"][..], &SMALL].concat())
         .expect_status(EXIT_OK);
-    sb.run(&[&["render", "cube.toml", "--fps", "50"][..], &small].concat())
+    sb.run(&[&["render", "cube.toml", "--fps", "50"][..], &SMALL].concat())
         .expect_status(EXIT_OK);
     sb.run(&["run", "cube.toml", "--format", "ply", "-q"])
         .expect_status(EXIT_OK);
