@@ -46,7 +46,11 @@ use std::str::FromStr;
 /// The vector types of the API (`State::x` is a `Vec<glam::DVec3>`), so that an embedder uses
 /// the same version.
 pub use glam;
-pub use overrides::{OverrideError, Overrides};
+pub use overrides::{
+    OverrideError, Overrides, Setting, load_scene, scene_from_toml, scene_text,
+};
+/// The TOML crate of [`Setting`] values, so that an embedder uses the same version.
+pub use toml;
 /// The CPU solver crate.
 pub use softbody_cpu as cpu;
 pub use softbody_cpu::CpuSolver;

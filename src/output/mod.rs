@@ -205,6 +205,14 @@ pub struct Header {
     /// (`softbody render`) rebuild the terrain and the topology from it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scene: Option<String>,
+    /// The text of the scene that ran (TOML): the scene file's, with the `--set`s and
+    /// overrides written in when there are any ([`crate::scene_text`]), so that a frames file
+    /// says how to run it again. Absent for scenes built in code.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene_text: Option<String>,
+    /// Particle masses, kg; not serialised in the JSON header (empty when read).
+    #[serde(skip)]
+    pub masses: Vec<f64>,
     /// Springs as (a, b) particle pairs; not serialised in the JSON header (empty when read).
     #[serde(skip)]
     pub springs: Vec<[u32; 2]>,
@@ -212,6 +220,14 @@ pub struct Header {
     /// header (empty when read).
     #[serde(skip)]
     pub rest: Vec<f64>,
+    /// Springs' stiffness k_s, N/m, in the order of `springs`; not serialised in the JSON
+    /// header (empty when read).
+    #[serde(skip)]
+    pub stiffness: Vec<f64>,
+    /// Springs' damping k_d, N·s/m, in the order of `springs`; not serialised in the JSON
+    /// header (empty when read).
+    #[serde(skip)]
+    pub damping: Vec<f64>,
     /// The bodies' outer surface ([`softbody_scene::Model::surface`]); not serialised in the
     /// JSON header (empty when read).
     #[serde(skip)]
@@ -220,7 +236,8 @@ pub struct Header {
 
 impl Header {
     /// The header of a run of `solver` writing `frames` frames of the scene in file `scene`
-    /// (made absolute when it can be).
+    /// (made absolute when it can be); its `scene_text` is that file's text, which
+    /// [`WithSceneText`] replaces where settings changed the scene.
     pub fn new(solver: &dyn Solver, frames: u64, scene: Option<&Path>) -> Header {
         let model = solver.model();
         Header {
@@ -248,8 +265,12 @@ impl Header {
                     .display()
                     .to_string()
             }),
+            scene_text: scene.and_then(|p| std::fs::read_to_string(p).ok()),
+            masses: model.mass.clone(),
             springs: model.springs.pairs(),
             rest: model.springs.rest.clone(),
+            stiffness: model.springs.stiffness.clone(),
+            damping: model.springs.damping.clone(),
             surface: model.surface.clone(),
         }
     }
@@ -280,6 +301,39 @@ pub trait FrameSink {
     fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()>;
     /// Completes the output (also after a run stopped early).
     fn finish(&mut self) -> std::io::Result<()>;
+}
+
+/// A sink that passes everything on to another, giving the header the text of the scene that
+/// ran (the file's with `--set`s and overrides written in: [`crate::scene_text`]) in place of
+/// the file's own.
+pub struct WithSceneText<'s> {
+    sink: &'s mut dyn FrameSink,
+    text: String,
+}
+
+impl<'s> WithSceneText<'s> {
+    /// `sink`, its header's `scene_text` replaced by `text`.
+    pub fn new(sink: &'s mut dyn FrameSink, text: String) -> Self {
+        WithSceneText { sink, text }
+    }
+}
+
+impl FrameSink for WithSceneText<'_> {
+    fn header(&mut self, header: &Header) -> std::io::Result<()> {
+        let header = Header {
+            scene_text: Some(self.text.clone()),
+            ..header.clone()
+        };
+        self.sink.header(&header)
+    }
+
+    fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()> {
+        self.sink.frame(frame)
+    }
+
+    fn finish(&mut self) -> std::io::Result<()> {
+        self.sink.finish()
+    }
 }
 
 /// A sink of single-file `format` writing to `out`; the series formats (VTK, PLY, OBJ) write

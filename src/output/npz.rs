@@ -1,5 +1,11 @@
-//! NPZ (a zip of `.npy` arrays, what `numpy.load` reads): `time [F]`, `positions [F,N,3]`,
-//! `velocities [F,N,3]` (float64) and `springs [S,2]` (uint32).
+//! NPZ (a zip of `.npy` arrays, what `numpy.load` reads): the frames — `time [F]`,
+//! `positions [F,N,3]`, `velocities [F,N,3]`, `energy_kinetic`, `energy_gravitational`,
+//! `energy_elastic [F]` (float64) — and what the run was, so that the archive describes itself:
+//! `dt`, `frame_rate` (float64 scalars), `integrator`, `backend`, `device` (string scalars),
+//! `masses [N]`, `springs [S,2]` (uint32), `rest_lengths`, `stiffness`, `damping [S]`,
+//! `body_names [B]` (strings), `body_first`, `body_count [B]` (uint32), and `scene_text` (the
+//! TOML of the scene that ran) and `scene_file` where the run had them. Strings are NumPy
+//! unicode (`<U`), so `str(d["integrator"])` is `"rk4"`.
 //!
 //! The frame count is only known at the end (a run may stop early), and `.npy` headers carry
 //! the shape, so frames are spooled to two temporary files and the archive is written by
@@ -8,7 +14,7 @@
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 
-use npyz::WriterBuilder;
+use npyz::{DType, TypeStr, WriterBuilder};
 use zip::write::SimpleFileOptions;
 
 use super::{Frame, FrameSink, Header};
@@ -17,8 +23,10 @@ use super::{Frame, FrameSink, Header};
 pub struct NpzSink<'w> {
     out: Option<Box<dyn Write + 'w>>,
     times: Vec<f64>,
-    particles: usize,
-    springs: Vec<[u32; 2]>,
+    /// Kinetic, gravitational and elastic energy of each frame.
+    energies: [Vec<f64>; 3],
+    /// The run's header (for its metadata); set by `header`.
+    header: Option<Header>,
     /// Spooled frames; taken by `finish`.
     spools: Option<(BufWriter<File>, BufWriter<File>)>,
 }
@@ -29,8 +37,8 @@ impl<'w> NpzSink<'w> {
         Ok(NpzSink {
             out: Some(out),
             times: Vec::new(),
-            particles: 0,
-            springs: Vec::new(),
+            energies: Default::default(),
+            header: None,
             spools: Some((
                 BufWriter::new(tempfile::tempfile()?),
                 BufWriter::new(tempfile::tempfile()?),
@@ -77,8 +85,7 @@ fn copy_spooled<W: Write + Seek>(
 
 impl FrameSink for NpzSink<'_> {
     fn header(&mut self, header: &Header) -> io::Result<()> {
-        self.particles = header.particles;
-        self.springs = header.springs.clone();
+        self.header = Some(header.clone());
         Ok(())
     }
 
@@ -87,6 +94,14 @@ impl FrameSink for NpzSink<'_> {
             return Err(io::Error::other("frame after finish"));
         };
         self.times.push(f.time);
+        let e = f.energies;
+        for (series, value) in self
+            .energies
+            .iter_mut()
+            .zip([e.kinetic, e.gravitational, e.elastic])
+        {
+            series.push(value);
+        }
         spool(positions, f.positions)?;
         spool(velocities, f.velocities)
     }
@@ -96,37 +111,126 @@ impl FrameSink for NpzSink<'_> {
         else {
             return Ok(());
         };
+        let Some(header) = self.header.take() else {
+            return Err(io::Error::other("finish without a header"));
+        };
         // zip needs Seek; stage the archive in a temporary file, then copy it out.
         let mut zip = zip::ZipWriter::new(tempfile::tempfile()?);
         let frames = self.times.len() as u64;
-        let n = self.particles as u64;
+        let n = header.particles as u64;
         let big = frames * n * 24 > u32::MAX as u64 / 2;
         let options = SimpleFileOptions::default()
             .compression_method(zip::CompressionMethod::Stored)
             .large_file(big);
-        zip.start_file("time.npy", options)
-            .map_err(io::Error::other)?;
-        let mut w = npyz::WriteOptions::new()
-            .default_dtype()
-            .shape(&[frames])
-            .writer(&mut zip)
-            .begin_nd()?;
-        w.extend(self.times.iter().copied())?;
-        w.finish()?;
-        copy_spooled(&mut zip, "positions", &[frames, n, 3], positions, options)?;
-        copy_spooled(&mut zip, "velocities", &[frames, n, 3], velocities, options)?;
-        zip.start_file("springs.npy", options)
-            .map_err(io::Error::other)?;
-        let mut w = npyz::WriteOptions::new()
-            .default_dtype()
-            .shape(&[self.springs.len() as u64, 2])
-            .writer(&mut zip)
-            .begin_nd()?;
-        w.extend(self.springs.iter().flatten().copied())?;
-        w.finish()?;
+        let mut arrays = Arrays {
+            zip: &mut zip,
+            options,
+        };
+        arrays.f64("time", &[frames], &self.times)?;
+        copy_spooled(arrays.zip, "positions", &[frames, n, 3], positions, options)?;
+        copy_spooled(
+            arrays.zip,
+            "velocities",
+            &[frames, n, 3],
+            velocities,
+            options,
+        )?;
+        let [kinetic, gravitational, elastic] = &self.energies;
+        arrays.f64("energy_kinetic", &[frames], kinetic)?;
+        arrays.f64("energy_gravitational", &[frames], gravitational)?;
+        arrays.f64("energy_elastic", &[frames], elastic)?;
+        arrays.f64("dt", &[], &[header.dt])?;
+        arrays.f64("frame_rate", &[], &[header.frame_rate])?;
+        arrays.strings("integrator", &[], &[&header.integrator])?;
+        arrays.strings("backend", &[], &[&header.backend])?;
+        arrays.strings("device", &[], &[&header.device])?;
+        arrays.f64("masses", &[n], &header.masses)?;
+        let s = header.springs.len() as u64;
+        arrays.u32("springs", &[s, 2], header.springs.iter().flatten())?;
+        arrays.f64("rest_lengths", &[s], &header.rest)?;
+        arrays.f64("stiffness", &[s], &header.stiffness)?;
+        arrays.f64("damping", &[s], &header.damping)?;
+        let b = header.bodies.len() as u64;
+        let names: Vec<&str> = header.bodies.iter().map(|b| b.name.as_str()).collect();
+        arrays.strings("body_names", &[b], &names)?;
+        arrays.u32("body_first", &[b], header.bodies.iter().map(|b| &b.first))?;
+        arrays.u32("body_count", &[b], header.bodies.iter().map(|b| &b.count))?;
+        if let Some(text) = &header.scene_text {
+            arrays.strings("scene_text", &[], &[text])?;
+        }
+        if let Some(file) = &header.scene {
+            arrays.strings("scene_file", &[], &[file])?;
+        }
         let mut archive = zip.finish().map_err(io::Error::other)?;
         archive.seek(SeekFrom::Start(0))?;
         io::copy(&mut archive, &mut out)?;
         out.flush()
+    }
+}
+
+/// Writes whole arrays into the archive, one `.npy` entry each.
+struct Arrays<'z, W: Write + Seek> {
+    zip: &'z mut zip::ZipWriter<W>,
+    options: SimpleFileOptions,
+}
+
+impl<W: Write + Seek> Arrays<'_, W> {
+    fn start(&mut self, name: &str) -> io::Result<()> {
+        self.zip
+            .start_file(format!("{name}.npy"), self.options)
+            .map_err(io::Error::other)
+    }
+
+    fn f64(&mut self, name: &str, shape: &[u64], values: &[f64]) -> io::Result<()> {
+        self.start(name)?;
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(&mut *self.zip)
+            .begin_nd()?;
+        w.extend(values.iter().copied())?;
+        w.finish()
+    }
+
+    fn u32<'a>(
+        &mut self,
+        name: &str,
+        shape: &[u64],
+        values: impl IntoIterator<Item = &'a u32>,
+    ) -> io::Result<()> {
+        self.start(name)?;
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(&mut *self.zip)
+            .begin_nd()?;
+        w.extend(values.into_iter().copied())?;
+        w.finish()
+    }
+
+    /// Strings as NumPy unicode (`<U` as wide as the longest, in characters): what
+    /// `numpy.load` gives back as `str`.
+    fn strings(&mut self, name: &str, shape: &[u64], values: &[&str]) -> io::Result<()> {
+        let width = values
+            .iter()
+            .map(|v| v.chars().count())
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        let dtype = DType::Plain(
+            format!("<U{width}")
+                .parse::<TypeStr>()
+                .map_err(io::Error::other)?,
+        );
+        self.start(name)?;
+        let mut w = npyz::WriteOptions::<str>::new()
+            .dtype(dtype)
+            .shape(shape)
+            .writer(&mut *self.zip)
+            .begin_nd()?;
+        for v in values {
+            w.push(*v)?;
+        }
+        w.finish()
     }
 }

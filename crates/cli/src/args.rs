@@ -2,19 +2,32 @@
 //! numbers.
 
 use clap::Args;
-use softbody::{Integrator, Overrides};
+use softbody::{Integrator, Overrides, Setting};
 
-/// The overrides every command that simulates a scene file takes (`run`, `render`), flattened
+/// The overrides every command that simulates a scene file takes (`run`, `check`, `render`,
+/// `compare`), flattened
 /// into each. They become one [`Overrides`], which applies and checks them for all commands
 /// alike: a new kind of override goes there and here.
 #[derive(Args)]
 pub struct SceneOverrides {
+    /// Set a value of the scene file by its key path, as if the file said so (repeatable; a
+    /// later one wins): body[0].structural.stiffness=5000, terrain[0].friction=0.8,
+    /// simulation.integrator=rk4. The value is TOML; other text is taken as a string.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<Setting>,
     /// Simulated time, seconds.
     #[arg(long, value_parser = non_negative, allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Frames per simulated second.
     #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     fps: Option<f64>,
+}
+
+impl SceneOverrides {
+    /// The `--set`s, in the order given.
+    pub fn settings(&self) -> &[Setting] {
+        &self.set
+    }
 }
 
 impl From<&SceneOverrides> for Overrides {
@@ -38,6 +51,13 @@ pub struct StepOverrides {
     dt: Option<f64>,
     #[command(flatten)]
     scene: SceneOverrides,
+}
+
+impl StepOverrides {
+    /// The `--set`s, in the order given.
+    pub fn settings(&self) -> &[Setting] {
+        self.scene.settings()
+    }
 }
 
 impl From<&StepOverrides> for Overrides {

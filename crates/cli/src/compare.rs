@@ -55,7 +55,11 @@ fn integrators(s: &str) -> Result<Vec<Integrator>, String> {
 }
 
 pub fn compare(args: CompareArgs) -> Result<(), Failure> {
-    let scene = load_with(&args.scene, &(&args.overrides).into())?;
+    let scene = load_with(
+        &args.scene,
+        args.overrides.settings(),
+        &(&args.overrides).into(),
+    )?;
     // A plot that cannot be written is found out before minutes of simulation, not after.
     if let Some(path) = &args.plot {
         if !plot::AVAILABLE {

@@ -24,7 +24,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use softbody::output::OutputError;
 use softbody::run::RunError;
-use softbody::{Integrator, Overrides, Scene};
+use softbody::{Integrator, Overrides, Scene, Setting};
 
 /// Exit statuses (documented in the README).
 mod status {
@@ -111,14 +111,31 @@ fn is_broken_pipe(e: &anyhow::Error) -> bool {
         .any(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
 }
 
-fn load(path: &Path) -> Result<Scene, Failure> {
-    Scene::from_file(path).map_err(bad_input)
+/// Loads a scene file with the command line's `--set`s and overrides applied: every command
+/// that takes them goes through here.
+fn load_with(path: &Path, settings: &[Setting], overrides: &Overrides) -> Result<Scene, Failure> {
+    let scene = softbody::load_scene(path, settings).map_err(bad_input)?;
+    overrides.apply_to(scene, path).map_err(bad_input)
 }
 
-/// Loads a scene file with the command line's overrides applied: every command that takes
-/// overrides goes through here.
-fn load_with(path: &Path, overrides: &Overrides) -> Result<Scene, Failure> {
-    overrides.apply_to(load(path)?, path).map_err(bad_input)
+/// The text of the scene that runs when `settings` and `overrides` change the file at `path`
+/// (for the frames' header); `None` when they change nothing, and the file's text is it.
+fn scene_text(
+    path: &Path,
+    settings: &[Setting],
+    overrides: &Overrides,
+) -> Result<Option<String>, Failure> {
+    let all: Vec<Setting> = settings
+        .iter()
+        .cloned()
+        .chain(overrides.to_settings())
+        .collect();
+    if all.is_empty() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(path)?;
+    let edited = softbody::scene_text(&text, path, &all).map_err(bad_input)?;
+    Ok(Some(edited))
 }
 
 /// The stem of an input file, for the default output names.
@@ -128,10 +145,18 @@ fn file_stem(path: &Path) -> Cow<'_, str> {
 }
 
 /// The default output name of a run of the scene file `path` with `overrides` on `backend`:
-/// the file's stem, then what differs from the scene's own run (`jelly-rk4-dt0.0001-gpu`), so
+/// the file's stem, then what differs from the scene's own run (the `--set`s, the overrides, a
+/// GPU backend: `jelly-body0.mass2-rk4-dt0.0001-gpu`), so
 /// that runs with other settings do not replace each other's frames.
-fn output_stem(path: &Path, overrides: &Overrides, backend: softbody::Backend) -> String {
-    let mut parts = vec![file_stem(path).into_owned(), overrides.label()];
+fn output_stem(
+    path: &Path,
+    settings: &[Setting],
+    overrides: &Overrides,
+    backend: softbody::Backend,
+) -> String {
+    let mut parts = vec![file_stem(path).into_owned()];
+    parts.extend(settings.iter().map(Setting::label));
+    parts.push(overrides.label());
     if backend != softbody::Backend::Cpu {
         parts.push(backend.to_string());
     }

@@ -119,9 +119,13 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
         }
     };
     let overrides = Overrides::from(&args.overrides);
-    if input == Input::Frames && (!overrides.is_empty() || args.backend != Backend::Cpu) {
+    if input == Input::Frames
+        && (!overrides.is_empty()
+            || !args.overrides.settings().is_empty()
+            || args.backend != Backend::Cpu)
+    {
         return Err(bad_input(anyhow!(
-            "--integrator, --dt, --duration, --fps and --backend apply to a scene; frames from \
+            "--set, --integrator, --dt, --duration, --fps and --backend apply to a scene; frames from \
              {} are drawn as they were run",
             args.input.display()
         )));
@@ -135,7 +139,12 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
     let outs = if args.out.is_empty() {
         // Not out/<stem>/, where `run --format ply|obj` and VTK's frames go.
         let stem = match input {
-            Input::Scene => output_stem(&args.input, &overrides, args.backend),
+            Input::Scene => output_stem(
+                &args.input,
+                args.overrides.settings(),
+                &overrides,
+                args.backend,
+            ),
             Input::Frames => file_stem(&args.input).into_owned(),
         };
         vec![PathBuf::from("out").join(format!("{stem}-pictures"))]
@@ -145,7 +154,7 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
 
     match input {
         Input::Scene => {
-            let scene = load_with(&args.input, &overrides)?;
+            let scene = load_with(&args.input, args.overrides.settings(), &overrides)?;
             let (model, _) = Model::build(&scene);
             let sim = scene.simulation;
             let mut drawer = Drawer::new(&args, &model, &outs, sim.frame_rate, sim.frame_count())?;

@@ -7,14 +7,14 @@ use std::time::Instant;
 
 use clap::Args;
 use softbody::Backend;
-use softbody::output::{Format, Output};
+use softbody::output::{Format, FrameSink, Output, WithSceneText};
 use softbody::run::RunError;
 use softbody::warnings::Warning;
 
 use crate::args::StepOverrides;
 use crate::{
     Failure, bad_input, load_with, open_failure, output_failure, output_stem, progress,
-    run_failure, status,
+    run_failure, scene_text, status,
 };
 
 #[derive(Args)]
@@ -49,13 +49,18 @@ pub struct RunArgs {
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     let signals = Signals::register()?;
     let overrides = (&args.overrides).into();
-    let scene = load_with(&args.scene, &overrides)?;
+    let scene = load_with(&args.scene, args.overrides.settings(), &overrides)?;
 
     let format = Format::for_output(args.format, args.out.as_deref()).map_err(bad_input)?;
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
     let out_path = match &args.out {
         Some(p) => p.clone(),
-        None => format.default_path(&output_stem(&args.scene, &overrides, args.backend)),
+        None => format.default_path(&output_stem(
+            &args.scene,
+            args.overrides.settings(),
+            &overrides,
+            args.backend,
+        )),
     };
 
     // Before the solver (a GPU takes seconds to open) and the run: a destination that cannot
@@ -87,12 +92,23 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         eprintln!("warning: {w}");
     }
 
+    // The frames' header holds the scene that ran: with --set or overrides, not the file's.
+    let text = scene_text(&args.scene, args.overrides.settings(), &overrides)?;
+    let mut with_text;
+    let sink = match text {
+        Some(text) => {
+            with_text = WithSceneText::new(output.sink(), text);
+            &mut with_text as &mut dyn FrameSink
+        }
+        None => output.sink(),
+    };
+
     let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
     let started = Instant::now();
     let result = softbody::run::run_until(
         solver.as_mut(),
         Some(&args.scene),
-        output.sink(),
+        sink,
         &mut |done, _| bar.set_position(done),
         &signals.stop,
     );

@@ -131,7 +131,29 @@ fn read_npz(path: &Path, particles: usize) -> Npz {
     names.sort();
     assert_eq!(
         names,
-        ["positions.npy", "springs.npy", "time.npy", "velocities.npy"]
+        [
+            "backend.npy",
+            "body_count.npy",
+            "body_first.npy",
+            "body_names.npy",
+            "damping.npy",
+            "device.npy",
+            "dt.npy",
+            "energy_elastic.npy",
+            "energy_gravitational.npy",
+            "energy_kinetic.npy",
+            "frame_rate.npy",
+            "integrator.npy",
+            "masses.npy",
+            "positions.npy",
+            "rest_lengths.npy",
+            "scene_file.npy",
+            "scene_text.npy",
+            "springs.npy",
+            "stiffness.npy",
+            "time.npy",
+            "velocities.npy",
+        ]
     );
     let (shape, npy) = read_npy(&mut zip, "time.npy");
     let time: Vec<f64> = npy.into_vec().expect("time is float64");
@@ -239,6 +261,123 @@ fn npz_holds_the_same_numbers_as_jsonl() {
     pairs.sort_unstable();
     pairs.dedup();
     assert_eq!(pairs.len() as u64, s, "no spring listed twice");
+}
+
+/// An NPZ array of `T` with its shape.
+fn npz_array<T: npyz::Deserialize>(path: &Path, name: &str) -> (Vec<u64>, Vec<T>) {
+    let mut zip = zip::ZipArchive::new(std::fs::File::open(path).unwrap()).unwrap();
+    let (shape, npy) = read_npy(&mut zip, &format!("{name}.npy"));
+    let values = npy
+        .into_vec()
+        .unwrap_or_else(|e| panic!("{name} of the expected type: {e}"));
+    (shape, values)
+}
+
+#[test]
+fn npz_describes_its_run() {
+    let cube = Cube {
+        ground: true,
+        ..scene()
+    };
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &cube.toml());
+    assert_eq!(run_to(&sb, &path, "f.jsonl", &[]), EXIT_OK);
+    assert_eq!(run_to(&sb, &path, "f.npz", &[]), EXIT_OK);
+    let npz = sb.path().join("f.npz");
+    let n = cube.particles() as u64;
+    let scalar = |name: &str| {
+        let (shape, v) = npz_array::<f64>(&npz, name);
+        assert_eq!(shape, [0u64; 0], "{name} is a scalar");
+        v[0]
+    };
+    let string = |name: &str| {
+        let (shape, v) = npz_array::<String>(&npz, name);
+        assert_eq!(shape, [0u64; 0], "{name} is a scalar");
+        v[0].clone()
+    };
+    assert_eq!(scalar("dt"), cube.dt);
+    assert_eq!(scalar("frame_rate"), cube.frame_rate);
+    assert_eq!(string("integrator"), "rk4");
+    assert_eq!(string("backend"), "cpu");
+    assert!(string("device").starts_with("CPU"), "{}", string("device"));
+    assert_eq!(
+        string("scene_text"),
+        std::fs::read_to_string(&path).unwrap()
+    );
+    assert_eq!(
+        Path::new(&string("scene_file")),
+        std::path::absolute(&path).unwrap()
+    );
+    let (shape, masses) = npz_array::<f64>(&npz, "masses");
+    assert_eq!(shape, [n]);
+    let total: f64 = masses.iter().sum();
+    assert!((total - cube.mass).abs() < 1e-12 * cube.mass, "{total}");
+    let (_, names) = npz_array::<String>(&npz, "body_names");
+    let (_, first) = npz_array::<u32>(&npz, "body_first");
+    let (_, count) = npz_array::<u32>(&npz, "body_count");
+    assert_eq!(
+        (names, first, count),
+        (vec!["cube".to_owned()], vec![0], vec![n as u32])
+    );
+
+    // Rest lengths are the springs' lengths in frame 0 (the cube starts undeformed);
+    // stiffness and damping are the scene's.
+    let (_, springs) = npz_array::<u32>(&npz, "springs");
+    let (shape, rest) = npz_array::<f64>(&npz, "rest_lengths");
+    assert_eq!(shape, [springs.len() as u64 / 2]);
+    let (_, x) = npz_array::<f64>(&npz, "positions");
+    let at = |i: u32| &x[3 * i as usize..3 * i as usize + 3];
+    for (pair, r) in springs.chunks_exact(2).zip(&rest) {
+        let (a, b) = (at(pair[0]), at(pair[1]));
+        let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+        assert!((d - r).abs() <= 1e-12 * r, "rest {r} vs length {d}");
+    }
+    for (name, value) in [("stiffness", cube.stiffness), ("damping", cube.damping)] {
+        let (shape, v) = npz_array::<f64>(&npz, name);
+        assert_eq!(shape, [rest.len() as u64]);
+        assert!(v.iter().all(|&k| k == value), "{name}");
+    }
+
+    // Energies per frame: JSON Lines' to the bit.
+    let jsonl = read_jsonl(&sb.path().join("f.jsonl"));
+    for key in ["kinetic", "gravitational", "elastic"] {
+        let (shape, e) = npz_array::<f64>(&npz, &format!("energy_{key}"));
+        assert_eq!(shape, [jsonl.frames.len() as u64]);
+        let expected: Vec<u64> = jsonl
+            .frames
+            .iter()
+            .map(|f| f64_of(&f["energy"][key]).to_bits())
+            .collect();
+        assert_eq!(
+            e.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            expected,
+            "{key}"
+        );
+    }
+    // JSON Lines' header holds the scene text too.
+    assert_eq!(
+        jsonl.header["scene_text"].as_str(),
+        Some(std::fs::read_to_string(&path).unwrap().as_str())
+    );
+
+    // With --set and an override the text is the scene that ran, and loads as it.
+    assert_eq!(
+        run_to(
+            &sb,
+            &path,
+            "g.npz",
+            &["--set", "body[0].mass=3.5", "--dt", "0.0005"]
+        ),
+        EXIT_OK
+    );
+    let (_, text) = npz_array::<String>(&sb.path().join("g.npz"), "scene_text");
+    let again = sb.write("again.toml", &text[0]);
+    let check = sb.run(&["check", again.to_str().unwrap(), "--json"]);
+    check.expect_status(EXIT_OK);
+    let v: serde_json::Value = serde_json::from_str(&check.stdout_text()).unwrap();
+    assert_eq!(v["total_mass"].as_f64(), Some(3.5));
+    assert_eq!(v["dt"].as_f64(), Some(0.0005));
+    assert_eq!(v["integrator"].as_str(), Some("rk4"));
 }
 
 #[test]
