@@ -78,6 +78,108 @@ pub struct ExplicitSpringFile {
 pub enum BodyKind {
     Cuboid,
     Particles,
+    Mesh,
+}
+
+/// What a mesh body's surface is in the exports and pictures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SurfaceKind {
+    /// The input mesh, carried by the lattice (trilinear weights in its cells).
+    #[default]
+    Mesh,
+    /// The lattice's own outer faces.
+    Lattice,
+}
+
+/// A value written either as one number or as three (`resolution = 12` or
+/// `resolution = [4, 5, 6]`; `scale = 2.0` or `scale = [1.0, 2.0, 1.0]`). Deserialised by a
+/// visitor on the value itself (not an untagged enum, which buffers and loses the spans).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum OneOrThree<T> {
+    One(T),
+    Three([T; 3]),
+}
+
+impl<T: Copy> OneOrThree<T> {
+    /// The three values (the one repeated).
+    pub fn three(self) -> [T; 3] {
+        match self {
+            OneOrThree::One(x) => [x; 3],
+            OneOrThree::Three(v) => v,
+        }
+    }
+}
+
+/// Numbers `OneOrThree` takes: TOML integers and floats, each converted or refused.
+pub trait Number: Copy + for<'de> Deserialize<'de> {
+    /// What the visitor expects, in serde's words.
+    const EXPECTING: &'static str;
+    fn from_i64(x: i64) -> Option<Self>;
+    fn from_f64(x: f64) -> Option<Self>;
+}
+
+impl Number for u64 {
+    const EXPECTING: &'static str = "a non-negative integer or an array of three";
+    fn from_i64(x: i64) -> Option<u64> {
+        u64::try_from(x).ok()
+    }
+    fn from_f64(_: f64) -> Option<u64> {
+        None
+    }
+}
+
+impl Number for f64 {
+    const EXPECTING: &'static str = "a number or an array of three numbers";
+    fn from_i64(x: i64) -> Option<f64> {
+        Some(x as f64)
+    }
+    fn from_f64(x: f64) -> Option<f64> {
+        Some(x)
+    }
+}
+
+impl<'de, T: Number> Deserialize<'de> for OneOrThree<T> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::{Error, SeqAccess, Unexpected, Visitor};
+        struct V<T>(std::marker::PhantomData<T>);
+        impl<'de, T: Number> Visitor<'de> for V<T> {
+            type Value = OneOrThree<T>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(T::EXPECTING)
+            }
+            fn visit_i64<E: Error>(self, x: i64) -> Result<Self::Value, E> {
+                T::from_i64(x)
+                    .map(OneOrThree::One)
+                    .ok_or_else(|| E::invalid_value(Unexpected::Signed(x), &self))
+            }
+            fn visit_u64<E: Error>(self, x: u64) -> Result<Self::Value, E> {
+                match i64::try_from(x) {
+                    Ok(x) => self.visit_i64(x),
+                    Err(_) => Err(E::invalid_value(Unexpected::Unsigned(x), &self)),
+                }
+            }
+            fn visit_f64<E: Error>(self, x: f64) -> Result<Self::Value, E> {
+                T::from_f64(x)
+                    .map(OneOrThree::One)
+                    .ok_or_else(|| E::invalid_type(Unexpected::Float(x), &self))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut v = Vec::with_capacity(3);
+                while let Some(x) = seq.next_element::<T>()? {
+                    if v.len() == 3 {
+                        return Err(A::Error::invalid_length(4, &"an array of three"));
+                    }
+                    v.push(x);
+                }
+                match v[..] {
+                    [a, b, c] => Ok(OneOrThree::Three([a, b, c])),
+                    _ => Err(A::Error::invalid_length(v.len(), &"an array of three")),
+                }
+            }
+        }
+        d.deserialize_any(V(std::marker::PhantomData))
+    }
 }
 
 /// `[[body]]`: the union of the keys of every body kind.
@@ -91,9 +193,9 @@ pub struct BodyFile {
     pub contact_radius: Option<f64>,
     #[serde(default)]
     pub self_contact: bool,
-    // cuboid
+    // cuboid (and mesh: resolution, center, rotation, velocity, mass, the spring families)
     pub size: Option<[f64; 3]>,
-    pub resolution: Option<[u64; 3]>,
+    pub resolution: Option<OneOrThree<u64>>,
     pub center: Option<[f64; 3]>,
     pub rotation: Option<[f64; 3]>,
     pub velocity: Option<[f64; 3]>,
@@ -106,6 +208,12 @@ pub struct BodyFile {
     pub velocities: Option<Vec<[f64; 3]>>,
     pub masses: Option<Vec<f64>>,
     pub springs: Option<Vec<ExplicitSpringFile>>,
+    // mesh
+    pub file: Option<String>,
+    pub cell: Option<f64>,
+    pub scale: Option<OneOrThree<f64>>,
+    pub density: Option<f64>,
+    pub surface: Option<SurfaceKind>,
 }
 
 /// The terrain kinds.

@@ -27,20 +27,23 @@ pub mod implicit;
 pub mod mesh;
 pub mod model;
 pub mod scene;
+pub mod shapes;
 pub mod solver;
 pub mod topology;
 mod validate;
+pub mod voxel;
 
 use std::fmt;
 use std::str::FromStr;
 
 pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
 pub use format::FrictionModel;
+pub use format::SurfaceKind;
 pub use model::{Adjacency, BodyRange, Contacts, Model, Springs, State};
 pub use scene::{
-    Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, ParticleSet, Scene,
-    Simulation, SpringCounts, SpringParams, Terrain, TerrainShape, TriangleMesh,
-    rotation_from_degrees,
+    Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, MeshBody, MeshMass,
+    ParticleSet, Scene, Simulation, SpringCounts, SpringParams, Terrain, TerrainShape,
+    TriangleMesh, rotation_from_degrees,
 };
 pub use solver::{Energies, Instability, Solver, Statistics, StepError, Timer, Timings};
 

@@ -8,6 +8,7 @@
 
 use glam::DVec3;
 
+use crate::format::SurfaceKind;
 use crate::scene::{BodyContact, BodyShape, Scene, Simulation, SpringCounts, Terrain};
 use crate::topology::{self, SpringKind};
 
@@ -254,13 +255,90 @@ pub struct Model {
     /// Bodies in particle order.
     pub bodies: Vec<BodyRange>,
     /// The outer surface of the cuboid bodies as triangles of particle indices, wound
-    /// counter-clockwise seen from outside ([`topology::cuboid_surface`]); `particles` bodies
-    /// have no surface and add none.
+    /// counter-clockwise seen from outside ([`topology::cuboid_surface`]), and of the mesh
+    /// bodies with `surface = "lattice"` (the outer faces of their kept cells,
+    /// [`crate::voxel::Voxels::lattice_surface`]); `particles` bodies have no surface and add
+    /// none, mesh bodies showing their mesh add it to `embedded` instead.
     pub surface: Vec<[u32; 3]>,
+    /// The input meshes of the mesh bodies, carried by their lattices.
+    pub embedded: Embedded,
     /// Terrain shapes.
     pub terrain: Vec<Terrain>,
     /// Who touches whom between and within bodies.
     pub contact: Contacts,
+}
+
+/// Surfaces whose vertices are not particles but weighted sums of particles: the input meshes
+/// of mesh bodies, each vertex a trilinear combination of the eight corners of its cell, so
+/// that the artist's mesh (its vertex order, its faces) comes back deformed in every frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Embedded {
+    /// Per vertex: the particles (global indices) its position is a weighted sum of.
+    pub corners: Vec<[u32; 8]>,
+    /// Per vertex: the weights of `corners`, summing to 1.
+    pub weights: Vec<[f64; 8]>,
+    /// Triangles over vertex numbers (0-based, all meshes numbered together), in each input
+    /// file's order and winding.
+    pub triangles: Vec<[u32; 3]>,
+    /// The meshes, in body order.
+    pub meshes: Vec<EmbeddedMesh>,
+}
+
+/// One body's embedded mesh: its vertices and triangles within [`Embedded`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EmbeddedMesh {
+    /// The body (an index into `Model::bodies`).
+    pub body: u32,
+    /// Its first vertex.
+    pub first_vertex: u32,
+    /// Its vertex count (the input file's).
+    pub vertices: u32,
+    /// Its first triangle.
+    pub first_triangle: u32,
+    /// Its triangle count (the input file's, faces of more than three corners split).
+    pub triangles: u32,
+}
+
+impl Embedded {
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.corners.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.corners.is_empty()
+    }
+
+    /// Whether body `b` shows an embedded mesh.
+    pub fn has_body(&self, b: u32) -> bool {
+        self.meshes.iter().any(|m| m.body == b)
+    }
+
+    /// Each vertex's value from the particles' `values` (positions, or velocities: the weights
+    /// are constant, so the vertex velocity is the same sum of particle velocities). The
+    /// corners are summed in corner order: the same bits every time.
+    pub fn apply(&self, values: &[DVec3]) -> Vec<DVec3> {
+        let mut out = Vec::with_capacity(self.len());
+        self.apply_into(values, &mut out);
+        out
+    }
+
+    /// [`Embedded::apply`], appending to `out`.
+    pub fn apply_into(&self, values: &[DVec3], out: &mut Vec<DVec3>) {
+        out.extend(self.corners.iter().zip(&self.weights).map(|(c, w)| {
+            let mut sum = DVec3::ZERO;
+            for k in 0..8 {
+                sum += w[k] * values[c[k] as usize];
+            }
+            sum
+        }));
+    }
+
+    /// The largest particle index named, if any.
+    pub fn max_particle(&self) -> Option<u32> {
+        self.corners.iter().flatten().copied().max()
+    }
 }
 
 /// Contact between particles of bodies: each particle's radius and place, and the rule that
@@ -271,7 +349,8 @@ pub struct Contacts {
     pub radius: Vec<f64>,
     /// The body of each particle (an index into `Model::bodies`).
     pub body: Vec<u32>,
-    /// Lattice coordinates of each particle of a cuboid; `None` for a `particles` body.
+    /// Lattice coordinates of each particle of a cuboid or a mesh body; `None` for a
+    /// `particles` body.
     pub lattice: Vec<Option<[i32; 3]>>,
     /// Whether each body's particles touch each other.
     pub self_contact: Vec<bool>,
@@ -328,7 +407,7 @@ impl Contacts {
     }
 
     /// Whether particles i and j may touch: different bodies, or one body with `self_contact`
-    /// where they are not rest neighbours — on a cuboid's lattice more than
+    /// where they are not rest neighbours — on a cuboid's or mesh body's lattice more than
     /// [`SELF_CONTACT_EXCLUSION`] cells apart along some axis, in a `particles` body not joined
     /// by a spring.
     pub fn admits(&self, adjacency: &Adjacency, springs: &Springs, i: usize, j: usize) -> bool {
@@ -363,6 +442,7 @@ impl Model {
         let mut bodies = Vec::with_capacity(scene.bodies.len());
         let mut pinned = vec![false; n];
         let mut surface = Vec::new();
+        let mut embedded = Embedded::default();
         let mut contact = Contacts {
             laws: scene.simulation.body_contact,
             ..Contacts::default()
@@ -396,6 +476,64 @@ impl Model {
                             .into_iter()
                             .map(|t| t.map(|p| first + p)),
                     );
+                }
+                BodyShape::Mesh(m) => {
+                    let v = &m.voxels;
+                    let rot = crate::scene::rotation_from_degrees(m.rotation);
+                    let x: Vec<DVec3> = v
+                        .points()
+                        .iter()
+                        .map(|&p| m.center + rot * v.local(p))
+                        .collect();
+                    contact
+                        .lattice
+                        .extend(v.points().iter().map(|p| Some(p.map(|c| c as i32))));
+                    let mass_each = m.total_mass() / x.len() as f64;
+                    state.v.extend(std::iter::repeat_n(m.velocity, x.len()));
+                    mass.extend(std::iter::repeat_n(mass_each, x.len()));
+                    let params = |kind| match kind {
+                        SpringKind::Structural => m.structural,
+                        SpringKind::Shear => m.shear,
+                        SpringKind::Bending => m.bending,
+                    };
+                    let particle = v.particle_of();
+                    topology::for_each_lattice_spring(
+                        v.lattice_points(),
+                        Some(v.present()),
+                        |a, b, kind| {
+                            if let Some(p) = params(kind) {
+                                let (a, b) = (particle[a as usize], particle[b as usize]);
+                                let rest = x[a as usize].distance(x[b as usize]);
+                                springs.push(first + a, first + b, rest, p.stiffness, p.damping);
+                            }
+                        },
+                    );
+                    state.x.extend(x);
+                    match m.surface {
+                        SurfaceKind::Lattice => surface.extend(
+                            v.lattice_surface()
+                                .into_iter()
+                                .map(|t| t.map(|p| first + p)),
+                        ),
+                        SurfaceKind::Mesh => {
+                            let mesh = v.mesh();
+                            let first_vertex = embedded.len() as u32;
+                            embedded.meshes.push(EmbeddedMesh {
+                                body: b as u32,
+                                first_vertex,
+                                vertices: mesh.vertices.len() as u32,
+                                first_triangle: embedded.triangles.len() as u32,
+                                triangles: mesh.triangles.len() as u32,
+                            });
+                            for (corners, weights) in v.embedding() {
+                                embedded.corners.push(corners.map(|p| first + p));
+                                embedded.weights.push(weights);
+                            }
+                            embedded
+                                .triangles
+                                .extend(mesh.triangles.iter().map(|t| t.map(|i| first_vertex + i)));
+                        }
+                    }
                 }
                 BodyShape::Particles(p) => {
                     contact
@@ -450,6 +588,7 @@ impl Model {
             spring_counts: scene.spring_counts(),
             bodies,
             surface,
+            embedded,
             terrain: scene.terrain.clone(),
             contact,
         };

@@ -9,7 +9,10 @@ use std::path::{Path, PathBuf};
 use glam::{DQuat, DVec3, EulerRot};
 
 use crate::error::{Invalid, KeyPath, SceneError};
-use crate::format::{BodyFile, BodyKind, FrictionModel, SceneFile, TerrainFile, TerrainKind};
+use crate::format::{
+    BodyFile, BodyKind, FrictionModel, OneOrThree, SceneFile, SurfaceKind, TerrainFile, TerrainKind,
+};
+use crate::voxel::{LatticeSize, VoxelKey, Voxels};
 use crate::{Integrator, topology};
 
 /// `[simulation]`, validated.
@@ -141,6 +144,63 @@ pub struct ParticleSet {
     pub springs: Vec<ExplicitSpring>,
 }
 
+/// How a mesh body's mass is given.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MeshMass {
+    /// Total mass, kg.
+    Mass(f64),
+    /// Density, kg/m³, of the lattice's volume (kept cells × h³).
+    Density(f64),
+}
+
+/// A closed triangle mesh voxelised into a lattice of particles (`kind = "mesh"`): the
+/// particles are the corners of the kept cells ([`crate::voxel`]), joined by the cuboid's
+/// spring families, and the mesh rides on the lattice (each vertex a trilinear combination of
+/// its cell's corners).
+///
+/// The file's coordinates p are placed at `center + R·(s ⊙ p − o)`: scaled by `s`, rotated by
+/// R (`rotation`, as a cuboid's), and translated so that the centre o of the scaled mesh's
+/// bounding box lands on `center`. The lattice is aligned with the mesh's own axes (it turns
+/// with the body, as a cuboid's does).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshBody {
+    /// The mesh, its scale and its lattice, voxelised once ([`Voxels::new`]).
+    pub voxels: std::sync::Arc<Voxels>,
+    /// Where the centre of the scaled mesh's bounding box goes, metres.
+    pub center: DVec3,
+    /// Rotation, degrees about x, then y, then z (extrinsic), as a cuboid's.
+    pub rotation: DVec3,
+    /// Initial velocity of every particle, m/s.
+    pub velocity: DVec3,
+    /// Total mass or density; spread evenly over the particles.
+    pub mass: MeshMass,
+    /// Axis neighbours one cell apart; `None` leaves the family out.
+    pub structural: Option<SpringParams>,
+    /// Face and body diagonals of each cell.
+    pub shear: Option<SpringParams>,
+    /// Axis neighbours two cells apart.
+    pub bending: Option<SpringParams>,
+    /// What the exports and pictures show of it: the mesh (default) or the lattice's faces.
+    pub surface: SurfaceKind,
+}
+
+impl MeshBody {
+    /// The total mass, kg: the given one, or density × the lattice's volume.
+    pub fn total_mass(&self) -> f64 {
+        match self.mass {
+            MeshMass::Mass(m) => m,
+            MeshMass::Density(rho) => rho * self.voxels.volume(),
+        }
+    }
+
+    /// Where file coordinates `p` of the mesh are at rest, metres.
+    pub fn place(&self, p: DVec3) -> DVec3 {
+        self.center
+            + rotation_from_degrees(self.rotation)
+                * (p * self.voxels.scale() - self.voxels.offset())
+    }
+}
+
 /// What a body is made of.
 #[derive(Debug, Clone, PartialEq)]
 pub enum BodyShape {
@@ -148,6 +208,8 @@ pub enum BodyShape {
     Cuboid(Cuboid),
     /// `kind = "particles"`.
     Particles(ParticleSet),
+    /// `kind = "mesh"`.
+    Mesh(MeshBody),
 }
 
 /// One `[[body]]`.
@@ -161,7 +223,8 @@ pub struct Body {
     pub pinned: Vec<u32>,
     /// Contact radius r of each particle, metres: two particles of different bodies (or of a
     /// body with `self_contact`) closer than r_a + r_b touch. `None`: half the smallest lattice
-    /// spacing of a cuboid, 0 (no body contact) for a `particles` body.
+    /// spacing of a cuboid, half the cell of a mesh body, 0 (no body contact) for a `particles`
+    /// body.
     pub contact_radius: Option<f64>,
     /// Whether the body's own particles touch each other (beyond the rest neighbourhood: see
     /// docs/physics.md, "Contact between bodies").
@@ -170,11 +233,13 @@ pub struct Body {
 
 impl Body {
     /// The contact radius of the body's particles: the given one, or the default (half the
-    /// smallest lattice spacing of a cuboid, 0 for a `particles` body).
+    /// smallest lattice spacing of a cuboid, half the cell of a mesh body, 0 for a `particles`
+    /// body).
     pub fn contact_radius(&self) -> f64 {
         self.contact_radius.unwrap_or(match &self.shape {
             BodyShape::Cuboid(c) => 0.5 * c.smallest_spacing(),
             BodyShape::Particles(_) => 0.0,
+            BodyShape::Mesh(m) => 0.5 * m.voxels.cell(),
         })
     }
 
@@ -186,6 +251,7 @@ impl Body {
                 .iter()
                 .fold(1u64, |n, &r| n.saturating_mul(r as u64)),
             BodyShape::Particles(p) => p.positions.len() as u64,
+            BodyShape::Mesh(m) => m.voxels.particle_count(),
         }
     }
 
@@ -197,6 +263,16 @@ impl Body {
                 structural: p.springs.len() as u64,
                 ..SpringCounts::default()
             },
+            BodyShape::Mesh(m) => {
+                let all = m.voxels.spring_counts();
+                let on =
+                    |family: &Option<SpringParams>, n: u64| if family.is_some() { n } else { 0 };
+                SpringCounts {
+                    structural: on(&m.structural, all.structural),
+                    shear: on(&m.shear, all.shear),
+                    bending: on(&m.bending, all.bending),
+                }
+            }
         }
     }
 }
@@ -398,6 +474,7 @@ impl Scene {
             .map(|b| match &b.shape {
                 BodyShape::Cuboid(c) => c.mass,
                 BodyShape::Particles(p) => p.masses.iter().sum(),
+                BodyShape::Mesh(m) => m.total_mass(),
             })
             .sum()
     }
@@ -429,7 +506,7 @@ fn convert(file: SceneFile, base: &Path) -> Result<Scene, Invalid> {
         .bodies
         .into_iter()
         .enumerate()
-        .map(|(i, b)| convert_body(b, i, &KeyPath::root().key("body").index(i)))
+        .map(|(i, b)| convert_body(b, i, base, &KeyPath::root().key("body").index(i)))
         .collect::<Result<_, _>>()?;
     let terrain = file
         .terrain
@@ -463,8 +540,8 @@ fn index(at: KeyPath, i: u64) -> Result<u32, Invalid> {
     u32::try_from(i).map_err(|_| Invalid::new(at, format!("index {i} is out of range")))
 }
 
-fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
-    let name = b.name.unwrap_or_else(|| format!("body{i}"));
+fn convert_body(mut b: BodyFile, i: usize, base: &Path, at: &KeyPath) -> Result<Body, Invalid> {
+    let name = b.name.take().unwrap_or_else(|| format!("body{i}"));
     let pinned = b
         .pinned
         .iter()
@@ -482,9 +559,22 @@ fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
                     ("velocities", b.velocities.is_some()),
                     ("masses", b.masses.is_some()),
                     ("springs", b.springs.is_some()),
+                    ("file", b.file.is_some()),
+                    ("cell", b.cell.is_some()),
+                    ("scale", b.scale.is_some()),
+                    ("density", b.density.is_some()),
+                    ("surface", b.surface.is_some()),
                 ],
             )?;
-            let res = require(at, k, "resolution", b.resolution)?;
+            let res = match require(at, k, "resolution", b.resolution)? {
+                OneOrThree::Three(r) => r,
+                OneOrThree::One(_) => {
+                    return Err(Invalid::new(
+                        at.key("resolution"),
+                        "a cuboid's resolution is three particle counts, [nx, ny, nz]",
+                    ));
+                }
+            };
             let mut resolution = [0u32; 3];
             for (axis, r) in res.iter().enumerate() {
                 resolution[axis] = u32::try_from(*r).map_err(|_| {
@@ -494,12 +584,6 @@ fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
                     )
                 })?;
             }
-            let spring = |s: Option<crate::format::SpringFile>| {
-                s.map(|s| SpringParams {
-                    stiffness: s.stiffness,
-                    damping: s.damping,
-                })
-            };
             BodyShape::Cuboid(Cuboid {
                 size: require(at, k, "size", b.size)?.into(),
                 resolution,
@@ -527,6 +611,11 @@ fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
                     ("structural", b.structural.is_some()),
                     ("shear", b.shear.is_some()),
                     ("bending", b.bending.is_some()),
+                    ("file", b.file.is_some()),
+                    ("cell", b.cell.is_some()),
+                    ("scale", b.scale.is_some()),
+                    ("density", b.density.is_some()),
+                    ("surface", b.surface.is_some()),
                 ],
             )?;
             let positions: Vec<DVec3> = require(at, k, "positions", b.positions)?
@@ -560,6 +649,7 @@ fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
                 springs,
             })
         }
+        BodyKind::Mesh => BodyShape::Mesh(convert_mesh_body(&b, base, at)?),
     };
     Ok(Body {
         name,
@@ -567,6 +657,110 @@ fn convert_body(b: BodyFile, i: usize, at: &KeyPath) -> Result<Body, Invalid> {
         pinned,
         contact_radius: b.contact_radius,
         self_contact: b.self_contact,
+    })
+}
+
+fn spring(s: Option<crate::format::SpringFile>) -> Option<SpringParams> {
+    s.map(|s| SpringParams {
+        stiffness: s.stiffness,
+        damping: s.damping,
+    })
+}
+
+/// A `mesh` body: its keys checked, its file loaded and voxelised (the lattice's values are
+/// checked here, before the voxelisation needs them; the rest in `validate`).
+fn convert_mesh_body(b: &BodyFile, base: &Path, at: &KeyPath) -> Result<MeshBody, Invalid> {
+    let k = "mesh body";
+    forbid(
+        at,
+        k,
+        &[
+            ("size", b.size.is_some()),
+            ("positions", b.positions.is_some()),
+            ("velocities", b.velocities.is_some()),
+            ("masses", b.masses.is_some()),
+            ("springs", b.springs.is_some()),
+        ],
+    )?;
+    let size = match (b.cell, b.resolution) {
+        (Some(_), Some(_)) => {
+            return Err(Invalid::new(
+                at.key("resolution"),
+                "give either `cell` or `resolution`, not both",
+            ));
+        }
+        (None, None) => {
+            return Err(Invalid::new(
+                at.clone(),
+                "a `mesh body` needs the key `cell` (the lattice spacing, metres) or \
+                 `resolution` (cells along the longest side)",
+            ));
+        }
+        (Some(h), None) => {
+            crate::validate::positive(at.key("cell"), h)?;
+            LatticeSize::Cell(h)
+        }
+        (None, Some(OneOrThree::One(r))) => {
+            if !(1..=u32::MAX as u64).contains(&r) {
+                return Err(Invalid::new(
+                    at.key("resolution"),
+                    format!("must be a number of cells from 1 to {}, not {r}", u32::MAX),
+                ));
+            }
+            LatticeSize::Resolution(r as u32)
+        }
+        (None, Some(OneOrThree::Three(_))) => {
+            return Err(Invalid::new(
+                at.key("resolution"),
+                "a mesh body's resolution is one number: cells along the longest side",
+            ));
+        }
+    };
+    let mass = match (b.mass, b.density) {
+        (Some(_), Some(_)) => {
+            return Err(Invalid::new(
+                at.key("density"),
+                "give either `mass` or `density`, not both",
+            ));
+        }
+        (None, None) => {
+            return Err(Invalid::new(
+                at.clone(),
+                "a `mesh body` needs the key `mass` (kg) or `density` (kg/m³)",
+            ));
+        }
+        (Some(m), None) => MeshMass::Mass(m),
+        (None, Some(rho)) => MeshMass::Density(rho),
+    };
+    let scale = DVec3::from(b.scale.unwrap_or(OneOrThree::One(1.0)).three());
+    for axis in 0..3 {
+        let key = match b.scale {
+            Some(OneOrThree::Three(_)) => at.key("scale").index(axis),
+            _ => at.key("scale"),
+        };
+        crate::validate::positive(key, scale[axis])?;
+    }
+    let rel = require(at, k, "file", b.file.clone())?;
+    let mesh =
+        crate::mesh::load_obj(&base.join(&rel)).map_err(|m| Invalid::new(at.key("file"), m))?;
+    let voxels = Voxels::new(mesh, scale, size).map_err(|e| {
+        let key = match (e.key, size) {
+            (VoxelKey::File, _) => "file",
+            (VoxelKey::Size, LatticeSize::Cell(_)) => "cell",
+            (VoxelKey::Size, LatticeSize::Resolution(_)) => "resolution",
+        };
+        Invalid::new(at.key(key), e.message)
+    })?;
+    Ok(MeshBody {
+        voxels: std::sync::Arc::new(voxels),
+        center: b.center.unwrap_or_default().into(),
+        rotation: b.rotation.unwrap_or_default().into(),
+        velocity: b.velocity.unwrap_or_default().into(),
+        mass,
+        structural: spring(b.structural),
+        shear: spring(b.shear),
+        bending: spring(b.bending),
+        surface: b.surface.unwrap_or_default(),
     })
 }
 

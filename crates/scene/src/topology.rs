@@ -66,16 +66,73 @@ pub fn cuboid_positions(c: &Cuboid) -> Vec<DVec3> {
     out
 }
 
-/// Calls `f(a, b, kind)` for every spring of a grid of `resolution` particles, in order.
-pub fn for_each_cuboid_spring(resolution: [u32; 3], mut f: impl FnMut(u32, u32, SpringKind)) {
-    let [nx, ny, nz] = resolution.map(|r| r as i64);
+/// Calls `f(a, b, kind)` for every spring of a full grid of `resolution` particles, in order:
+/// the lattice with every cell present ([`for_each_lattice_spring`]).
+pub fn for_each_cuboid_spring(resolution: [u32; 3], f: impl FnMut(u32, u32, SpringKind)) {
+    for_each_lattice_spring(resolution, None, f);
+}
+
+/// Calls `f(a, b, kind)` for every spring of a lattice of `points` particles per axis whose
+/// cells (`points − 1` per axis, x fastest) are present where `cells` says (`None`: all), in
+/// the order of the module doc; `a`, `b` are lattice point indices `i + nx·(j + ny·k)`.
+///
+/// A spring of the full grid is kept when it lies in the present cells: a structural or shear
+/// spring when some present cell has both ends as corners, a bending spring when both
+/// structural springs it spans are kept. Particles of present cells that share no present cell
+/// (the two sides of a gap one cell wide, or of a torus's hole) are not joined, so a spring
+/// never bridges empty space. With every cell present this is every spring of the grid.
+pub fn for_each_lattice_spring(
+    points: [u32; 3],
+    cells: Option<&[bool]>,
+    mut f: impl FnMut(u32, u32, SpringKind),
+) {
+    let [nx, ny, nz] = points.map(|r| r as i64);
+    let (cx, cy, cz) = (nx - 1, ny - 1, nz - 1);
+    let present = |c: [i64; 3]| match cells {
+        None => true,
+        Some(cells) => {
+            (0..cx).contains(&c[0])
+                && (0..cy).contains(&c[1])
+                && (0..cz).contains(&c[2])
+                && cells[(c[0] + cx * (c[1] + cy * c[2])) as usize]
+        }
+    };
+    // Whether some present cell has p and p + o (o in {−1, 0, 1}³) as corners: along an axis
+    // where o is ±1 the cell starts at the smaller end, where it is 0 at p − 1 or p.
+    let in_a_cell = |p: [i64; 3], o: [i64; 3]| {
+        let choices = |a: usize| -> [Option<i64>; 2] {
+            match o[a] {
+                0 => [Some(p[a] - 1), Some(p[a])],
+                d => [Some(p[a].min(p[a] + d)), None],
+            }
+        };
+        let (x, y, z) = (choices(0), choices(1), choices(2));
+        x.iter().flatten().any(|&i| {
+            y.iter()
+                .flatten()
+                .any(|&j| z.iter().flatten().any(|&k| present([i, j, k])))
+        })
+    };
     for k in 0..nz {
         for j in 0..ny {
             for i in 0..nx {
                 let p = i + nx * (j + ny * k);
                 for ([di, dj, dk], kind) in OFFSETS {
                     let (qi, qj, qk) = (i + di as i64, j + dj as i64, k + dk as i64);
-                    if (0..nx).contains(&qi) && (0..ny).contains(&qj) && (0..nz).contains(&qk) {
+                    if !((0..nx).contains(&qi) && (0..ny).contains(&qj) && (0..nz).contains(&qk)) {
+                        continue;
+                    }
+                    let kept = cells.is_none() || {
+                        let o = [di, dj, dk].map(i64::from);
+                        if kind == SpringKind::Bending {
+                            let half = o.map(|c| c / 2);
+                            let mid = [i + half[0], j + half[1], k + half[2]];
+                            in_a_cell([i, j, k], half) && in_a_cell(mid, half)
+                        } else {
+                            in_a_cell([i, j, k], o)
+                        }
+                    };
+                    if kept {
                         f(p as u32, (qi + nx * (qj + ny * qk)) as u32, kind);
                     }
                 }

@@ -8,7 +8,7 @@ use glam::DVec3;
 
 use crate::error::{Invalid, KeyPath};
 use crate::model;
-use crate::scene::{BodyShape, Scene, SpringParams, TerrainShape};
+use crate::scene::{BodyShape, MeshMass, Scene, SpringParams, TerrainShape};
 
 type Check = Result<(), Invalid>;
 
@@ -30,7 +30,7 @@ fn finite3(at: KeyPath, v: DVec3) -> Check {
     Ok(())
 }
 
-fn positive(at: KeyPath, x: f64) -> Check {
+pub(crate) fn positive(at: KeyPath, x: f64) -> Check {
     finite(at.clone(), x)?;
     if x > 0.0 {
         Ok(())
@@ -116,6 +116,18 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             // Beyond one spacing, particles three cells apart would touch at rest: a body would
             // be in self-contact with its own structure, and every particle would have dozens
             // of contact candidates.
+            if let BodyShape::Mesh(m) = &body.shape
+                && r > m.voxels.cell()
+            {
+                return Err(Invalid::new(
+                    at.key("contact_radius"),
+                    format!(
+                        "{r} m is more than the mesh body's cell, {} m (the default is half of \
+                         it)",
+                        m.voxels.cell()
+                    ),
+                ));
+            }
             if let BodyShape::Cuboid(c) = &body.shape
                 && r > c.smallest_spacing()
             {
@@ -154,9 +166,13 @@ pub(crate) fn scene(scene: &Scene) -> Check {
                 model::estimated_bytes(b.particle_count(), b.spring_counts().total())
             })
             .expect("only called when the bodies hold too many particles");
-        let key = match body.shape {
+        let key = match &body.shape {
             BodyShape::Cuboid(_) => "resolution",
             BodyShape::Particles(_) => "positions",
+            BodyShape::Mesh(m) => match m.voxels.size() {
+                crate::voxel::LatticeSize::Cell(_) => "cell",
+                crate::voxel::LatticeSize::Resolution(_) => "resolution",
+            },
         };
         KeyPath::root().key("body").index(i).key(key)
     };
@@ -229,6 +245,28 @@ fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
                 ("structural", &c.structural),
                 ("shear", &c.shear),
                 ("bending", &c.bending),
+            ] {
+                if let Some(p) = p {
+                    spring_params(at.key(key), p)?;
+                }
+            }
+        }
+        BodyShape::Mesh(m) => {
+            finite3(at.key("center"), m.center)?;
+            finite3(at.key("rotation"), m.rotation)?;
+            finite3(at.key("velocity"), m.velocity)?;
+            match m.mass {
+                MeshMass::Mass(mass) => positive(at.key("mass"), mass)?,
+                MeshMass::Density(rho) => {
+                    positive(at.key("density"), rho)?;
+                    // A density times a tiny volume can still underflow to no mass at all.
+                    positive(at.key("density"), m.total_mass())?;
+                }
+            }
+            for (key, p) in [
+                ("structural", &m.structural),
+                ("shear", &m.shear),
+                ("bending", &m.bending),
             ] {
                 if let Some(p) = p {
                     spring_params(at.key(key), p)?;

@@ -1,0 +1,794 @@
+//! Voxelisation of a closed triangle mesh into a lattice of cells, for `kind = "mesh"` bodies.
+//!
+//! The mesh (scaled, and centred on the centre of its bounding box: the body's local frame) is
+//! covered by a regular lattice of cubic cells of edge h, centred on that box, with
+//! `ceil(extent / h)` cells per axis (at least one). A cell is kept ("present") when
+//!
+//! - a triangle of the mesh crosses the cell: meets its interior (separating-axis test,
+//!   Akenine-Möller, against the cell shrunk by 10⁻⁹ h; a triangle lying in a lattice plane
+//!   crosses neither neighbour, and the centre rule picks the inside one), or
+//! - its centre is inside the mesh: the generalised winding number w there (the solid angles
+//!   of the triangles, Van Oosterom–Strackee, summed over 4π) has |w| ≥ ½ (either orientation
+//!   of the whole mesh works; an inside-out mesh has w = −1 inside).
+//!
+//! Every mesh vertex is embedded in a kept cell holding it (on a cell boundary, the first kept
+//! one of the cells that share it); if none holds it, its own cell is kept too.
+//!
+//! On a closed mesh (every edge, after welding vertices at identical positions, used as often in
+//! each direction) w is an integer constant on each connected piece of space off the surface,
+//! so it is evaluated once per 6-connected component of the cells no triangle touches (meets
+//! the closed cell grown by 10⁻⁹ h: the segment between two such neighbours' centres crosses
+//! no triangle), and once per cell that a triangle touches without crossing. On an open mesh
+//! w is evaluated at every cell no triangle crosses, and the mesh is refused as "not closed
+//! enough to tell inside from outside" when more than [`UNDECIDED_SHARE`] of the cells with
+//! |w| > ¼ have ¼ < |w| < ¾. A lattice with no cell clearly inside (|w| ≥ ¾) is refused too.
+//!
+//! The lattice's particles are the corners of the present cells, numbered in lattice order
+//! (x fastest, then y, then z) as a cuboid's; springs: `topology::for_each_lattice_spring`.
+
+use glam::DVec3;
+
+use crate::scene::TriangleMesh;
+use crate::topology::{self, SpringKind};
+use crate::{SpringCounts, model};
+
+/// The share of undecided cells (¼ < |w| < ¾) above which an open mesh is refused.
+pub const UNDECIDED_SHARE: f64 = 0.1;
+
+/// |w| at or above which a cell centre is clearly inside: a lattice needs one such cell (a
+/// flat sheet's cells all have their centres on it, at w = ½).
+pub const CLEARLY_INSIDE: f64 = 0.75;
+
+/// Bytes the voxelisation holds per lattice point (cell flags, component labels, the particle
+/// map), for the memory check made before it allocates.
+pub const BYTES_PER_LATTICE_POINT: u64 = 16;
+
+/// How the lattice spacing is given.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LatticeSize {
+    /// The cell edge h, metres.
+    Cell(f64),
+    /// Cells along the longest side of the (scaled) mesh's bounding box.
+    Resolution(u32),
+}
+
+/// Which scene key a voxelisation failure is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VoxelKey {
+    /// The mesh file: no triangles, a bad vertex, not closed enough, no extent.
+    File,
+    /// The lattice size (`cell` or `resolution`): too many points, no cell inside.
+    Size,
+}
+
+/// A voxelisation failure: the key it is about and a sentence for the user.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VoxelError {
+    /// The key to blame.
+    pub key: VoxelKey,
+    /// What is wrong.
+    pub message: String,
+}
+
+fn fail<T>(key: VoxelKey, message: String) -> Result<T, VoxelError> {
+    Err(VoxelError { key, message })
+}
+
+/// A mesh voxelised into a lattice: immutable once made ([`Voxels::new`]), so the lattice always
+/// belongs to the mesh, scale and size it holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Voxels {
+    mesh: TriangleMesh,
+    scale: DVec3,
+    size: LatticeSize,
+    /// Centre of the scaled mesh's bounding box: the point placed on the body's `center`.
+    offset: DVec3,
+    cell: f64,
+    /// Cells per axis.
+    cells: [u32; 3],
+    /// Local coordinates of lattice point (0, 0, 0).
+    origin: DVec3,
+    present: Vec<bool>,
+    /// The particle number of each lattice point, `u32::MAX` where absent.
+    particle_of: Vec<u32>,
+    /// Lattice coordinates of each particle, in particle order.
+    points: Vec<[u32; 3]>,
+    /// Springs of each family on the present cells (every family, whatever the body enables).
+    springs: SpringCounts,
+    /// Per mesh vertex: its cell and its coordinates in it, each in [0, 1].
+    embedding: Vec<([u32; 3], DVec3)>,
+    /// Present cells whose centre is clearly inside (|w| ≥ ¾).
+    inside_cells: u64,
+    closed: bool,
+}
+
+/// The generalised winding number of the triangles at `p`: Σ Ω_t / 4π, Ω_t the signed solid
+/// angle of triangle t (Van Oosterom & Strackee 1983). 1 inside a closed mesh wound
+/// counter-clockwise seen from outside, 0 outside, ½ on a smooth part of the surface.
+pub fn winding_number(vertices: &[DVec3], triangles: &[[u32; 3]], p: DVec3) -> f64 {
+    let mut sum = 0.0;
+    for t in triangles {
+        let [a, b, c] = t.map(|i| vertices[i as usize] - p);
+        let (la, lb, lc) = (a.length(), b.length(), c.length());
+        let num = a.dot(b.cross(c));
+        let den = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
+        sum += 2.0 * num.atan2(den);
+    }
+    sum / (4.0 * std::f64::consts::PI)
+}
+
+/// The volume enclosed by a closed mesh (Σ a·(b × c)/6, the divergence theorem); negative for
+/// an inside-out one.
+pub fn enclosed_volume(vertices: &[DVec3], triangles: &[[u32; 3]]) -> f64 {
+    triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize]);
+            a.dot(b.cross(c))
+        })
+        .sum::<f64>()
+        / 6.0
+}
+
+/// Whether triangle `t` meets the axis-aligned box of centre `c` and half edge `e`
+/// (Akenine-Möller's separating-axis test: the box's 3 axes, the triangle's normal, the 9 edge
+/// cross products). Touching counts as meeting.
+pub fn triangle_meets_box(t: [DVec3; 3], c: DVec3, e: DVec3) -> bool {
+    let v = t.map(|p| p - c);
+    let edges = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    let separated = |axis: DVec3| {
+        let p = v.map(|x| x.dot(axis));
+        let r = e.x * axis.x.abs() + e.y * axis.y.abs() + e.z * axis.z.abs();
+        let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+        lo > r || hi < -r
+    };
+    for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+        if separated(axis) {
+            return false;
+        }
+    }
+    if separated(edges[0].cross(edges[1])) {
+        return false;
+    }
+    for edge in edges {
+        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+            let a = axis.cross(edge);
+            if a != DVec3::ZERO && separated(a) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Whether every edge of the mesh, vertices welded at identical positions, is used as often in
+/// each direction: then the winding number is an integer off the surface.
+fn is_closed(mesh: &TriangleMesh) -> bool {
+    let mut id = std::collections::HashMap::new();
+    let welded: Vec<u32> = mesh
+        .vertices
+        .iter()
+        .map(|v| {
+            let n = id.len() as u32;
+            *id.entry(v.to_array().map(f64::to_bits)).or_insert(n)
+        })
+        .collect();
+    let mut balance = std::collections::HashMap::new();
+    for t in &mesh.triangles {
+        for e in 0..3 {
+            let (a, b) = (welded[t[e] as usize], welded[t[(e + 1) % 3] as usize]);
+            if a != b {
+                *balance.entry((a.min(b), a.max(b))).or_insert(0i64) += if a < b { 1 } else { -1 };
+            }
+        }
+    }
+    balance.values().all(|&b| b == 0)
+}
+
+/// Checks what the voxelisation assumes of a mesh: triangles, finite vertices, valid indices.
+pub fn check_mesh(mesh: &TriangleMesh) -> Result<(), String> {
+    let name = mesh.path.display();
+    if mesh.triangles.is_empty() {
+        return Err(format!("{name} holds no triangles"));
+    }
+    if let Some(v) = mesh.vertices.iter().position(|v| !v.is_finite()) {
+        return Err(format!("{name}: vertex {v} is not finite"));
+    }
+    let n = mesh.vertices.len();
+    if let Some(t) = mesh
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&i| i as usize >= n))
+    {
+        return Err(format!("{name}: triangle {t} names a missing vertex"));
+    }
+    Ok(())
+}
+
+/// Cells along an extent of `extent` at spacing `h`: `ceil(extent / h)`, at least 1, where a
+/// quotient within 10⁻⁹ of a whole number counts as that number (a box 0.3 m long at h = 0.06 m
+/// is 5 cells, not 6 because 0.3/0.06 = 5.000000000000001).
+fn cells_along(extent: f64, h: f64) -> f64 {
+    let x = extent / h;
+    let r = x.round();
+    let n = if (x - r).abs() <= 1e-9 * r.max(1.0) {
+        r
+    } else {
+        x.ceil()
+    };
+    n.max(1.0)
+}
+
+impl Voxels {
+    /// Voxelises `mesh` (file coordinates) scaled by `scale` (each component positive) at
+    /// `size`. Refuses, before allocating the lattice, one whose flags would not fit in memory.
+    pub fn new(mesh: TriangleMesh, scale: DVec3, size: LatticeSize) -> Result<Voxels, VoxelError> {
+        check_mesh(&mesh).map_err(|m| VoxelError {
+            key: VoxelKey::File,
+            message: m,
+        })?;
+        let scaled: Vec<DVec3> = mesh.vertices.iter().map(|&v| v * scale).collect();
+        // Every vertex, used by a triangle or not, lies in the lattice (each is embedded).
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for &v in &scaled {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        let offset = 0.5 * (lo + hi);
+        let extent = hi - lo;
+        if !extent.is_finite() || extent.max_element() <= 0.0 {
+            return fail(
+                VoxelKey::File,
+                format!(
+                    "{}: the triangles have no extent (every vertex at one point)",
+                    mesh.path.display()
+                ),
+            );
+        }
+        let h = match size {
+            LatticeSize::Cell(h) => h,
+            LatticeSize::Resolution(r) => extent.max_element() / f64::from(r.max(1)),
+        };
+        let n = [0, 1, 2].map(|a| cells_along(extent[a], h));
+        let points = (n[0] + 1.0) * (n[1] + 1.0) * (n[2] + 1.0);
+        let limit = model::MAX_PARTICLES as f64;
+        if !(h > 0.0 && points <= limit) {
+            return fail(
+                VoxelKey::Size,
+                format!(
+                    "a lattice of {} × {} × {} cells ({points:.3e} points) is more than the {} \
+                     particles supported",
+                    n[0],
+                    n[1],
+                    n[2],
+                    model::MAX_PARTICLES
+                ),
+            );
+        }
+        let need = (points as u64).saturating_mul(BYTES_PER_LATTICE_POINT);
+        if let Some((have, what)) = model::available_memory().filter(|&(have, _)| need > have) {
+            return fail(
+                VoxelKey::Size,
+                format!(
+                    "voxelising a lattice of {} × {} × {} cells needs about {:.1} GiB and {:.1} \
+                     GiB are {what}",
+                    n[0],
+                    n[1],
+                    n[2],
+                    need as f64 / (1u64 << 30) as f64,
+                    have as f64 / (1u64 << 30) as f64
+                ),
+            );
+        }
+        let cells = n.map(|x| x as u32);
+        let [nx, ny, nz] = cells.map(|c| c as usize);
+        let origin = -0.5 * h * DVec3::new(n[0], n[1], n[2]);
+        let cell_index = |i: usize, j: usize, k: usize| i + nx * (j + ny * k);
+        // Local vertices in lattice units: cell (i, j, k) is [i, i + 1] × [j, j + 1] × [k, k + 1].
+        let unit: Vec<DVec3> = scaled.iter().map(|&v| (v - offset - origin) / h).collect();
+
+        // Cells a triangle crosses (meets the open cell: tested against the cell shrunk by
+        // 1e-9 h) and cells it touches (meets the closed cell, grown by 1e-9 h). A triangle
+        // lying in a lattice plane touches the cells on both sides and crosses neither: the
+        // centre test decides which side is kept.
+        let mut crossed = vec![false; nx * ny * nz];
+        let mut touched = vec![false; nx * ny * nz];
+        let (shrunk, grown) = (DVec3::splat(0.5 - 1e-9), DVec3::splat(0.5 + 1e-9));
+        let top = DVec3::new(n[0] - 1.0, n[1] - 1.0, n[2] - 1.0);
+        for t in &mesh.triangles {
+            let c = t.map(|i| unit[i as usize]);
+            let lo = (c[0].min(c[1]).min(c[2]) - 1e-9)
+                .floor()
+                .clamp(DVec3::ZERO, top);
+            let hi = (c[0].max(c[1]).max(c[2]) + 1e-9)
+                .floor()
+                .clamp(DVec3::ZERO, top);
+            for k in lo.z as usize..=hi.z as usize {
+                for j in lo.y as usize..=hi.y as usize {
+                    for i in lo.x as usize..=hi.x as usize {
+                        let at = cell_index(i, j, k);
+                        if crossed[at] {
+                            continue;
+                        }
+                        let centre = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+                        if !touched[at] {
+                            touched[at] = triangle_meets_box(c, centre, grown);
+                        }
+                        if touched[at] {
+                            crossed[at] = triangle_meets_box(c, centre, shrunk);
+                        }
+                    }
+                }
+            }
+        }
+
+        let local: Vec<DVec3> = scaled.iter().map(|&v| v - offset).collect();
+        let centre_of = |at: usize| {
+            let (i, j, k) = (at % nx, at / nx % ny, at / (nx * ny));
+            origin + h * (DVec3::new(i as f64, j as f64, k as f64) + 0.5)
+        };
+        let winding = |at: usize| winding_number(&local, &mesh.triangles, centre_of(at));
+        let closed = is_closed(&mesh);
+        // |w| at the centre of every cell no triangle crosses.
+        let mut w = vec![0.0f64; nx * ny * nz];
+        if closed {
+            // Touched cells one by one (their centres are off the surface: w is an integer);
+            // the rest once per 6-connected component of untouched cells.
+            let mut seen = touched.clone();
+            let mut stack = Vec::new();
+            for start in 0..w.len() {
+                if crossed[start] {
+                    continue;
+                }
+                if touched[start] {
+                    w[start] = winding(start).abs();
+                    continue;
+                }
+                if seen[start] {
+                    continue;
+                }
+                let value = winding(start).abs();
+                seen[start] = true;
+                stack.push(start);
+                while let Some(at) = stack.pop() {
+                    w[at] = value;
+                    let (i, j, k) = (at % nx, at / nx % ny, at / (nx * ny));
+                    let mut visit = |ok: bool, next: usize| {
+                        if ok && !seen[next] {
+                            seen[next] = true;
+                            stack.push(next);
+                        }
+                    };
+                    visit(i > 0, at.wrapping_sub(1));
+                    visit(i + 1 < nx, at + 1);
+                    visit(j > 0, at.wrapping_sub(nx));
+                    visit(j + 1 < ny, at + nx);
+                    visit(k > 0, at.wrapping_sub(nx * ny));
+                    visit(k + 1 < nz, at + nx * ny);
+                }
+            }
+        } else {
+            let (mut undecided, mut candidates) = (0u64, 0u64);
+            for at in (0..w.len()).filter(|&at| !crossed[at]) {
+                w[at] = winding(at).abs();
+                if w[at] > 0.25 {
+                    candidates += 1;
+                    if w[at] < 0.75 {
+                        undecided += 1;
+                    }
+                }
+            }
+            if undecided as f64 > UNDECIDED_SHARE * candidates.max(1) as f64 {
+                return fail(
+                    VoxelKey::File,
+                    format!(
+                        "{} is not closed enough to tell inside from outside: the winding \
+                         number is between ¼ and ¾ at {undecided} of the {candidates} cells \
+                         where it is above ¼ (more than {}%); close its holes",
+                        mesh.path.display(),
+                        UNDECIDED_SHARE * 100.0
+                    ),
+                );
+            }
+        }
+        let mut present: Vec<bool> = (0..w.len()).map(|at| crossed[at] || w[at] >= 0.5).collect();
+        let mut inside_cells = (0..w.len())
+            .filter(|&at| !crossed[at] && w[at] >= CLEARLY_INSIDE)
+            .count() as u64;
+        // On a closed mesh a crossed cell whose centre is clearly inside counts too (a plate
+        // thinner than a cell has no other). Not on an open one: a centre on a sheet gets ±½
+        // from each triangle whose edge it lies on, whatever the sides, so only cells off the
+        // surface tell.
+        if inside_cells == 0 && closed {
+            inside_cells = (0..w.len())
+                .filter(|&at| crossed[at] && winding(at).abs() >= CLEARLY_INSIDE)
+                .count() as u64;
+        }
+        if inside_cells == 0 {
+            return fail(
+                VoxelKey::Size,
+                format!(
+                    "no cell of the {} × {} × {} lattice (h = {h} m) has its centre inside {} \
+                     (winding number ¾ or more): the mesh is flat, open or thinner than a \
+                     cell; use a smaller cell",
+                    n[0],
+                    n[1],
+                    n[2],
+                    mesh.path.display()
+                ),
+            );
+        }
+
+        // Each vertex's cell: the one holding it, or, for a vertex on a lattice plane, the
+        // first kept one of those whose boundary holds it; a vertex no kept cell holds keeps
+        // its cell (a stray vertex no triangle uses, or one on a triangle lying in a lattice
+        // plane outside everything).
+        let embedding: Vec<([u32; 3], DVec3)> = unit
+            .iter()
+            .map(|&u| {
+                let choices = |a: usize| -> [Option<f64>; 2] {
+                    let r = u[a].round();
+                    let f = u[a].floor().clamp(0.0, top[a]);
+                    if (u[a] - r).abs() <= 1e-9 && r >= 1.0 && r <= top[a] {
+                        [Some(r - 1.0), Some(r)]
+                    } else {
+                        [Some(f), None]
+                    }
+                };
+                let (cx, cy, cz) = (choices(0), choices(1), choices(2));
+                let mut all = Vec::with_capacity(8);
+                for &k in cz.iter().flatten() {
+                    for &j in cy.iter().flatten() {
+                        for &i in cx.iter().flatten() {
+                            all.push(DVec3::new(i, j, k));
+                        }
+                    }
+                }
+                let at = |c: DVec3| cell_index(c.x as usize, c.y as usize, c.z as usize);
+                let cell = all
+                    .iter()
+                    .copied()
+                    .find(|&c| present[at(c)])
+                    .unwrap_or(all[0]);
+                present[at(cell)] = true;
+                (
+                    [cell.x as u32, cell.y as u32, cell.z as u32],
+                    (u - cell).clamp(DVec3::ZERO, DVec3::ONE),
+                )
+            })
+            .collect();
+
+        // Particles: the corners of present cells, in lattice order.
+        let pn = [nx + 1, ny + 1, nz + 1];
+        let mut particle_of = vec![u32::MAX; pn[0] * pn[1] * pn[2]];
+        for (at, _) in present.iter().enumerate().filter(|(_, p)| **p) {
+            let (i, j, k) = (at % nx, at / nx % ny, at / (nx * ny));
+            for c in 0..8 {
+                let (a, b, d) = (i + (c & 1), j + (c >> 1 & 1), k + (c >> 2));
+                particle_of[a + pn[0] * (b + pn[1] * d)] = 0;
+            }
+        }
+        let mut points = Vec::new();
+        for (p, slot) in particle_of.iter_mut().enumerate() {
+            if *slot == 0 {
+                *slot = points.len() as u32;
+                points.push([
+                    (p % pn[0]) as u32,
+                    (p / pn[0] % pn[1]) as u32,
+                    (p / (pn[0] * pn[1])) as u32,
+                ]);
+            }
+        }
+        let mut springs = SpringCounts::default();
+        topology::for_each_lattice_spring(cells.map(|c| c + 1), Some(&present), |_, _, kind| {
+            match kind {
+                SpringKind::Structural => springs.structural += 1,
+                SpringKind::Shear => springs.shear += 1,
+                SpringKind::Bending => springs.bending += 1,
+            }
+        });
+        Ok(Voxels {
+            mesh,
+            scale,
+            size,
+            offset,
+            cell: h,
+            cells,
+            origin,
+            present,
+            particle_of,
+            points,
+            springs,
+            embedding,
+            inside_cells,
+            closed,
+        })
+    }
+
+    /// The mesh, in file coordinates.
+    pub fn mesh(&self) -> &TriangleMesh {
+        &self.mesh
+    }
+
+    /// The scale applied to the file's coordinates (per axis).
+    pub fn scale(&self) -> DVec3 {
+        self.scale
+    }
+
+    /// How the lattice spacing was given.
+    pub fn size(&self) -> LatticeSize {
+        self.size
+    }
+
+    /// The centre of the scaled mesh's bounding box (file axes): the point the body's
+    /// `center` is given for.
+    pub fn offset(&self) -> DVec3 {
+        self.offset
+    }
+
+    /// The cell edge h, metres.
+    pub fn cell(&self) -> f64 {
+        self.cell
+    }
+
+    /// Cells per axis.
+    pub fn cells(&self) -> [u32; 3] {
+        self.cells
+    }
+
+    /// Lattice points per axis (cells + 1).
+    pub fn lattice_points(&self) -> [u32; 3] {
+        self.cells.map(|c| c + 1)
+    }
+
+    /// Whether each cell is kept, x fastest.
+    pub fn present(&self) -> &[bool] {
+        &self.present
+    }
+
+    /// Number of kept cells.
+    pub fn present_cells(&self) -> u64 {
+        self.present.iter().filter(|&&p| p).count() as u64
+    }
+
+    /// Kept cells whose centre is clearly inside the mesh (|w| ≥ [`CLEARLY_INSIDE`]).
+    pub fn inside_cells(&self) -> u64 {
+        self.inside_cells
+    }
+
+    /// Whether the mesh is closed (edges balanced after welding).
+    pub fn is_closed(&self) -> bool {
+        self.closed
+    }
+
+    /// The lattice's volume: kept cells × h³, m³.
+    pub fn volume(&self) -> f64 {
+        self.present_cells() as f64 * self.cell.powi(3)
+    }
+
+    /// Number of particles.
+    pub fn particle_count(&self) -> u64 {
+        self.points.len() as u64
+    }
+
+    /// Lattice coordinates of each particle, in particle order.
+    pub fn points(&self) -> &[[u32; 3]] {
+        &self.points
+    }
+
+    /// The particle (within the body) at each lattice point, `u32::MAX` where there is none.
+    pub fn particle_of(&self) -> &[u32] {
+        &self.particle_of
+    }
+
+    /// Springs of each family on the kept cells (every family).
+    pub fn spring_counts(&self) -> SpringCounts {
+        self.springs
+    }
+
+    /// Local coordinates (body frame, before rotation and translation) of lattice point p.
+    pub fn local(&self, p: [u32; 3]) -> DVec3 {
+        self.origin + self.cell * DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    }
+
+    /// Each mesh vertex's embedding: the particles (within the body) at its cell's eight
+    /// corners, corner c at offset (c & 1, c >> 1 & 1, c >> 2), and their trilinear weights.
+    pub fn embedding(&self) -> Vec<([u32; 8], [f64; 8])> {
+        let pn = self.lattice_points().map(|n| n as usize);
+        self.embedding
+            .iter()
+            .map(|&(cell, t)| {
+                let mut corners = [0u32; 8];
+                let mut weights = [0f64; 8];
+                for c in 0..8 {
+                    let d = [c & 1, c >> 1 & 1, c >> 2];
+                    let p: [usize; 3] = [0, 1, 2].map(|a| cell[a] as usize + d[a]);
+                    corners[c] = self.particle_of[p[0] + pn[0] * (p[1] + pn[1] * p[2])];
+                    weights[c] = (0..3)
+                        .map(|a| if d[a] == 1 { t[a] } else { 1.0 - t[a] })
+                        .product();
+                }
+                (corners, weights)
+            })
+            .collect()
+    }
+
+    /// The outer faces of the kept cells (each face of a kept cell whose neighbour across it
+    /// is not kept), two triangles each over particles within the body, counter-clockwise seen
+    /// from outside; cells in lattice order, faces −x, +x, −y, +y, −z, +z.
+    pub fn lattice_surface(&self) -> Vec<[u32; 3]> {
+        let [nx, ny, nz] = self.cells.map(|c| c as i64);
+        let pn = self.lattice_points().map(|n| n as i64);
+        let kept = |i: i64, j: i64, k: i64| {
+            (0..nx).contains(&i)
+                && (0..ny).contains(&j)
+                && (0..nz).contains(&k)
+                && self.present[(i + nx * (j + ny * k)) as usize]
+        };
+        let particle =
+            |p: [i64; 3]| self.particle_of[(p[0] + pn[0] * (p[1] + pn[1] * p[2])) as usize];
+        let mut out = Vec::new();
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if !kept(i, j, k) {
+                        continue;
+                    }
+                    for axis in 0..3 {
+                        // (axis, u, w) cyclic, so e_u × e_w = e_axis.
+                        let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+                        for side in [0, 1] {
+                            let mut next = [i, j, k];
+                            next[axis] += 2 * side - 1;
+                            if kept(next[0], next[1], next[2]) {
+                                continue;
+                            }
+                            let corner = |du: i64, dw: i64| {
+                                let mut p = [i, j, k];
+                                p[axis] += side;
+                                p[u] += du;
+                                p[w] += dw;
+                                particle(p)
+                            };
+                            let (p00, p10, p11, p01) =
+                                (corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1));
+                            if side == 1 {
+                                out.extend([[p00, p10, p11], [p00, p11, p01]]);
+                            } else {
+                                out.extend([[p00, p11, p10], [p00, p01, p11]]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit_cube() -> TriangleMesh {
+        TriangleMesh::cube(DVec3::ZERO, 1.0)
+    }
+
+    /// w = 1 inside the unit cube, 0 outside, ½ on a face, −1 inside the cube turned inside out.
+    #[test]
+    fn winding_numbers_of_a_cube() {
+        let m = unit_cube();
+        let w = |p: DVec3| winding_number(&m.vertices, &m.triangles, p);
+        assert!((w(DVec3::splat(0.5)) - 1.0).abs() < 1e-12);
+        assert!((w(DVec3::new(0.9, 0.1, 0.3)) - 1.0).abs() < 1e-12);
+        assert!(w(DVec3::new(1.5, 0.5, 0.5)).abs() < 1e-12);
+        assert!(w(DVec3::new(-3.0, 7.0, 2.0)).abs() < 1e-12);
+        assert!((w(DVec3::new(0.5, 0.5, 1.0)) - 0.5).abs() < 1e-12);
+        let inverted: Vec<[u32; 3]> = m.triangles.iter().map(|t| [t[0], t[2], t[1]]).collect();
+        assert!((winding_number(&m.vertices, &inverted, DVec3::splat(0.5)) + 1.0).abs() < 1e-12);
+        assert!((enclosed_volume(&m.vertices, &m.triangles) - 1.0).abs() < 1e-15);
+        assert!(is_closed(&m));
+    }
+
+    #[test]
+    fn triangle_box_overlap_by_separating_axes() {
+        let e = DVec3::splat(0.5);
+        let t = [
+            DVec3::new(-1.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ];
+        assert!(triangle_meets_box(t, DVec3::ZERO, e));
+        // Beside the box along z: separated by the z axis.
+        assert!(!triangle_meets_box(t, DVec3::new(0.0, 0.0, 0.6), e));
+        // Touching the face z = 0.5 counts.
+        assert!(triangle_meets_box(t, DVec3::new(0.0, 0.0, 0.5), e));
+        // A triangle whose bounding box overlaps the box but which passes beside it diagonally
+        // (separated by its normal, the plane x + y + z = 3).
+        let d = [
+            DVec3::new(3.0, 0.0, 0.0),
+            DVec3::new(0.0, 3.0, 0.0),
+            DVec3::new(0.0, 0.0, 3.0),
+        ];
+        assert!(!triangle_meets_box(d, DVec3::ZERO, e));
+        assert!(triangle_meets_box(d, DVec3::splat(0.8), e));
+    }
+
+    /// The unit cube at h = ¼: 4³ cells, all kept, 5³ particles, the cuboid's springs.
+    #[test]
+    fn a_cube_fills_its_lattice() {
+        let v = Voxels::new(unit_cube(), DVec3::ONE, LatticeSize::Cell(0.25)).unwrap();
+        assert_eq!(v.cells(), [4, 4, 4]);
+        assert_eq!(v.present_cells(), 64);
+        assert_eq!(v.inside_cells(), 64);
+        assert_eq!(v.particle_count(), 125);
+        assert_eq!(v.spring_counts(), topology::grid_spring_counts([5, 5, 5]));
+        assert!((v.volume() - 1.0).abs() < 1e-15);
+        // The lattice surface is the cube's: 6 faces × 16 squares × 2 triangles.
+        assert_eq!(v.lattice_surface().len(), 6 * 16 * 2);
+        // Resolution 4 along the longest side is the same lattice.
+        let r = Voxels::new(unit_cube(), DVec3::ONE, LatticeSize::Resolution(4)).unwrap();
+        assert_eq!((r.cells(), r.cell()), ([4, 4, 4], 0.25));
+    }
+
+    /// Weights sum to 1 and reproduce the vertex: Σ w_c x_c = x.
+    #[test]
+    fn embedding_weights_reproduce_the_vertices() {
+        let v = Voxels::new(
+            unit_cube(),
+            DVec3::new(1.0, 2.0, 0.5),
+            LatticeSize::Cell(0.3),
+        )
+        .unwrap();
+        let x: Vec<DVec3> = v.points().iter().map(|&p| v.local(p)).collect();
+        for ((corners, weights), p) in v.embedding().iter().zip(&v.mesh().vertices) {
+            assert!((weights.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+            let sum: DVec3 = (0..8).map(|c| weights[c] * x[corners[c] as usize]).sum();
+            assert!(
+                (sum - (*p * v.scale() - v.offset())).length() < 1e-15,
+                "{sum} {p}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_meshes_are_refused_with_the_key() {
+        let mut m = unit_cube();
+        m.triangles.clear();
+        let e = Voxels::new(m, DVec3::ONE, LatticeSize::Cell(0.1)).unwrap_err();
+        assert_eq!(e.key, VoxelKey::File);
+        assert!(e.message.ends_with("holds no triangles"), "{}", e.message);
+
+        // Half the cube's faces: an open box with w near ½ everywhere inside.
+        let mut m = unit_cube();
+        m.triangles.truncate(6);
+        let e = Voxels::new(m, DVec3::ONE, LatticeSize::Cell(0.1)).unwrap_err();
+        assert_eq!(e.key, VoxelKey::File);
+        assert!(e.message.contains("not closed enough"), "{}", e.message);
+
+        // One triangle missing: still voxelised as the cube.
+        let mut m = unit_cube();
+        m.triangles.remove(3);
+        let v = Voxels::new(m, DVec3::ONE, LatticeSize::Cell(0.25)).unwrap();
+        assert!(!v.is_closed());
+        assert_eq!(v.present_cells(), 64);
+
+        // A flat square (two triangles): every cell meets it, no centre is inside.
+        let m = TriangleMesh {
+            path: "flat.obj".into(),
+            vertices: vec![DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+        };
+        let e = Voxels::new(m, DVec3::ONE, LatticeSize::Cell(0.25)).unwrap_err();
+        assert_eq!(e.key, VoxelKey::Size);
+        assert!(
+            e.message.starts_with("no cell of the 4 × 4 × 1 lattice"),
+            "{}",
+            e.message
+        );
+
+        let e = Voxels::new(unit_cube(), DVec3::ONE, LatticeSize::Cell(1e-7)).unwrap_err();
+        assert_eq!(e.key, VoxelKey::Size);
+        assert!(e.message.contains("particles supported"), "{}", e.message);
+    }
+}

@@ -1,0 +1,369 @@
+//! Mesh bodies (`kind = "mesh"`) from scene files: the embedded surface at rest, the lattice
+//! volume's convergence, the box mesh against the cuboid, springs across gaps, and the located
+//! errors of bad input.
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use softbody_scene::topology;
+use softbody_scene::voxel::{LatticeSize, Voxels, enclosed_volume};
+use softbody_scene::{BodyShape, Model, Scene, SceneError, TriangleMesh};
+
+/// Writes `mesh` as `name` in `dir` and returns its path.
+fn write_obj(dir: &Path, name: &str, mesh: &TriangleMesh) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, mesh.to_obj("test mesh")).unwrap();
+    path
+}
+
+/// A scene of one mesh body with `keys` (TOML lines), no terrain, saved beside the meshes.
+fn scene_text(keys: &str) -> String {
+    format!(
+        "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nname = \"m\"\nkind = \"mesh\"\n\
+         {keys}\n"
+    )
+}
+
+fn load(dir: &Path, text: &str) -> Result<Scene, SceneError> {
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).unwrap();
+    Scene::from_file(&path)
+}
+
+/// At frame 0 every vertex of the embedded surface is the input vertex after the scene's
+/// transform (scale, rotation, translation of the bounding-box centre onto `center`), to
+/// 1e-12 m: the trilinear weights reproduce any affine map of the lattice.
+#[test]
+fn embedded_surface_is_the_input_mesh_at_frame_0() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(
+        dir.path(),
+        "torus.obj",
+        &TriangleMesh::torus(0.5, 0.2, 48, 24),
+    );
+    write_obj(
+        dir.path(),
+        "star.obj",
+        &TriangleMesh::star_prism(5, 0.5, 0.22, 0.15),
+    );
+    let text = scene_text(
+        "file = \"torus.obj\"\ncell = 0.06\ncenter = [1.0, 2.0, -3.0]\n\
+         rotation = [20.0, 35.0, -50.0]\nscale = [1.2, 0.8, 1.0]\nmass = 2.0\n\
+         structural = { stiffness = 100.0 }\n\n\
+         [[body]]\nname = \"star\"\nkind = \"mesh\"\nfile = \"star.obj\"\nresolution = 9\n\
+         center = [0.0, 0.5, 0.0]\nrotation = [90.0, 0.0, 10.0]\nscale = 1.5\ndensity = 1000.0\n",
+    );
+    let scene = load(dir.path(), &text).unwrap();
+    let (model, state) = Model::build(&scene);
+    let surface = model.embedded.apply(&state.x);
+    assert_eq!(model.embedded.meshes.len(), 2);
+    assert!(
+        model.surface.is_empty(),
+        "mesh bodies show their mesh, not the lattice"
+    );
+    let mut worst = 0.0f64;
+    for (b, mesh) in model.embedded.meshes.iter().enumerate() {
+        let BodyShape::Mesh(m) = &scene.bodies[b].shape else {
+            panic!("body {b} is a mesh body")
+        };
+        let input = m.voxels.mesh();
+        assert_eq!(mesh.vertices as usize, input.vertices.len());
+        let first = mesh.first_vertex as usize;
+        for (k, &p) in input.vertices.iter().enumerate() {
+            worst = worst.max((surface[first + k] - m.place(p)).length());
+        }
+        let tris = &model.embedded.triangles
+            [mesh.first_triangle as usize..(mesh.first_triangle + mesh.triangles) as usize];
+        let back: Vec<[u32; 3]> = tris
+            .iter()
+            .map(|t| t.map(|i| i - mesh.first_vertex))
+            .collect();
+        assert_eq!(back, input.triangles, "the input's faces, in its order");
+    }
+    println!("largest distance from the transformed input: {worst:.3e} m");
+    assert!(worst <= 1e-12, "{worst:e}");
+}
+
+/// The lattice keeps every cell a triangle meets and every cell whose centre is inside, so its
+/// volume V_h is at least the mesh's V and exceeds it by a band of cells along the surface:
+/// V_h − V = O(A h), first order in the cell. Measured on a torus (R = 1 m, r = 0.4 m, 96 × 48
+/// quads; V is the polygon's exact volume, Σ a·(b × c)/6) at h = r/4 … r/32: the fitted order
+/// lies within 0.1 of 1, and the error is between 0.2 and 1 times A·h (A the mesh's area).
+#[test]
+fn lattice_volume_converges_at_first_order() {
+    let mesh = TriangleMesh::torus(1.0, 0.4, 96, 48);
+    let volume = enclosed_volume(&mesh.vertices, &mesh.triangles);
+    let area: f64 = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
+            0.5 * (b - a).cross(c - a).length()
+        })
+        .sum();
+    let mut rows = Vec::new();
+    for k in 2..=5 {
+        let h = 0.4 / f64::from(1u32 << k);
+        let v = Voxels::new(mesh.clone(), DVec3::ONE, LatticeSize::Cell(h)).unwrap();
+        let error = v.volume() - volume;
+        println!(
+            "h = {h:.4} m: {} cells kept, V_h = {:.5} m³, V_h − V = {error:.5} m³ = {:.3} A·h",
+            v.present_cells(),
+            v.volume(),
+            error / (area * h)
+        );
+        assert!(error > 0.0, "the lattice covers the mesh");
+        assert!((0.2..=1.0).contains(&(error / (area * h))), "h = {h}");
+        rows.push((h.ln(), error.ln()));
+    }
+    // Least-squares slope of ln(error) against ln(h).
+    let n = rows.len() as f64;
+    let (mx, my) = rows
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let slope = rows.iter().map(|(x, y)| (x - mx) * (y - my)).sum::<f64>()
+        / rows.iter().map(|(x, _)| (x - mx).powi(2)).sum::<f64>();
+    println!("V = {volume:.5} m³, A = {area:.4} m², fitted order {slope:.3}");
+    assert!((slope - 1.0).abs() <= 0.1, "order {slope}");
+}
+
+/// A box mesh voxelised at a cell that divides it is the cuboid of the same lattice: the same
+/// particles (positions to 1e-12 m, masses), the same springs in the same order (ends, rest
+/// lengths to 1e-12 m, parameters), the same adjacency, contact data and spring counts, and,
+/// with `surface = "lattice"`, the cuboid's surface triangles.
+#[test]
+fn a_box_mesh_is_the_cuboid_of_its_lattice() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(
+        dir.path(),
+        "box.obj",
+        &TriangleMesh::cube(DVec3::new(3.0, -1.0, 2.0), 1.0),
+    );
+    let springs = "structural = { stiffness = 100.0, damping = 0.5 }\n\
+                   shear = { stiffness = 80.0, damping = 0.25 }\n\
+                   bending = { stiffness = 60.0, damping = 0.125 }\n";
+    let place = "center = [0.5, 1.0, -0.25]\nrotation = [10.0, 20.0, 30.0]\n\
+                 velocity = [0.5, 0.0, -1.0]\nmass = 2.0\n";
+    let mesh = load(
+        dir.path(),
+        &scene_text(&format!(
+            "file = \"box.obj\"\nscale = [0.4, 0.3, 0.2]\ncell = 0.05\nsurface = \"lattice\"\n\
+             {place}{springs}"
+        )),
+    )
+    .unwrap();
+    let cuboid = load(
+        dir.path(),
+        &scene_text(&format!(
+            "size = [0.4, 0.3, 0.2]\nresolution = [9, 7, 5]\n{place}{springs}"
+        ))
+        .replace("kind = \"mesh\"", "kind = \"cuboid\""),
+    )
+    .unwrap();
+    let (a, sa) = Model::build(&mesh);
+    let (b, sb) = Model::build(&cuboid);
+    assert_eq!(a.len(), 9 * 7 * 5);
+    assert_eq!(a.len(), b.len());
+    let dx =
+        sa.x.iter()
+            .zip(&sb.x)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0, f64::max);
+    println!("largest particle distance: {dx:.3e} m");
+    assert!(dx <= 1e-12, "{dx:e}");
+    assert_eq!(sa.v, sb.v);
+    assert_eq!(a.mass, b.mass);
+    assert_eq!(a.inv_mass, b.inv_mass);
+    assert_eq!(a.springs.a, b.springs.a);
+    assert_eq!(a.springs.b, b.springs.b);
+    assert_eq!(a.springs.stiffness, b.springs.stiffness);
+    assert_eq!(a.springs.damping, b.springs.damping);
+    let dr = a
+        .springs
+        .rest
+        .iter()
+        .zip(&b.springs.rest)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0.0, f64::max);
+    assert!(dr <= 1e-12, "{dr:e}");
+    assert_eq!(a.adjacency, b.adjacency);
+    assert_eq!(a.spring_counts, b.spring_counts);
+    assert_eq!(a.spring_counts, topology::grid_spring_counts([9, 7, 5]));
+    // The contact radius is half the cell, 0.05/2, against half of 0.3/6: equal to 1e-17.
+    assert_eq!(a.contact.lattice, b.contact.lattice);
+    assert_eq!(a.contact.body, b.contact.body);
+    assert!(
+        a.contact
+            .radius
+            .iter()
+            .zip(&b.contact.radius)
+            .all(|(p, q)| (p - q).abs() < 1e-17)
+    );
+    let sorted = |t: &[[u32; 3]]| {
+        let mut t = t.to_vec();
+        t.sort();
+        t
+    };
+    assert_eq!(sorted(&a.surface), sorted(&b.surface));
+    assert!(a.embedded.is_empty());
+}
+
+/// Two boxes one cell apart in one file: the particles facing each other across the gap are
+/// present (corners of kept cells) and one cell apart, but no spring joins the two boxes — a
+/// spring is kept only inside kept cells.
+#[test]
+fn springs_do_not_bridge_a_gap() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut two = TriangleMesh::cube(DVec3::ZERO, 0.4);
+    let other = TriangleMesh::cube(DVec3::new(0.5, 0.0, 0.0), 0.4);
+    let n = two.vertices.len() as u32;
+    two.vertices.extend(other.vertices);
+    two.triangles
+        .extend(other.triangles.iter().map(|t| t.map(|i| i + n)));
+    write_obj(dir.path(), "two.obj", &two);
+    let scene = load(
+        dir.path(),
+        &scene_text(
+            "file = \"two.obj\"\ncell = 0.1\nmass = 1.0\nstructural = { stiffness = 1.0 }\n\
+             shear = { stiffness = 1.0 }\nbending = { stiffness = 1.0 }\n",
+        ),
+    )
+    .unwrap();
+    let (model, state) = Model::build(&scene);
+    // 9 × 4 × 4 cells, the middle column of 16 empty: 2 × 5³ particles.
+    assert_eq!(model.len(), 250);
+    let side = |p: u32| state.x[p as usize].x > 0.0;
+    let crossing = (0..model.springs.len())
+        .filter(|&s| side(model.springs.a[s]) != side(model.springs.b[s]))
+        .count();
+    assert_eq!(crossing, 0);
+    // Each box has the springs of a 5³ cuboid.
+    let one = topology::grid_spring_counts([5, 5, 5]);
+    assert_eq!(model.spring_counts, one + one);
+}
+
+/// The located error of a scene, as `line: key: message`.
+fn error(dir: &Path, keys: &str) -> String {
+    let e = load(dir, &scene_text(keys)).unwrap_err();
+    let d = e.diagnostic().expect("a located error");
+    format!("{}: {}: {}", d.line, d.key, d.message)
+}
+
+/// Bad input is refused with the line and key it is about, never a panic.
+#[test]
+fn bad_input_is_located() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_obj(d, "cube.obj", &TriangleMesh::cube(DVec3::ZERO, 1.0));
+    let mut open = TriangleMesh::cube(DVec3::ZERO, 1.0);
+    open.triangles.truncate(6);
+    write_obj(d, "open.obj", &open);
+    std::fs::write(d.join("points.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\n").unwrap();
+    std::fs::write(d.join("broken.obj"), "v 0 0 0\nv 1 0 0\nf 1 2 x\n").unwrap();
+    let flat = TriangleMesh {
+        path: "flat.obj".into(),
+        vertices: vec![DVec3::ZERO, DVec3::X, DVec3::new(1.0, 0.0, 1.0), DVec3::Z],
+        triangles: vec![[0, 2, 1], [0, 3, 2]],
+    };
+    write_obj(d, "flat.obj", &flat);
+    let ok = "mass = 1.0\ncell = 0.25\n";
+
+    let e = error(d, &format!("file = \"missing.obj\"\n{ok}"));
+    assert!(e.starts_with("8: body[0].file: mesh file "), "{e}");
+    assert!(e.ends_with("missing.obj does not exist"), "{e}");
+    let e = error(d, &format!("file = \"broken.obj\"\n{ok}"));
+    assert!(e.starts_with("8: body[0].file: mesh file "), "{e}");
+    assert!(e.contains("is not a valid OBJ file"), "{e}");
+    let e = error(d, &format!("file = \"points.obj\"\n{ok}"));
+    assert!(
+        e.starts_with("8: body[0].file: ") && e.ends_with("holds no triangles"),
+        "{e}"
+    );
+    let e = error(d, &format!("file = \"open.obj\"\n{ok}"));
+    assert!(e.starts_with("8: body[0].file: "), "{e}");
+    assert!(
+        e.contains("is not closed enough to tell inside from outside"),
+        "{e}"
+    );
+    let e = error(d, &format!("file = \"flat.obj\"\n{ok}"));
+    assert!(
+        e.starts_with("10: body[0].cell: no cell of the 4 × 1 × 4 lattice"),
+        "{e}"
+    );
+    let e = error(d, "file = \"cube.obj\"\nmass = 1.0\ncell = 1e-4\n");
+    assert!(
+        e.starts_with("10: body[0].cell: a lattice of 10000 × 10000 × 10000 cells"),
+        "{e}"
+    );
+    assert!(e.ends_with("particles supported"), "{e}");
+    let e = error(d, "file = \"cube.obj\"\nmass = 1.0\nresolution = 0\n");
+    assert_eq!(
+        e,
+        "10: body[0].resolution: must be a number of cells from 1 to 4294967295, not 0"
+    );
+    let e = error(
+        d,
+        "file = \"cube.obj\"\nmass = 1.0\nresolution = [2, 2, 2]\n",
+    );
+    assert_eq!(
+        e,
+        "10: body[0].resolution: a mesh body's resolution is one number: cells along the \
+         longest side"
+    );
+    let e = error(
+        d,
+        "file = \"cube.obj\"\nmass = 1.0\ncell = 0.5\nresolution = 4\n",
+    );
+    assert_eq!(
+        e,
+        "11: body[0].resolution: give either `cell` or `resolution`, not both"
+    );
+    let e = error(d, "file = \"cube.obj\"\ncell = 0.5\n");
+    assert!(e.contains("needs the key `mass` (kg) or `density`"), "{e}");
+    let e = error(d, "file = \"cube.obj\"\nmass = 1.0\ncell = -0.5\n");
+    assert_eq!(e, "10: body[0].cell: must be greater than zero, not -0.5");
+    let e = error(
+        d,
+        &format!("file = \"cube.obj\"\n{ok}scale = [1.0, 0.0, 1.0]\n"),
+    );
+    assert_eq!(e, "11: body[0].scale[1]: must be greater than zero, not 0");
+    let e = error(
+        d,
+        &format!("file = \"cube.obj\"\n{ok}contact_radius = 0.3\n"),
+    );
+    assert!(
+        e.starts_with("11: body[0].contact_radius: 0.3 m is more than the mesh body's cell"),
+        "{e}"
+    );
+    let e = error(
+        d,
+        &format!("file = \"cube.obj\"\n{ok}size = [1.0, 1.0, 1.0]\n"),
+    );
+    assert_eq!(e, "11: body[0].size: `size` is not a key of a `mesh body`");
+    let e = error(d, &format!("file = \"cube.obj\"\n{ok}pinned = [125]\n"));
+    assert_eq!(
+        e,
+        "11: body[0].pinned[0]: particle 125 does not exist: the body has 125 particles"
+    );
+    let e = error(
+        d,
+        &format!("file = \"cube.obj\"\n{ok}surface = \"voxels\"\n"),
+    );
+    assert!(
+        e.starts_with("11: body[0].surface: unknown variant `voxels`"),
+        "{e}"
+    );
+    // A cuboid's resolution stays three numbers.
+    let text = scene_text("size = [1.0, 1.0, 1.0]\nresolution = 3\nmass = 1.0\n")
+        .replace("kind = \"mesh\"", "kind = \"cuboid\"");
+    let e = load(d, &text).unwrap_err();
+    let d = e.diagnostic().unwrap();
+    assert_eq!(
+        (d.line, d.key.to_string(), d.message.as_str()),
+        (
+            9,
+            "body[0].resolution".to_owned(),
+            "a cuboid's resolution is three particle counts, [nx, ny, nz]"
+        )
+    );
+}
