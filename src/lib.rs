@@ -38,6 +38,7 @@ pub mod compare;
 pub mod output;
 mod overrides;
 pub mod run;
+pub mod sweep;
 pub mod warnings;
 
 use std::fmt;

@@ -15,6 +15,7 @@ mod compare;
 mod progress;
 mod render;
 mod run;
+mod sweep;
 
 use std::borrow::Cow;
 use std::io::Write;
@@ -60,6 +61,9 @@ enum Command {
     Render(render::RenderArgs),
     /// Run a scene with several integrators and time steps against a converged rk4 reference.
     Compare(compare::CompareArgs),
+    /// Run a scene many times with values changed (a grid, a list or random draws), in
+    /// parallel, one output per run and a manifest; resumable.
+    Sweep(sweep::SweepArgs),
 }
 
 /// A failure with its exit status.
@@ -92,6 +96,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::bench(args),
         Command::Render(args) => render::render(args),
         Command::Compare(args) => compare::compare(args),
+        Command::Sweep(args) => sweep::sweep(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
