@@ -232,6 +232,11 @@ pub struct Header {
     /// JSON header (empty when read).
     #[serde(skip)]
     pub surface: Vec<[u32; 3]>,
+    /// The mesh bodies' input meshes, carried by their particles
+    /// ([`softbody_scene::Model::embedded`]); not serialised in the JSON header (empty when
+    /// read).
+    #[serde(skip)]
+    pub embedded: softbody_scene::model::Embedded,
 }
 
 impl Header {
@@ -272,6 +277,7 @@ impl Header {
             stiffness: model.springs.stiffness.clone(),
             damping: model.springs.damping.clone(),
             surface: model.surface.clone(),
+            embedded: model.embedded.clone(),
         }
     }
 }

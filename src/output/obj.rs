@@ -1,12 +1,13 @@
 //! Wavefront OBJ for Blender and Houdini: one ASCII file per frame holding the surface mesh
-//! ([`SurfaceMesh`]: the surface particles, plus every particle of a body without a surface
+//! ([`SurfaceMesh`]: the surface particles, then the mesh bodies' own meshes — the input
+//! file's vertices and faces, in its order — plus every particle of a body without a surface
 //! as a lone vertex), `v x y z` lines then `f a b c` triangles (1-based, outward
 //! counter-clockwise).
 //!
 //! Coordinates are printed in Rust's shortest round-trip form (`{:?}`: with an exponent when
 //! tiny or huge, `1e-300` rather than 300 digits), so they read back to the same f64. OBJ has
 //! no place for velocities or particle numbers: vertices are the mesh's particles in ascending
-//! order, the same in every frame (the PLY export carries both).
+//! order, then the embedded vertices, the same in every frame (the PLY export carries both).
 
 use std::io::{self, Write};
 use std::path::PathBuf;
@@ -40,12 +41,7 @@ impl FrameSink for ObjSink {
 
     fn frame(&mut self, f: &Frame<'_>) -> io::Result<()> {
         let mesh = &self.mesh;
-        let n = f.positions.len();
-        if let Some(&p) = mesh.particles.iter().find(|&&p| p as usize >= n) {
-            return Err(super::series::bad_header(format!(
-                "the mesh names particle {p} of a frame of {n}"
-            )));
-        }
+        let vertices = mesh.vertex_values(f.positions)?;
         let name = frame_file_name(&self.stem, f.index, "obj");
         write_file(&self.dir, &name, |out| {
             writeln!(
@@ -53,11 +49,10 @@ impl FrameSink for ObjSink {
                 "# softbody frame {} time {} s: {} vertices, {} triangles",
                 f.index,
                 f.time,
-                mesh.particles.len(),
+                vertices.len(),
                 mesh.faces.len()
             )?;
-            for &p in &mesh.particles {
-                let x = f.positions[p as usize];
+            for x in &vertices {
                 writeln!(out, "v {:?} {:?} {:?}", x.x, x.y, x.z)?;
             }
             for [a, b, c] in &mesh.faces {

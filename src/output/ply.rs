@@ -1,5 +1,7 @@
 //! PLY for Blender and Houdini: one `binary_little_endian` file per frame holding the surface
-//! mesh ([`SurfaceMesh`]: the surface particles, plus every particle of a body without a
+//! mesh ([`SurfaceMesh`]: the surface particles, then the mesh bodies' own meshes — the input
+//! file's vertices and faces, in its order, each vertex's velocity the same weighted sum as
+//! its position and its `particle` 0xFFFFFFFF — plus every particle of a body without a
 //! surface as a lone vertex).
 //!
 //! ```text
@@ -57,12 +59,8 @@ impl FrameSink for PlySink {
 
     fn frame(&mut self, f: &Frame<'_>) -> io::Result<()> {
         let mesh = &self.mesh;
-        let n = f.positions.len().min(f.velocities.len());
-        if let Some(&p) = mesh.particles.iter().find(|&&p| p as usize >= n) {
-            return Err(super::series::bad_header(format!(
-                "the mesh names particle {p} of a frame of {n}"
-            )));
-        }
+        let x = mesh.vertex_values(f.positions)?;
+        let v = mesh.vertex_values(f.velocities)?;
         let name = frame_file_name(&self.stem, f.index, "ply");
         write_file(&self.dir, &name, |out| {
             write!(
@@ -74,11 +72,16 @@ impl FrameSink for PlySink {
                  property list uchar uint vertex_indices\nend_header\n",
                 f.index,
                 f.time,
-                mesh.particles.len(),
+                x.len(),
                 mesh.faces.len()
             )?;
-            for &p in &mesh.particles {
-                let (x, v) = (f.positions[p as usize], f.velocities[p as usize]);
+            // Embedded vertices are no particle: 0xFFFFFFFF.
+            let particle = mesh
+                .particles
+                .iter()
+                .copied()
+                .chain(std::iter::repeat(u32::MAX));
+            for ((x, v), p) in x.iter().zip(&v).zip(particle) {
                 for c in [x.x, x.y, x.z, v.x, v.y, v.z] {
                     out.write_all(&c.to_le_bytes())?;
                 }

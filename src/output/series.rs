@@ -5,6 +5,9 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
+use glam::DVec3;
+use softbody_scene::model::Embedded;
+
 use super::Header;
 
 /// The name of frame `index`'s file: `<stem>_<index, 6 digits or more>.<ext>`, so that the
@@ -45,13 +48,17 @@ pub(crate) fn check_indices<const K: usize>(
 }
 
 /// The mesh the PLY and OBJ writers export: the surface triangles over the particles they
-/// use, plus every particle of a body without a surface (a particle set) as a lone vertex, so
-/// that such bodies are not lost. Vertices are in ascending particle order, the same every
-/// frame, which is what mesh-sequence importers need.
+/// use, then the mesh bodies' input meshes (their vertices weighted sums of particles,
+/// [`softbody_scene::model::Embedded`]: each file's vertices and faces in its own order), plus
+/// every particle of a body with neither (a particle set) as a lone vertex, so that such
+/// bodies are not lost. Vertices are the particles in ascending order, then the embedded
+/// vertices, the same every frame, which is what mesh-sequence importers need.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub(crate) struct SurfaceMesh {
-    /// The particle of each vertex, ascending.
+    /// The particle of each of the first vertices, ascending.
     pub particles: Vec<u32>,
+    /// The vertices after them.
+    pub embedded: Embedded,
     /// Triangles over vertex numbers (0-based), outward counter-clockwise.
     pub faces: Vec<[u32; 3]>,
 }
@@ -60,13 +67,27 @@ impl SurfaceMesh {
     pub fn new(header: &Header) -> io::Result<SurfaceMesh> {
         let n = header.particles;
         check_indices(&header.surface, n, "surface triangle")?;
+        check_indices(&header.embedded.corners, n, "mesh vertex")?;
+        let embedded = &header.embedded;
+        if embedded.weights.len() != embedded.corners.len() {
+            return Err(bad_header(format!(
+                "{} mesh vertex weights for {} vertices",
+                embedded.weights.len(),
+                embedded.corners.len()
+            )));
+        }
+        check_indices(
+            &embedded.triangles,
+            embedded.len(),
+            "mesh triangle (of its vertices)",
+        )?;
         let mut used = vec![false; n];
         for &i in header.surface.iter().flatten() {
             used[i as usize] = true;
         }
-        for body in &header.bodies {
+        for (b, body) in header.bodies.iter().enumerate() {
             let range = body.first as usize..(body.first as usize + body.count as usize).min(n);
-            if !used[range.clone()].contains(&true) {
+            if !used[range.clone()].contains(&true) && !embedded.has_body(b as u32) {
                 used[range].fill(true);
             }
         }
@@ -76,12 +97,37 @@ impl SurfaceMesh {
             vertex[i] = particles.len() as u32;
             particles.push(i as u32);
         }
+        let shift = particles.len() as u32;
         let faces = header
             .surface
             .iter()
             .map(|t| t.map(|i| vertex[i as usize]))
+            .chain(embedded.triangles.iter().map(|t| t.map(|i| shift + i)))
             .collect();
-        Ok(SurfaceMesh { particles, faces })
+        Ok(SurfaceMesh {
+            particles,
+            embedded: embedded.clone(),
+            faces,
+        })
+    }
+
+    /// Each vertex's value from the particles' `values` (positions or velocities): the
+    /// particles', then the embedded vertices'. `values` must cover every particle named.
+    pub fn vertex_values(&self, values: &[DVec3]) -> io::Result<Vec<DVec3>> {
+        let n = values.len();
+        let named = self
+            .particles
+            .last()
+            .copied()
+            .max(self.embedded.max_particle());
+        if let Some(p) = named.filter(|&p| p as usize >= n) {
+            return Err(bad_header(format!(
+                "the mesh names particle {p} of a frame of {n}"
+            )));
+        }
+        let mut out: Vec<DVec3> = self.particles.iter().map(|&p| values[p as usize]).collect();
+        self.embedded.apply_into(values, &mut out);
+        Ok(out)
     }
 }
 
@@ -124,6 +170,7 @@ pub(crate) mod tests {
             springs,
             rest,
             surface,
+            embedded: Embedded::default(),
         }
     }
 

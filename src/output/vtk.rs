@@ -1,10 +1,12 @@
 //! VTK for ParaView: a `.pvd` collection naming one `.vtu` (XML UnstructuredGrid) per frame.
 //!
 //! Each `.vtu` holds one piece:
-//! - points: the particles (`Float64`), with point data `velocity` (3 components, m/s) and
-//!   `speed` (|v|, m/s);
+//! - points: the particles (`Float64`), then the vertices of the mesh bodies' own meshes
+//!   (weighted sums of particles, each file's vertices in its order), with point data
+//!   `velocity` (3 components, m/s) and `speed` (|v|, m/s);
 //! - cells: first every spring as a line (`VTK_LINE`, in the header's spring order), then every
-//!   surface triangle (`VTK_TRIANGLE`, outward counter-clockwise; cuboid bodies only), with
+//!   surface triangle (`VTK_TRIANGLE`, outward counter-clockwise: the cuboids' and lattice
+//!   surfaces, then the mesh bodies' meshes, each file's faces in its order), with
 //!   cell data `kind` (`UInt8`: 0 spring, 1 surface triangle; ParaView's Threshold on it
 //!   shows either) and `strain` ((|x_a − x_b| − rest) / rest for springs, NaN for triangles);
 //! - field data `TimeValue`: the frame's time, so a lone `.vtu` still knows it.
@@ -25,6 +27,8 @@
 
 use std::io::{self, Write};
 use std::path::PathBuf;
+
+use softbody_scene::model::Embedded;
 
 use super::series::{self, check_indices, frame_file_name, write_file};
 use super::{Frame, FrameSink, Header};
@@ -49,6 +53,8 @@ pub struct VtkSink {
     springs: Vec<[u32; 2]>,
     rest: Vec<f64>,
     triangles: usize,
+    /// The mesh bodies' meshes, whose vertices are points after the particles.
+    embedded: Embedded,
     /// `<Cells>` and the `kind` cell array: the same every frame.
     cells: String,
     kind: String,
@@ -69,6 +75,7 @@ impl VtkSink {
             springs: Vec::new(),
             rest: Vec::new(),
             triangles: 0,
+            embedded: Embedded::default(),
             cells: String::new(),
             kind: String::new(),
             written: Vec::new(),
@@ -163,6 +170,20 @@ impl FrameSink for VtkSink {
         let n = header.particles;
         check_indices(&header.springs, n, "spring")?;
         check_indices(&header.surface, n, "surface triangle")?;
+        check_indices(&header.embedded.corners, n, "mesh vertex")?;
+        let embedded = &header.embedded;
+        check_indices(
+            &embedded.triangles,
+            embedded.len(),
+            "mesh triangle (of its vertices)",
+        )?;
+        if embedded.weights.len() != embedded.corners.len() {
+            return Err(series::bad_header(format!(
+                "{} mesh vertex weights for {} vertices",
+                embedded.weights.len(),
+                embedded.corners.len()
+            )));
+        }
         if header.rest.len() != header.springs.len() {
             return Err(series::bad_header(format!(
                 "{} rest lengths for {} springs",
@@ -173,11 +194,18 @@ impl FrameSink for VtkSink {
         self.particles = n;
         self.springs = header.springs.clone();
         self.rest = header.rest.clone();
-        self.triangles = header.surface.len();
+        self.triangles = header.surface.len() + embedded.triangles.len();
+        self.embedded = embedded.clone();
 
-        let lines = self.springs.iter().flatten();
-        let triangles = header.surface.iter().flatten();
-        let connectivity = i64_bytes(lines.chain(triangles).map(|&i| i64::from(i)));
+        // The embedded vertices are points after the particles.
+        let lines = self.springs.iter().flatten().map(|&i| i64::from(i));
+        let triangles = header.surface.iter().flatten().map(|&i| i64::from(i));
+        let meshes = embedded
+            .triangles
+            .iter()
+            .flatten()
+            .map(|&i| (n + i as usize) as i64);
+        let connectivity = i64_bytes(lines.chain(triangles).chain(meshes));
         let offsets = i64_bytes(
             (1..=self.springs.len())
                 .map(|s| 2 * s as i64)
@@ -214,6 +242,15 @@ impl FrameSink for VtkSink {
             .into_iter()
             .chain(std::iter::repeat_n(f64::NAN, self.triangles));
         let cells = self.springs.len() + self.triangles;
+        let (x, v) = if self.embedded.is_empty() {
+            (f.positions.to_vec(), f.velocities.to_vec())
+        } else {
+            let mut x = f.positions.to_vec();
+            self.embedded.apply_into(f.positions, &mut x);
+            let mut v = f.velocities.to_vec();
+            self.embedded.apply_into(f.velocities, &mut v);
+            (x, v)
+        };
 
         let mut xml = String::new();
         xml.push_str(
@@ -230,9 +267,8 @@ impl FrameSink for VtkSink {
         xml.push_str(&format!(
             "<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{cells}\">\n\
              <PointData Scalars=\"speed\" Vectors=\"velocity\">\n",
-            self.particles
+            x.len()
         ));
-        let v = f.velocities;
         data_array(
             &mut xml,
             "Float64",
@@ -256,7 +292,7 @@ impl FrameSink for VtkSink {
             "Float64",
             Some("Points"),
             3,
-            &f64_bytes(f.positions.iter().flat_map(|x| x.to_array())),
+            &f64_bytes(x.iter().flat_map(|x| x.to_array())),
         );
         xml.push_str("</Points>\n");
         xml.push_str(&self.cells);

@@ -1,8 +1,9 @@
 //! Headless pictures of `softbody` scenes: a deterministic CPU rasterizer, PNG and GIF output.
 //!
-//! A [`Renderer`] is built once from a [`Model`] (terrain, the bodies' outer surface, springs)
-//! and the box the bodies occupy over the frames to draw; [`Renderer::render_frame`] then draws
-//! one frame's particle positions into an RGB [`Image`]:
+//! A [`Renderer`] is built once from a [`Model`] (terrain, the bodies' outer surface, springs;
+//! a mesh body's surface is its own mesh, whose vertices follow its particles) and the box the
+//! bodies occupy over the frames to draw; [`Renderer::render_frame`] then draws one frame's
+//! particle positions into an RGB [`Image`]:
 //!
 //! - a vertical background gradient, the terrain ([`terrain`]) and the bodies' surface
 //!   triangles, through a pinhole [`Camera`] ([`camera`]) and a depth buffer ([`raster`]);
@@ -57,6 +58,7 @@ pub mod terrain;
 
 use glam::DVec3;
 use softbody_scene::Model;
+use softbody_scene::model::Embedded;
 
 pub use camera::Camera;
 pub use colormap::strain_color;
@@ -229,7 +231,10 @@ pub struct Renderer {
     view: camera::View,
     /// Background and terrain, drawn once: the camera does not move.
     base: Buffer,
+    /// Triangles over the particles and then the embedded vertices (number `particles + k`).
     surface: Vec<[u32; 3]>,
+    /// The mesh bodies' meshes, drawn instead of their lattices.
+    embedded: Embedded,
     surface_color: Vec<[u8; 3]>,
     springs: Vec<[u32; 2]>,
     rest: Vec<f64>,
@@ -288,15 +293,27 @@ impl Renderer {
                 .position(|b| (b.first..b.first + b.count).contains(&p))
                 .unwrap_or(0)
         };
-        let surface_color: Vec<[u8; 3]> = model
+        // A mesh body's own mesh: its vertices are numbered after the particles.
+        let n = model.len() as u32;
+        let mut surface = model.surface.clone();
+        let mut surface_color: Vec<[u8; 3]> = model
             .surface
             .iter()
             .map(|t| BODY_COLORS[body_of(t[0]) % BODY_COLORS.len()])
             .collect();
+        for mesh in &model.embedded.meshes {
+            let first = mesh.first_triangle as usize;
+            let triangles = &model.embedded.triangles[first..first + mesh.triangles as usize];
+            surface.extend(triangles.iter().map(|t| t.map(|i| n + i)));
+            let color = BODY_COLORS[mesh.body as usize % BODY_COLORS.len()];
+            surface_color.extend(std::iter::repeat_n(color, triangles.len()));
+        }
         let mut dots = Vec::new();
         for (k, b) in model.bodies.iter().enumerate() {
             let range = b.first..b.first + b.count;
-            if !model.surface.iter().any(|t| range.contains(&t[0])) {
+            if !model.surface.iter().any(|t| range.contains(&t[0]))
+                && !model.embedded.has_body(k as u32)
+            {
                 dots.extend(range.map(|p| (p, BODY_COLORS[k % BODY_COLORS.len()])));
             }
         }
@@ -305,7 +322,8 @@ impl Renderer {
             camera,
             view,
             base,
-            surface: model.surface.clone(),
+            surface,
+            embedded: model.embedded.clone(),
             surface_color,
             springs: model.springs.pairs(),
             rest: model.springs.rest.clone(),
@@ -333,12 +351,20 @@ impl Renderer {
             });
         }
         let mut scene = self.base.clone();
+        // The surface's vertices: the particles, then the embedded vertices.
+        let vertices: std::borrow::Cow<[DVec3]> = if self.embedded.is_empty() {
+            positions.into()
+        } else {
+            let mut all = positions.to_vec();
+            self.embedded.apply_into(positions, &mut all);
+            all.into()
+        };
         if self.options.shadows {
-            self.shadow(&mut scene, positions);
+            self.shadow(&mut scene, &vertices);
         }
         let mut body = Buffer::new(scene.width, scene.height, [0; 3]);
         for (t, &color) in self.surface.iter().zip(&self.surface_color) {
-            let corners = t.map(|p| positions[p as usize]);
+            let corners = t.map(|p| vertices[p as usize]);
             draw_shaded(&mut body, &self.view, corners, color);
         }
         if self.options.springs {
@@ -382,7 +408,8 @@ impl Renderer {
         ))
     }
 
-    /// Darkens the terrain pixels of `scene` that the bodies' surface hides from the light.
+    /// Darkens the terrain pixels of `scene` that the bodies' surface (over `positions`: the
+    /// particles, then the embedded vertices) hides from the light.
     ///
     /// A shadow map: the surface is rasterized orthographically along the light direction l
     /// into a [`SHADOW_MAP`]² grid over its extent across l, keeping the largest height p·l
