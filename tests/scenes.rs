@@ -31,7 +31,7 @@ fn main() -> ExitCode {
 const SIMULATED: f64 = 0.5;
 
 /// The scenes the README's table lists.
-const DOCUMENTED: [&str; 11] = [
+const DOCUMENTED: [&str; 13] = [
     "jelly-on-ground",
     "jelly-on-slope",
     "jelly-on-slope-sticky",
@@ -43,6 +43,8 @@ const DOCUMENTED: [&str; 11] = [
     "two-cubes-head-on",
     "pile-in-bowl",
     "bar-folding",
+    "torus-on-stairs",
+    "star-on-heightfield",
 ];
 
 fn scene_files() -> Vec<PathBuf> {
