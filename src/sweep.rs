@@ -756,6 +756,16 @@ impl Job {
             seconds: 0.0,
         };
         let end = |mut record: Record, status: Status, exit: u8, error: String| {
+            // Every record names every metric (no frames: 0 frames, the rest null), so the
+            // manifest reads as one table.
+            if record.metrics.is_empty() {
+                let none = Accumulator::default();
+                record.metrics = self
+                    .metrics
+                    .iter()
+                    .map(|m| (m.name().to_owned(), none.value(*m)))
+                    .collect();
+            }
             record.status = status;
             record.exit_status = exit;
             record.error = Some(error);
@@ -884,47 +894,7 @@ impl Manifest {
             move |source| SweepError::Io { path, source }
         };
         std::fs::create_dir_all(out).map_err(io(out))?;
-        let mut files = vec![out.join(MANIFEST)];
-        let mut tasks: Vec<PathBuf> = std::fs::read_dir(out)
-            .map_err(io(out))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                p.file_name()
-                    .and_then(|n| n.to_str())
-                    .is_some_and(|n| n.starts_with("manifest-task-") && n.ends_with(".jsonl"))
-            })
-            .collect();
-        tasks.sort();
-        files.extend(tasks);
-        let mut records: BTreeMap<usize, Record> = BTreeMap::new();
-        for file in &files {
-            for record in read_records(file)? {
-                let expected = sweep
-                    .runs
-                    .get(record.run)
-                    .map(|p| parameter_map(p))
-                    .filter(|p| *p == record.parameters);
-                if expected.is_none() {
-                    return Err(SweepError::Manifest {
-                        path: file.clone(),
-                        message: format!(
-                            "run {} there has other parameters than in {} ({}): the manifest \
-                             is another sweep's; give this one another out directory",
-                            record.run,
-                            sweep.file.display(),
-                            Json::Object(record.parameters.clone())
-                        ),
-                    });
-                }
-                let keep = match records.get(&record.run) {
-                    Some(old) => !old.status.finished() || record.status.finished(),
-                    None => true,
-                };
-                if keep {
-                    records.insert(record.run, record);
-                }
-            }
-        }
+        let mut records = collect(sweep, out)?;
         let path = match task {
             Some(i) => out.join(format!("manifest-task-{i}.jsonl")),
             None => out.join(MANIFEST),
@@ -996,6 +966,65 @@ impl Manifest {
         let records = self.records.lock().expect("not poisoned");
         records.values().cloned().collect()
     }
+}
+
+/// The records of `out`'s manifests (`manifest.jsonl`, then every `manifest-task-*.jsonl`),
+/// checked against `sweep`, one per run: a finished one over a failed one, else the last.
+fn collect(sweep: &Sweep, out: &Path) -> Result<BTreeMap<usize, Record>, SweepError> {
+    let mut files = vec![out.join(MANIFEST)];
+    let mut tasks: Vec<PathBuf> = match std::fs::read_dir(out) {
+        Ok(entries) => entries.filter_map(|e| e.ok().map(|e| e.path())).collect(),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Vec::new(),
+        Err(source) => {
+            return Err(SweepError::Io {
+                path: out.to_owned(),
+                source,
+            });
+        }
+    };
+    tasks.retain(|p| {
+        p.file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| n.starts_with("manifest-task-") && n.ends_with(".jsonl"))
+    });
+    tasks.sort();
+    files.extend(tasks);
+    let mut records: BTreeMap<usize, Record> = BTreeMap::new();
+    for file in &files {
+        for record in read_records(file)? {
+            let expected = sweep
+                .runs
+                .get(record.run)
+                .map(|p| parameter_map(p))
+                .filter(|p| *p == record.parameters);
+            if expected.is_none() {
+                return Err(SweepError::Manifest {
+                    path: file.clone(),
+                    message: format!(
+                        "run {} there has other parameters than in {} ({}): the manifest is \
+                         another sweep's; give this one another out directory",
+                        record.run,
+                        sweep.file.display(),
+                        Json::Object(record.parameters.clone())
+                    ),
+                });
+            }
+            let keep = match records.get(&record.run) {
+                Some(old) => !old.status.finished() || record.status.finished(),
+                None => true,
+            };
+            if keep {
+                records.insert(record.run, record);
+            }
+        }
+    }
+    Ok(records)
+}
+
+/// Every record of `sweep` in `out` (its manifest and its Slurm tasks' manifests), one per
+/// run that has one, in run order.
+pub fn read_manifest(sweep: &Sweep, out: &Path) -> Result<Vec<Record>, SweepError> {
+    Ok(collect(sweep, out)?.into_values().collect())
 }
 
 fn header_line(sweep: &Sweep) -> String {
@@ -1308,6 +1337,8 @@ friction = 0.3
             "{invalid:?}"
         );
         assert_eq!(invalid.file, None);
+        assert_eq!(invalid.metrics["frames"], Json::from(0));
+        assert_eq!(invalid.metrics["min_height"], Json::Null);
         assert!(!dir.path().join("runs/run-000001.npz").exists());
 
         let unstable = s.job(2, dir.path()).run();

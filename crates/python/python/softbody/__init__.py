@@ -1,0 +1,183 @@
+"""softbody: mass-spring soft bodies, simulated in Rust (CPU f64 on all cores, or a GPU through
+wgpu), with NumPy in and out.
+
+    import softbody
+    scene = softbody.load_scene("scenes/jelly-on-ground.toml", set={"body[0].mass": 10.0})
+    sim = softbody.Simulation(scene)          # backend="cpu" | "gpu", threads=None
+    sim.step(1000)                            # the GIL is released while it steps
+    x = sim.positions                         # [N, 3] float64, metres
+    traj = softbody.run(scene)                # every frame: traj.positions [F, N, 3], ...
+    records = softbody.sweep("sweeps/jelly-stiffness-friction.toml")   # or executor="ray"
+
+Errors are the library's, with the command line's messages: SceneError (a bad scene, setting
+or sweep file), UnstableError (with .step, .time, .particle and, from run(), the frames before
+it as .trajectory), DeviceError (no GPU adapter, a failed device), OutputError.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple, Union
+
+import numpy as np
+
+from . import _native
+from ._native import (
+    DeviceError,
+    OutputError,
+    Scene,
+    SceneError,
+    Simulation,
+    SoftbodyError,
+    SweepPlan,
+    UnstableError,
+)
+
+__version__ = _native.__version__
+
+__all__ = [
+    "DeviceError",
+    "OutputError",
+    "Scene",
+    "SceneError",
+    "Simulation",
+    "SoftbodyError",
+    "SweepPlan",
+    "Trajectory",
+    "UnstableError",
+    "load_scene",
+    "run",
+    "sweep",
+]
+
+SceneSource = Union[Scene, str, "os.PathLike[str]", Mapping[str, Any]]
+
+
+def load_scene(source: SceneSource, *, set: Optional[Mapping[str, Any]] = None) -> Scene:
+    """A scene from a file path, a dict laid out as the TOML file, or a Scene, with `set`
+    applied: ``{"body[0].structural.stiffness": 5000, "terrain[0].friction": 0.8}`` (key paths
+    as the command line's ``--set``). TOML text goes through ``Scene.from_toml``."""
+    settings = dict(set) if set else None
+    if isinstance(source, Scene):
+        return source.with_settings(settings) if settings else source
+    if isinstance(source, Mapping):
+        return Scene.from_dict(dict(source), set=settings)
+    if isinstance(source, (str, os.PathLike)):
+        return Scene.from_file(source, set=settings)
+    raise TypeError("a scene is a path to a scene file, a dict, or a softbody.Scene")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Every frame of a run, and what the run was (the NPZ output's arrays, same names)."""
+
+    time: np.ndarray  #: [F] s
+    positions: np.ndarray  #: [F, N, 3] m
+    velocities: np.ndarray  #: [F, N, 3] m/s
+    energy_kinetic: np.ndarray  #: [F] J
+    energy_gravitational: np.ndarray  #: [F] J
+    energy_elastic: np.ndarray  #: [F] J
+    dt: float
+    frame_rate: float
+    integrator: str
+    backend: str
+    device: str
+    masses: np.ndarray  #: [N] kg
+    springs: np.ndarray  #: [S, 2] uint32
+    rest_lengths: np.ndarray  #: [S] m
+    stiffness: np.ndarray  #: [S] N/m
+    damping: np.ndarray  #: [S] N·s/m
+    bodies: List[Tuple[str, int, int]] = field(default_factory=list)  #: (name, first, count)
+    scene_text: str = ""
+
+    @property
+    def energy_total(self) -> np.ndarray:
+        return self.energy_kinetic + self.energy_gravitational + self.energy_elastic
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+
+def _trajectory(d: Dict[str, Any]) -> Trajectory:
+    return Trajectory(**d)
+
+
+def run(
+    scene: SceneSource,
+    backend: str = "cpu",
+    threads: Optional[int] = None,
+    *,
+    set: Optional[Mapping[str, Any]] = None,
+) -> Trajectory:
+    """Runs the scene to its end (its duration and frame rate) and returns every frame. The
+    GIL is released while it runs. An instability raises UnstableError, whose `.trajectory`
+    holds the frames before it."""
+    if set:
+        scene = load_scene(scene, set=set)
+    try:
+        return _trajectory(_native.run(scene, backend, threads))
+    except UnstableError as e:
+        partial = getattr(e, "trajectory", None)
+        if isinstance(partial, dict):
+            e.trajectory = _trajectory(partial)
+        raise
+
+
+def _default_out(spec: Union[str, "os.PathLike[str]", Mapping[str, Any]]) -> Path:
+    if isinstance(spec, Mapping):
+        return Path("out") / "sweep"
+    return Path("out") / Path(spec).stem
+
+
+def _progress_printer(enabled: bool) -> Optional[Callable[[int, int], None]]:
+    if not enabled or not sys.stderr.isatty():
+        return None
+
+    def report(done: int, total: int) -> None:
+        end = "\n" if done == total else ""
+        print(f"\r{done}/{total} runs", end=end, file=sys.stderr, flush=True)
+
+    return report
+
+
+def sweep(
+    spec: Union[str, "os.PathLike[str]", Mapping[str, Any]],
+    *,
+    out: Union[str, "os.PathLike[str]", None] = None,
+    executor: str = "local",
+    workers: Optional[int] = None,
+    address: Optional[str] = None,
+    task_index: Optional[int] = None,
+    task_count: Optional[int] = None,
+    progress: bool = True,
+) -> List[Dict[str, Any]]:
+    """Runs a parameter sweep (a sweep file, or a dict laid out as one: docs/sweeps.md) into
+    `out` (default ``out/<sweep file stem>``) and returns the manifest's records, in run order:
+    ``{"run", "parameters", "status", "exit_status", "error"?, "metrics", "file", "seconds"}``.
+
+    ``executor="local"`` runs on this machine's cores (`workers` at once, default all);
+    ``executor="ray"`` runs each run as a Ray task on the cluster at `address` (``None``: the
+    one ``ray.init()`` finds or starts; ``"local"``: a new one on this machine). Both write the
+    same manifest, resume alike (finished runs are skipped, failed ones run again), and give
+    the same records. `task_index` / `task_count` take one Slurm array task's share (local
+    only)."""
+    out_dir = Path(out) if out is not None else _default_out(spec)
+    if executor == "local":
+        return _native.sweep_local(
+            spec,
+            out_dir,
+            workers,
+            task_index,
+            task_count,
+            _progress_printer(progress),
+        )
+    if executor == "ray":
+        if task_index is not None or task_count is not None:
+            raise ValueError("task_index and task_count are for local (Slurm) sweeps")
+        from ._ray import sweep_on_ray
+
+        return sweep_on_ray(spec, out_dir, address=address, progress=progress)
+    raise ValueError(f"unknown executor {executor!r}; expected 'local' or 'ray'")
