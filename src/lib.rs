@@ -34,6 +34,7 @@
 #![warn(missing_docs)]
 
 pub mod benchmark;
+pub mod checkpoint;
 pub mod compare;
 pub mod output;
 mod overrides;

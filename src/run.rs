@@ -15,7 +15,9 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::DVec3;
-use softbody_scene::{Energies, Instability, Solver, StepError};
+use softbody_scene::{Energies, History, Instability, Model, Solver, State, StepError};
+
+use crate::checkpoint::{CheckpointError, Checkpoints};
 
 use crate::output::{Frame, FrameSink, Header};
 
@@ -53,6 +55,9 @@ pub enum RunError {
     /// Writing frames failed.
     #[error("cannot write frames")]
     Io(#[from] std::io::Error),
+    /// Writing or resuming the checkpoint failed.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
 }
 
 impl From<StepError> for RunError {
@@ -77,9 +82,14 @@ pub struct Summary {
 
 /// The energy scale E_s of the solver's current (initial) state.
 pub fn energy_scale(solver: &mut dyn Solver, e0: &Energies) -> Result<f64, StepError> {
-    let g = solver.model().simulation.gravity.length();
-    let mass: f64 = solver.model().mass.iter().sum();
-    let x = &solver.state()?.x;
+    let x = solver.state()?.x.clone();
+    Ok(energy_scale_of(solver.model(), &x, e0))
+}
+
+/// The energy scale E_s of `model` at positions `x` with energies `e0`.
+fn energy_scale_of(model: &Model, x: &[DVec3], e0: &Energies) -> f64 {
+    let g = model.simulation.gravity.length();
+    let mass: f64 = model.mass.iter().sum();
     let (lo, hi) = x
         .iter()
         .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
@@ -90,7 +100,7 @@ pub fn energy_scale(solver: &mut dyn Solver, e0: &Energies) -> Result<f64, StepE
     } else {
         (hi - lo).length()
     };
-    Ok(e0.kinetic + e0.elastic + mass * g * (diagonal + 1.0))
+    e0.kinetic + e0.elastic + mass * g * (diagonal + 1.0)
 }
 
 /// Runs the solver to the end of its scene, writing each frame to `sink`; `progress` hears
@@ -121,18 +131,23 @@ pub fn run(
     sink: &mut dyn FrameSink,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<Summary, RunError> {
-    run_until(solver, scene, sink, progress, &AtomicBool::new(false))
+    run_until(solver, scene, sink, progress, &AtomicBool::new(false), None)
 }
 
 /// [`run`], stopping early once `stop` is set (by a signal handler, another thread): it is
 /// looked at every [`PROGRESS_STEPS`] steps at most, and the run ends with
 /// [`RunError::Stopped`] after the frames written so far, each complete.
+///
+/// With `checkpoints`, every frame is journaled and the run checkpointed as they say; a
+/// resumed run's [`Checkpoints`] first give the frames computed before, then the solver (freshly
+/// opened) is restored to the last of them and the run goes on from there.
 pub fn run_until(
     solver: &mut dyn Solver,
     scene: Option<&Path>,
     sink: &mut dyn FrameSink,
     progress: &mut dyn FnMut(u64, u64),
     stop: &AtomicBool,
+    mut checkpoints: Option<&mut Checkpoints>,
 ) -> Result<Summary, RunError> {
     let stopped = |summary: &Summary| {
         stop.load(Ordering::Relaxed).then_some(RunError::Stopped {
@@ -143,11 +158,24 @@ pub fn run_until(
     let sim = solver.model().simulation;
     let total = sim.steps();
     let frames = sim.frame_count();
-    let e0 = solver.energies()?;
+    let (replayed, history) = match checkpoints.as_deref() {
+        Some(c) if c.resumed_frames() > 0 => c.replay()?,
+        _ => (Vec::new(), History::default()),
+    };
+    // Frame 0 is the initial state, whose energies are E₀.
+    let (e0, scale) = match replayed.first() {
+        Some(f) => (
+            f.energies,
+            energy_scale_of(solver.model(), &f.state.x, &f.energies),
+        ),
+        None => {
+            let e0 = solver.energies()?;
+            (e0, energy_scale(solver, &e0)?)
+        }
+    };
     if !e0.total().is_finite() {
         return Err(RunError::Overflow(e0));
     }
-    let scale = energy_scale(solver, &e0)?;
     let header = Header::new(solver, frames, scene);
     sink.header(&header)?;
 
@@ -156,7 +184,31 @@ pub fn run_until(
         steps: 0,
         last_energies: e0,
     };
-    for k in 0..frames {
+    // The last frame's step, state and history: an instability found at a frame is replayed
+    // step by step from there to report its exact step.
+    let mut previous = None;
+    for f in replayed {
+        sink.frame(&Frame {
+            index: f.index,
+            step: f.step,
+            time: f.time,
+            positions: &f.state.x,
+            velocities: &f.state.v,
+            energies: f.energies,
+        })?;
+        summary.frames += 1;
+        summary.steps = f.step;
+        summary.last_energies = f.energies;
+        previous = Some((f.step, f.state));
+    }
+    if let Some((step, state)) = &previous {
+        solver.restore(*step, state, &history)?;
+    }
+    let mut previous = previous.map(|(step, state)| (step, state, history));
+    let exceeds = |e: &Energies| {
+        !e.total().is_finite() || e.total() - e0.total() > ENERGY_GROWTH_BOUND * scale
+    };
+    for k in summary.frames..frames {
         let target = sim.frame_step(k);
         while solver.steps_taken() < target {
             if let Some(e) = stopped(&summary) {
@@ -166,53 +218,95 @@ pub fn run_until(
             solver.advance(n)?;
             progress(solver.steps_taken(), total);
         }
-        let energies = solver.energies()?;
-        let step = solver.steps_taken();
-        let finite = energies.total().is_finite();
-        if !finite || energies.total() - e0.total() > ENERGY_GROWTH_BOUND * scale {
-            let state = solver.state()?;
-            let (fastest, speed) = state
-                .v
-                .iter()
-                .enumerate()
-                .map(|(i, v)| (i, v.length()))
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .unwrap_or((0, 0.0));
-            return Err(RunError::Unstable(Instability {
-                step,
-                time: step as f64 * sim.dt,
-                particle: fastest as u32,
-                what: if finite {
-                    format!(
-                        "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, \
-                         more than {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above \
-                         its initial {:.3e} J",
-                        energies.total(),
-                        e0.total()
-                    )
-                } else {
-                    format!(
-                        "is the fastest ({speed:.3e} m/s) as the energy overflowed (kinetic {} J, \
-                         gravitational {} J, elastic {} J)",
-                        energies.kinetic, energies.gravitational, energies.elastic
-                    )
-                },
-            }));
+        let mut energies = solver.energies()?;
+        if exceeds(&energies) {
+            if let Some((step, state, history)) = &previous {
+                energies = first_exceeding(solver, (*step, state, history), target, exceeds)?;
+            }
+            return Err(RunError::Unstable(energy_instability(
+                solver, &energies, &e0, scale,
+            )?));
         }
-        let state = solver.state()?;
-        sink.frame(&Frame {
+        let step = solver.steps_taken();
+        let state = solver.state()?.clone();
+        let frame = Frame {
             index: k,
             step,
             time: step as f64 * sim.dt,
             positions: &state.x,
             velocities: &state.v,
             energies,
-        })?;
+        };
+        sink.frame(&frame)?;
+        if let Some(c) = checkpoints.as_deref_mut() {
+            c.frame(&frame, solver)?;
+        }
         summary.frames += 1;
         summary.steps = step;
         summary.last_energies = energies;
+        previous = Some((step, state, solver.history()?));
     }
     Ok(summary)
+}
+
+/// Steps `solver` again one step at a time from `from` (a frame's step, state and history) up
+/// to `target` and stops at the first step whose energies `exceed` the guard, returning them;
+/// the steps are those of the run, so this is where the run first exceeded it (at `target`
+/// itself when no earlier step did).
+fn first_exceeding(
+    solver: &mut dyn Solver,
+    (step, state, history): (u64, &State, &History),
+    target: u64,
+    exceeds: impl Fn(&Energies) -> bool,
+) -> Result<Energies, RunError> {
+    solver.restore(step, state, history)?;
+    loop {
+        solver.advance(1)?;
+        let energies = solver.energies()?;
+        if exceeds(&energies) || solver.steps_taken() >= target {
+            return Ok(energies);
+        }
+    }
+}
+
+/// The instability of a solver whose energies exceed the guard (or overflowed) at its current
+/// step.
+fn energy_instability(
+    solver: &mut dyn Solver,
+    energies: &Energies,
+    e0: &Energies,
+    scale: f64,
+) -> Result<Instability, StepError> {
+    let step = solver.steps_taken();
+    let time = step as f64 * solver.model().simulation.dt;
+    let (fastest, speed) = solver
+        .state()?
+        .v
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (i, v.length()))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, 0.0));
+    let what = if energies.total().is_finite() {
+        format!(
+            "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, more than \
+             {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above its initial {:.3e} J",
+            energies.total(),
+            e0.total()
+        )
+    } else {
+        format!(
+            "is the fastest ({speed:.3e} m/s) as the energy overflowed (kinetic {} J, \
+             gravitational {} J, elastic {} J)",
+            energies.kinetic, energies.gravitational, energies.elastic
+        )
+    };
+    Ok(Instability {
+        step,
+        time,
+        particle: fastest as u32,
+        what,
+    })
 }
 
 #[cfg(test)]
@@ -247,6 +341,7 @@ mod tests {
                         }
                     },
                     &stop,
+                    None,
                 );
                 sink.finish().unwrap();
                 result
@@ -262,5 +357,59 @@ mod tests {
         assert_eq!((frames, steps), (3, scene.simulation.frame_step(2)));
         let expected: Vec<&str> = text.lines().take(1 + 3).collect();
         assert_eq!(partial.lines().collect::<Vec<_>>(), expected);
+    }
+
+    /// An energy-guard instability is reported at the first step whose energy exceeds the
+    /// guard, not at the frame that saw it: a solver stepped one step at a time from the start
+    /// is within the guard one step before the reported step and beyond it at that step, which
+    /// lies between two frames here (20 steps per frame).
+    #[test]
+    fn the_energy_guard_reports_the_exact_step() {
+        let scene = softbody_scene::Scene::from_toml(
+            r#"
+            [simulation]
+            integrator = "explicit-euler"
+            dt = 0.0025
+            duration = 2.0
+            frame_rate = 20.0
+            [[body]]
+            kind = "cuboid"
+            size = [0.3, 0.3, 0.3]
+            resolution = [3, 3, 3]
+            center = [0.0, 1.0, 0.0]
+            mass = 1.0
+            structural = { stiffness = 600.0, damping = 0.0 }
+            shear = { stiffness = 600.0, damping = 0.0 }
+            "#,
+            "guard.toml".as_ref(),
+        )
+        .unwrap();
+        let open = || crate::open(&scene, crate::Backend::Cpu, Some(1)).unwrap();
+        let mut solver = open();
+        let mut sink = output::sink(Format::Csv, Box::new(std::io::sink())).unwrap();
+        let Err(RunError::Unstable(i)) = run(solver.as_mut(), None, sink.as_mut(), &mut |_, _| {})
+        else {
+            panic!("explicit Euler at 400 Hz holds the cube");
+        };
+        assert!(i.what.contains("total energy reached"), "{i}");
+        assert!(i.step % 20 != 0, "step {} is a frame's", i.step);
+        assert_eq!(i.time, i.step as f64 * scene.simulation.dt);
+
+        let mut solver = open();
+        let e0 = solver.energies().unwrap();
+        let bound = ENERGY_GROWTH_BOUND * energy_scale(solver.as_mut(), &e0).unwrap();
+        let growth = |solver: &mut dyn Solver| solver.energies().unwrap().total() - e0.total();
+        solver.advance(i.step - 1).unwrap();
+        assert!(
+            growth(solver.as_mut()) <= bound,
+            "beyond the guard before step {}",
+            i.step
+        );
+        solver.advance(1).unwrap();
+        assert!(
+            growth(solver.as_mut()) > bound,
+            "within the guard at step {}",
+            i.step
+        );
     }
 }

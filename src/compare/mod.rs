@@ -455,8 +455,8 @@ fn measure_run(
         Err(RunError::Device(d)) => return Err(StudyError::Device(d)),
         Err(e @ RunError::Overflow(_)) => return Err(StudyError::Invalid(e.to_string())),
         // The sink writes nothing; its only error is a frame time without a reference state.
-        // `run` is never stopped.
-        Err(e @ (RunError::Io(_) | RunError::Stopped { .. })) => {
+        // `run` is never stopped, nor checkpointed.
+        Err(e @ (RunError::Io(_) | RunError::Stopped { .. } | RunError::Checkpoint(_))) => {
             return Err(StudyError::Device(e.to_string()));
         }
     };

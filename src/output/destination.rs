@@ -514,14 +514,11 @@ const STAGED_SUFFIX: &str = ".part";
 /// 16 hex digits of the FNV-1a hash of `destination`'s file name: short whatever the name's
 /// length, and the same in every build.
 fn destination_tag(destination: &Path) -> String {
+    use std::hash::Hasher;
     let name = destination.file_name().unwrap_or(destination.as_os_str());
-    let hash = name
-        .as_encoded_bytes()
-        .iter()
-        .fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-            (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-        });
-    format!("{hash:016x}")
+    let mut hash = fnv::FnvHasher::default();
+    hash.write(name.as_encoded_bytes());
+    format!("{:016x}", hash.finish())
 }
 
 /// Removes from `dir` what a process that no longer runs staged for `destination` (killed

@@ -209,7 +209,8 @@ fn run_failure(e: RunError, integrator: Integrator, kept: &str) -> Failure {
             status: status::NO_ADAPTER,
             error: anyhow::anyhow!("device failure: {d}\n{kept}"),
         },
-        RunError::Io(_) => e.into(),
+        RunError::Checkpoint(c) if c.is_bad_input() => bad_input(c),
+        RunError::Io(_) | RunError::Checkpoint(_) => e.into(),
     }
 }
 

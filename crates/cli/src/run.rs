@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use clap::Args;
 use softbody::Backend;
+use softbody::checkpoint::Checkpoints;
 use softbody::output::{Format, FrameSink, Output, WithSceneText};
 use softbody::run::RunError;
 use softbody::warnings::Warning;
@@ -38,6 +39,17 @@ pub struct RunArgs {
     /// Solver backend: cpu (f64) or gpu (wgpu compute shaders, f32).
     #[arg(long, default_value = "cpu")]
     backend: Backend,
+    /// Checkpoint the run every N frames (a directory beside the output, `<out>.checkpoint`,
+    /// journaling the frames): a run killed in any way (SIGKILL, a power cut) goes on from its
+    /// last checkpoint with --resume. The checkpoint is removed when the run ends, unless a
+    /// signal stopped it.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    checkpoint_every: Option<u64>,
+    /// Go on from the output's checkpoint (see --checkpoint-every), which must be of the same
+    /// scene, overrides and backend; the frames are those of an uninterrupted run, byte for
+    /// byte. Without a checkpoint the run starts from the beginning.
+    #[arg(long)]
+    resume: bool,
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
@@ -53,6 +65,12 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
 
     let format = Format::for_output(args.format, args.out.as_deref()).map_err(bad_input)?;
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
+    let checkpointing = args.checkpoint_every.is_some() || args.resume;
+    if to_stdout && checkpointing {
+        return Err(bad_input(anyhow::anyhow!(
+            "--checkpoint-every and --resume need an output file (--out), not standard output"
+        )));
+    }
     let out_path = match &args.out {
         Some(p) => p.clone(),
         None => format.default_path(&output_stem(
@@ -103,6 +121,40 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         None => output.sink(),
     };
 
+    let dir = Checkpoints::dir_for(&out_path);
+    let mut checkpoints = match (args.resume, args.checkpoint_every) {
+        (true, every) => {
+            let resumed = Checkpoints::resume(&dir, every, solver.as_mut())
+                .map_err(|e| checkpoint_failure(e, &scene))?;
+            match (resumed, every) {
+                (Some(c), _) => Some(c),
+                (None, Some(every)) => Some(
+                    Checkpoints::create(&dir, every, solver.as_mut())
+                        .map_err(|e| checkpoint_failure(e, &scene))?,
+                ),
+                (None, None) => None,
+            }
+        }
+        (false, Some(every)) => Some(
+            Checkpoints::create(&dir, every, solver.as_mut())
+                .map_err(|e| checkpoint_failure(e, &scene))?,
+        ),
+        (false, None) => None,
+    };
+    if args.resume && !args.quiet {
+        match &checkpoints {
+            Some(c) if c.resumed_frames() > 0 => eprintln!(
+                "resuming after frame {} from {}",
+                c.resumed_frames() - 1,
+                dir.display()
+            ),
+            _ => eprintln!(
+                "no checkpoint in {}: starting from the beginning",
+                dir.display()
+            ),
+        }
+    }
+
     let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
     let started = Instant::now();
     let result = softbody::run::run_until(
@@ -111,6 +163,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         sink,
         &mut |done, _| bar.set_position(done),
         &signals.stop,
+        checkpoints.as_mut(),
     );
     bar.finish_and_clear();
     // Frames that failed to write, a scene refused before its first frame, and a run stopped
@@ -124,6 +177,22 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     };
     if keep {
         output.commit().map_err(output_failure)?;
+    }
+    // A run that ended (completed, diverged) has no use for its checkpoint; one stopped by a
+    // signal, a device or a file system can go on from it.
+    let mut resumable = String::new();
+    if let Some(c) = checkpoints.take() {
+        if matches!(
+            result,
+            Ok(_) | Err(RunError::Unstable(_) | RunError::Overflow(_))
+        ) {
+            c.remove().map_err(Failure::from)?;
+        } else {
+            resumable = format!(
+                "; the checkpoint is in {}: go on with --resume",
+                c.dir().display()
+            );
+        }
     }
     let where_ = if to_stdout {
         "standard output".to_owned()
@@ -147,9 +216,9 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         }
         Err(e) => {
             let kept = if keep {
-                format!("the frames before it are in {where_}")
+                format!("the frames before it are in {where_}{resumable}")
             } else {
-                format!("nothing was written to {where_}")
+                format!("nothing was written to {where_}{resumable}")
             };
             let mut failure = run_failure(e, scene.simulation.integrator, &kept);
             if signals.terminated.load(Ordering::Relaxed) {
@@ -158,6 +227,18 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             Err(failure)
         }
     }
+}
+
+/// A checkpoint that cannot be resumed or written, as the run's failures are reported.
+fn checkpoint_failure(
+    e: softbody::checkpoint::CheckpointError,
+    scene: &softbody::Scene,
+) -> Failure {
+    run_failure(
+        e.into(),
+        scene.simulation.integrator,
+        "no frame was written",
+    )
 }
 
 /// SIGINT (Ctrl-C) and SIGTERM (`kill`) stop a run after its complete frames instead of

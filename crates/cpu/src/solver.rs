@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use softbody_scene::{
-    Energies, Instability, Model, Solver, State, Statistics, StepError, Timings,
+    Energies, History, Instability, Model, Solver, State, Statistics, StepError, Timings,
     solver::check_state_len,
 };
 
@@ -173,6 +173,17 @@ impl Solver for CpuSolver {
     fn set_state(&mut self, state: &State) -> Result<(), StepError> {
         check_state_len(&self.model, state)?;
         self.state.clone_from(state);
+        Ok(())
+    }
+
+    fn history(&mut self) -> Result<History, StepError> {
+        Ok(self.stepper.history())
+    }
+
+    fn restore(&mut self, steps: u64, state: &State, history: &History) -> Result<(), StepError> {
+        self.set_state(state)?;
+        self.stepper.restore(history)?;
+        self.steps = steps;
         Ok(())
     }
 

@@ -41,7 +41,7 @@
 use std::sync::Arc;
 
 use softbody_scene::{
-    Energies, Instability, Model, Solver, State, Statistics, StepError, Timings,
+    Energies, History, Instability, Model, Solver, State, Statistics, StepError, Timings,
     solver::check_state_len,
 };
 
@@ -500,6 +500,31 @@ impl Solver for GpuSolver {
         }
         self.state_fresh = false;
         self.band_stale = true;
+        Ok(())
+    }
+
+    fn history(&mut self) -> Result<History, StepError> {
+        self.submitter.healthy()?;
+        match &self.stepper {
+            Stepper::Implicit(im) if !self.model.is_empty() => im.history(&mut self.submitter),
+            _ => Ok(History::default()),
+        }
+    }
+
+    fn restore(&mut self, steps: u64, state: &State, history: &History) -> Result<(), StepError> {
+        self.set_state(state)?;
+        match &mut self.stepper {
+            Stepper::Implicit(im) if !self.model.is_empty() => {
+                im.restore(&self.submitter, history)?
+            }
+            _ if history.parts.is_empty() => {}
+            _ => {
+                return Err(StepError::Invalid(
+                    "restore: the history is not this solver's integrator's".to_owned(),
+                ));
+            }
+        }
+        self.steps = steps;
         Ok(())
     }
 

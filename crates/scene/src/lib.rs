@@ -45,7 +45,7 @@ pub use scene::{
     ParticleSet, Scene, Simulation, SpringCounts, SpringParams, Terrain, TerrainShape,
     TriangleMesh, rotation_from_degrees,
 };
-pub use solver::{Energies, Instability, Solver, Statistics, StepError, Timer, Timings};
+pub use solver::{Energies, History, Instability, Solver, Statistics, StepError, Timer, Timings};
 
 /// The time integrators, by the names scene files and the command line use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]

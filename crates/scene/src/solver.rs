@@ -88,6 +88,46 @@ pub enum StepError {
     Invalid(String),
 }
 
+/// What a solver carries from one step into the next besides the state and the step count:
+/// implicit Euler's warm start and contact modes (explicit integrators carry nothing). Given
+/// back with the state to [`Solver::restore`], it makes the steps that follow bit-identical to
+/// those of the run it was taken from, which is what `softbody run --resume` relies on.
+///
+/// Its parts are the backend's own named byte arrays: a history is for a solver of the same
+/// backend and model only, and [`History::part`] refuses a part that is missing or of the
+/// wrong size.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct History {
+    /// (name, bytes) in the order the backend listed them.
+    pub parts: Vec<(String, Vec<u8>)>,
+}
+
+impl History {
+    /// Adds a part.
+    pub fn push(&mut self, name: &str, bytes: Vec<u8>) {
+        self.parts.push((name.to_owned(), bytes));
+    }
+
+    /// The bytes of part `name`, which must be `len` long.
+    pub fn part(&self, name: &str, len: usize) -> Result<&[u8], StepError> {
+        let bytes = self
+            .parts
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, b)| b.as_slice())
+            .ok_or_else(|| {
+                StepError::Invalid(format!("restore: the history has no part `{name}`"))
+            })?;
+        if bytes.len() != len {
+            return Err(StepError::Invalid(format!(
+                "restore: the history's `{name}` has {} bytes, this solver needs {len}",
+                bytes.len()
+            )));
+        }
+        Ok(bytes)
+    }
+}
+
 /// Wall-clock time spent in one stage, over a run: what rapier's stage counters report.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Timer {
@@ -219,6 +259,13 @@ pub trait Solver: Send {
     /// Replaces the current state; the step count stays. The state must have one position and
     /// one velocity per particle ([`StepError::Invalid`] otherwise).
     fn set_state(&mut self, state: &State) -> Result<(), StepError>;
+    /// What the solver carries into its next step besides the state (a GPU backend reads it
+    /// back).
+    fn history(&mut self) -> Result<History, StepError>;
+    /// Puts the solver where another of the same backend and model was after `steps` steps, in
+    /// `state` with `history`: the steps that follow are bit-identical to that solver's.
+    /// [`StepError::Invalid`] for a state or a history that does not fit.
+    fn restore(&mut self, steps: u64, state: &State, history: &History) -> Result<(), StepError>;
     /// Energies of the current state.
     fn energies(&mut self) -> Result<Energies, StepError>;
     /// Counters and per-stage timings over the run so far.

@@ -20,7 +20,7 @@ pub mod rk4;
 pub mod symplectic_euler;
 
 use glam::DVec3;
-use softbody_scene::{Integrator, Model, State, Statistics, Timings};
+use softbody_scene::{History, Integrator, Model, State, Statistics, StepError, Timings};
 use softbody_terrain::Surface;
 
 use crate::body_contact::{NoPairs, PairForces, Partners};
@@ -115,6 +115,28 @@ impl Stepper {
             Stepper::Midpoint(s) => s.memory_bytes(),
             Stepper::Rk4(s) => s.memory_bytes(),
             Stepper::ImplicitEuler(s) => s.memory_bytes(),
+        }
+    }
+
+    /// What the next step starts from besides the state (nothing for the explicit
+    /// integrators).
+    pub fn history(&self) -> History {
+        match self {
+            Stepper::ImplicitEuler(s) => s.history(),
+            _ => History::default(),
+        }
+    }
+
+    /// Takes up [`Stepper::history`]'s.
+    pub fn restore(&mut self, history: &History) -> Result<(), StepError> {
+        match self {
+            Stepper::ImplicitEuler(s) => s.restore(history),
+            _ if history.parts.is_empty() => Ok(()),
+            _ => Err(StepError::Invalid(
+                "restore: the history is an implicit integrator's, this solver's integrator is \
+                 explicit"
+                    .to_owned(),
+            )),
         }
     }
 

@@ -41,7 +41,7 @@ pub mod system;
 use glam::DVec3;
 use rayon::prelude::*;
 pub use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
-use softbody_scene::{FrictionModel, Model, State, Statistics, Timings};
+use softbody_scene::{FrictionModel, History, Model, State, Statistics, StepError, Timings};
 
 use self::cg::{Constraint, Scratch};
 use self::system::System;
@@ -129,6 +129,41 @@ impl ImplicitEuler {
             + vec_bytes(&self.constraints)
             + vec_bytes(&self.touching)
             + vec_bytes(&self.sticking)
+    }
+
+    /// What the next step starts from besides the state: the warm start Δv and who touches
+    /// and sticks.
+    pub fn history(&self) -> History {
+        let mut history = History::default();
+        let dv = self.dv.iter().flat_map(|v| v.to_array());
+        history.push("dv", dv.flat_map(f64::to_le_bytes).collect());
+        history.push(
+            "touching",
+            self.touching.iter().map(|&b| u8::from(b)).collect(),
+        );
+        history.push(
+            "sticking",
+            self.sticking.iter().map(|&b| u8::from(b)).collect(),
+        );
+        history
+    }
+
+    /// Takes up [`ImplicitEuler::history`]'s.
+    pub fn restore(&mut self, history: &History) -> Result<(), StepError> {
+        let n = self.dv.len();
+        let dv = history.part("dv", 24 * n)?;
+        for (v, bytes) in self.dv.iter_mut().zip(dv.chunks_exact(24)) {
+            let c = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap());
+            *v = DVec3::new(c(0), c(1), c(2));
+        }
+        for (name, flags) in [
+            ("touching", &mut self.touching),
+            ("sticking", &mut self.sticking),
+        ] {
+            let bytes = history.part(name, n)?;
+            flags.iter_mut().zip(bytes).for_each(|(f, &b)| *f = b != 0);
+        }
+        Ok(())
     }
 
     /// One step, with the pairs of bodies in contact at its start `partners` (given exactly

@@ -32,7 +32,7 @@ pub mod cg;
 pub mod system;
 
 use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
-use softbody_scene::{Statistics, StepError, Timings};
+use softbody_scene::{History, Statistics, StepError, Timings};
 
 use self::cg::Cg;
 use self::system::{System, Vector};
@@ -236,6 +236,40 @@ impl ImplicitEuler {
             statistics: Statistics::default(),
             buffers,
         })
+    }
+
+    /// What the next step starts from besides the state, read back: the warm start Δv, the
+    /// contact records (who touches and sticks) and the last solve's iteration count (which
+    /// sizes the next solve's first batch).
+    pub fn history(&self, submitter: &mut Submitter) -> Result<History, StepError> {
+        let b = &self.buffers;
+        let n = self.n;
+        let candidates = n * std::mem::size_of::<CandidateGpu>() as u64;
+        let encoder = submitter.encoder("read history");
+        let bytes = submitter
+            .submit_and_read(encoder, &[(&b.dv, n * VEC4), (&b.candidates, candidates)])?;
+        let (dv, candidates) = bytes.split_at((n * VEC4) as usize);
+        let mut history = History::default();
+        history.push("dv", dv.to_vec());
+        history.push("candidates", candidates.to_vec());
+        history.push(
+            "last iterations",
+            self.last_iterations.to_le_bytes().to_vec(),
+        );
+        Ok(history)
+    }
+
+    /// Takes up [`ImplicitEuler::history`]'s.
+    pub fn restore(&mut self, submitter: &Submitter, history: &History) -> Result<(), StepError> {
+        let n = self.n as usize;
+        let dv = history.part("dv", n * VEC4 as usize)?;
+        let candidates = history.part("candidates", n * std::mem::size_of::<CandidateGpu>())?;
+        let last = history.part("last iterations", 4)?;
+        let queue = submitter.queue();
+        queue.write_buffer(&self.buffers.dv, 0, dv);
+        queue.write_buffer(&self.buffers.candidates, 0, candidates);
+        self.last_iterations = u32::from_le_bytes(last.try_into().expect("4 bytes"));
+        Ok(())
     }
 
     /// Its buffers.
