@@ -233,8 +233,21 @@ pub struct Measurement {
     pub cg_iterations_per_step: Option<f64>,
     /// Implicit Euler: CG solves per timed step (more than one when contacts change).
     pub cg_solves_per_step: Option<f64>,
+    /// The GPU design's figures over the timed steps (`None` on the CPU).
+    pub design: Option<Design>,
     /// What ran it (thread count, adapter).
     pub device: String,
+}
+
+/// What a GPU solver's design costs per step, counted as it encodes (so the same on any
+/// adapter): [`softbody_scene::Statistics::dispatches`] and
+/// [`device_bytes`](softbody_scene::Statistics::device_bytes) over the timed steps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Design {
+    /// Compute dispatches per step.
+    pub dispatches_per_step: f64,
+    /// Bytes of device memory traffic per particle and step, by the design's count.
+    pub bytes_per_particle_step: f64,
 }
 
 impl Measurement {
@@ -275,6 +288,10 @@ impl Measurement {
             "spring_steps_per_s": self.spring_steps_per_s(),
             "bytes_per_particle": self.bytes_per_particle,
         });
+        if let Some(design) = &self.design {
+            v["dispatches_per_step"] = design.dispatches_per_step.into();
+            v["bytes_per_particle_step"] = design.bytes_per_particle_step.into();
+        }
         if let Some(cg) = self.cg_iterations_per_step {
             v["cg_iterations_per_step"] = cg.into();
             v["cg_solves_per_step"] = self.cg_solves_per_step.into();
@@ -399,6 +416,11 @@ fn time(
         cg_iterations_per_step: implicit
             .then(|| per_step(after.cg_iterations - before.cg_iterations)),
         cg_solves_per_step: implicit.then(|| per_step(after.cg_solves - before.cg_solves)),
+        design: (after.dispatches > before.dispatches).then(|| Design {
+            dispatches_per_step: per_step(after.dispatches - before.dispatches),
+            bytes_per_particle_step: per_step(after.device_bytes - before.device_bytes)
+                / particles as f64,
+        }),
         device: solver.device(),
     })
 }

@@ -147,7 +147,7 @@ fn implicit_euler_keeps_a_stiff_cube_stable_at_a_frame_step(
 }
 
 /// The same scene with explicit Euler at h = 1/60 (≈ 100× its stable step) must be reported
-/// unstable: `advance` stops with `StepError::Unstable` naming a step ≥ 1 within the run and a
+/// unstable: `advance` (with `sync`, since a GPU runs ahead) stops with `StepError::Unstable` naming a step ≥ 1 within the run and a
 /// particle of the model that is not finite, and `run::run` stops with `RunError::Unstable` (the
 /// energy guard or the non-finite check), having written only frames before the instability,
 /// frame 0 included. On the CPU the state is that of the failing step, and the particle named is
@@ -160,7 +160,7 @@ fn explicit_euler_on_the_stiff_cube_is_reported_unstable(backend: &Backend) -> R
     let (model, state) = Model::build(&scene);
     let n = model.len() as u32;
     let mut solver = backend.solver_from(model.clone(), state.clone())?;
-    match solver.advance(steps) {
+    match solver.advance(steps).and_then(|()| solver.sync()) {
         Err(StepError::Unstable(i)) => {
             println!("advance: {i}");
             ensure(i.step >= 1 && i.step <= steps && i.particle < n, || {

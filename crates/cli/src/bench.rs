@@ -116,7 +116,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                     options.integrator, options.backend, m.device, options.stiffness
                 ));
                 text.push_str(&format!(
-                    "{}{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}\n",
+                    "{}{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}{}\n",
                     if args.contact { "contact " } else { "" },
                     "n",
                     "particles",
@@ -127,6 +127,11 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                     "Mparticle-st/s",
                     "Mspring-st/s",
                     "B/particle",
+                    if m.design.is_some() {
+                        "  dispatches/step  B/particle-step"
+                    } else {
+                        ""
+                    },
                     if m.cg_iterations_per_step.is_some() {
                         "  CG it/step"
                     } else {
@@ -149,7 +154,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                 _ => String::new(),
             };
             text.push_str(&format!(
-                "{contact}{:>5} {:>10} {:>11} {:>7} {:>10.3e} {:>8.3} {:>14.3} {:>13.2} {:>9}{}{}\n",
+                "{contact}{:>5} {:>10} {:>11} {:>7} {:>10.3e} {:>8.3} {:>14.3} {:>13.2} {:>9}{}{}{}\n",
                 m.n,
                 m.particles,
                 m.springs,
@@ -159,6 +164,10 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
                 m.particle_steps_per_s() / 1e6,
                 m.spring_steps_per_s() / 1e6,
                 format!("{:.0}", m.bytes_per_particle),
+                m.design.map_or(String::new(), |d| format!(
+                    " {:>16.1} {:>16.0}",
+                    d.dispatches_per_step, d.bytes_per_particle_step
+                )),
                 m.cg_iterations_per_step
                     .map_or(String::new(), |c| format!(" {c:>11.1}")),
                 overhead

@@ -14,7 +14,7 @@ use crate::chunks::Chunking;
 use crate::chunks::SpringChunks;
 use crate::device::Gpu;
 use crate::grid::Grid;
-use crate::kernel::{self, Call, Kernel, Module, Resources};
+use crate::kernel::{self, Call, Kernel, Module, Resources, Traffic};
 use crate::shaders::Stage;
 use crate::terrain::{SurfaceGpu, TerrainBuffers};
 
@@ -32,6 +32,8 @@ pub(crate) struct Builder {
     terrain_buffers: u32,
     /// Bytes of device memory allocated through the builder.
     bytes: Cell<u64>,
+    /// What the calls made here dispatch.
+    traffic: Arc<Traffic>,
 }
 
 /// What a stage is built from: the builder, the model's buffers, the spring chunks, the
@@ -129,6 +131,7 @@ impl Builder {
         });
         Ok(Builder {
             bytes: Cell::new((surfaces.len() + data.len()) as u64),
+            traffic: Arc::default(),
             terrain_buffers: entries.len() as u32,
             gpu,
             limits,
@@ -223,6 +226,11 @@ impl Builder {
         Ok(kernel)
     }
 
+    /// What the calls made here have dispatched.
+    pub fn traffic(&self) -> &Arc<Traffic> {
+        &self.traffic
+    }
+
     /// A call of `entry` in `stage` with `resources` bound by name.
     pub fn call(
         &self,
@@ -232,7 +240,7 @@ impl Builder {
     ) -> Result<Call, GpuError> {
         let kernel = self.kernel(stage, entry)?;
         kernel
-            .call(&self.gpu.device, resources, &self.terrain)
+            .call(&self.gpu.device, resources, &self.terrain, &self.traffic)
             .map_err(|e| internal(&self.gpu, e))
     }
 
@@ -249,7 +257,7 @@ impl Builder {
             .into_iter()
             .map(|resources| {
                 kernel
-                    .call(&self.gpu.device, &resources, &self.terrain)
+                    .call(&self.gpu.device, &resources, &self.terrain, &self.traffic)
                     .map_err(|e| internal(&self.gpu, e))
             })
             .collect()

@@ -11,8 +11,12 @@
 //! the solver is built, not a wrong number at run time.
 //!
 //! A [`Call`] is a kernel with its bind groups: what a stage keeps and dispatches each step.
+//! Every dispatch is counted in the solver's [`Traffic`], with the bytes the design makes it
+//! move.
 
 use std::borrow::Cow;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use naga::valid::{Capabilities, ModuleInfo, ValidationFlags, Validator};
 
@@ -254,6 +258,7 @@ impl Kernel {
         device: &wgpu::Device,
         resources: &Resources<'_>,
         terrain: &wgpu::BindGroup,
+        traffic: &Arc<Traffic>,
     ) -> Result<Call, String> {
         let entries = self
             .bindings
@@ -271,6 +276,24 @@ impl Kernel {
                 })
             })
             .collect::<Result<Vec<_>, String>>()?;
+        let bytes = self
+            .bindings
+            .iter()
+            .zip(&entries)
+            .map(|(b, e)| {
+                let size = match &e.resource {
+                    wgpu::BindingResource::Buffer(binding) => binding
+                        .size
+                        .map_or(binding.buffer.size() - binding.offset, |s| s.get()),
+                    _ => 0,
+                };
+                match b.access {
+                    Access::Uniform => 0,
+                    Access::Read => size,
+                    Access::ReadWrite => 2 * size,
+                }
+            })
+            .sum();
         let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(self.entry),
             layout: &self.layout,
@@ -280,6 +303,8 @@ impl Kernel {
             pipeline: self.pipeline.clone(),
             group,
             terrain: self.terrain.then(|| terrain.clone()),
+            bytes,
+            traffic: Arc::clone(traffic),
         })
     }
 }
@@ -332,16 +357,46 @@ impl<'a> Resources<'a> {
     }
 }
 
+/// What a solver's dispatches add up to: how many were encoded, and the bytes of device memory
+/// their bindings make them move.
+///
+/// The bytes are the design's compulsory traffic, not a measurement: each dispatch reads every
+/// storage buffer it binds once and writes every read-write one once (a read-write binding
+/// counts twice its size). Gathers that read a value more than once are assumed to hit in
+/// cache, uniforms and the terrain's tables (a few kilobytes) are left out, and an indirect
+/// dispatch counts in full even when its grid is empty. It is the figure to compare designs by
+/// (per-spring buffers against a fused gather, say), on any adapter, a software one included.
+#[derive(Debug, Default)]
+pub(crate) struct Traffic {
+    dispatches: AtomicU64,
+    bytes: AtomicU64,
+}
+
+impl Traffic {
+    /// (dispatches, bytes) so far.
+    pub fn totals(&self) -> (u64, u64) {
+        (
+            self.dispatches.load(Ordering::Relaxed),
+            self.bytes.load(Ordering::Relaxed),
+        )
+    }
+}
+
 /// A kernel with its bind groups, ready to dispatch.
 #[derive(Debug, Clone)]
 pub(crate) struct Call {
     pipeline: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
     terrain: Option<wgpu::BindGroup>,
+    /// Bytes one dispatch moves ([`Traffic`]).
+    bytes: u64,
+    traffic: Arc<Traffic>,
 }
 
 impl Call {
     fn bind(&self, pass: &mut wgpu::ComputePass<'_>, offsets: &[u32]) {
+        self.traffic.dispatches.fetch_add(1, Ordering::Relaxed);
+        self.traffic.bytes.fetch_add(self.bytes, Ordering::Relaxed);
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &self.group, offsets);
         if let Some(terrain) = &self.terrain {

@@ -10,20 +10,31 @@
 //! `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
 //! is followed by the grid of the end state and the response between bodies, and (with
-//! terrain) by the terrain's record of the next step's start, which that response changed. [`STEPS_PER_SUBMISSION`] steps go into one command buffer; after each
-//! submission the host reads back the 12-byte status only. Implicit Euler cannot know its CG
+//! terrain) by the terrain's record of the next step's start, which that response changed.
+//!
+//! # Submissions
+//!
+//! [`Solver::advance`] does not wait for the GPU. It encodes steps into command buffers of up
+//! to [`STEPS_PER_SUBMISSION`] steps, sized so that one takes about [`SUBMISSION_SECONDS`] of
+//! device time (the first submission is a single step, timed, and every read-back of the
+//! statuses times them again), so a very large scene never holds the GPU near a driver's
+//! watchdog and a small one amortises its submissions. Each submission ends by copying its
+//! 12-byte status into a slot of a ring; the host encodes and submits the next while the GPU
+//! runs this one, and reads the ring back only when it is full or when it needs a result
+//! ([`Solver::sync`], the state, the energies, the history). Implicit Euler cannot know its CG
 //! iterations and active-set rounds in advance: it synchronises at least once per step on a
-//! 68-byte read-back, and reads the status after [`STEPS_PER_SUBMISSION`] steps; where bodies
-//! touch, it builds the start's grid before its assembly (its pairs are springs of its system)
-//! and ends with the response between bodies before `check_finite`.
+//! 68-byte read-back; where bodies touch, it builds the start's grid before its assembly (its
+//! pairs are springs of its system) and ends with the response between bodies before
+//! `check_finite`.
 //!
 //! # Instability
 //!
 //! `check_finite` ([`crate::check_finite`]) records the first bad step of a submission and its
 //! lowest bad particle: an instability is reported with the exact step, time and particle the
-//! CPU would report. The steps after it within the same submission still run (the GPU cannot
-//! stop mid-submission), so after a [`StepError::Unstable`] the state is that of the end of the
-//! submission, not of the failing step; [`Solver::steps_taken`] is the failing step.
+//! CPU would report, by the first call that reads the statuses back. The steps after it still
+//! run (the GPU cannot stop mid-submission, and later submissions may be in flight), so after a
+//! [`StepError::Unstable`] the state is that of the last step submitted, not of the failing
+//! step; [`Solver::steps_taken`] is the failing step.
 //!
 //! # Read-backs
 //!
@@ -33,8 +44,8 @@
 //! # Timings
 //!
 //! The stages of [`Statistics::timings`] are what the host sees: "encode" (recording
-//! commands), "device" (a submission of explicit steps until its status is back: the GPU's work
-//! and the wait), "assemble + cg (device)" (implicit Euler's solves, their read-backs
+//! commands), "device" (waiting for the submissions in flight and their statuses: the GPU's
+//! work the host did not overlap), "assemble + cg (device)" (implicit Euler's solves, their read-backs
 //! included), "energies" and "read-back". How long each kernel takes on the device needs
 //! timestamp queries, which this solver does not use.
 
@@ -60,9 +71,16 @@ use crate::limits::{Need, check_chunks, check_f32, check_limits};
 use crate::submit::Submitter;
 use crate::{GpuError, VEC4, WORKGROUP_SIZE, terrain};
 
-/// Steps encoded into one command buffer: enough to amortise a submission and a status
-/// read-back, few enough that an instability stops the run soon after it happens.
+/// Steps encoded into one command buffer at most (the check's table of step numbers).
 pub const STEPS_PER_SUBMISSION: u64 = 256;
+
+/// Device time one submission aims at: long enough to amortise a submission, short enough that
+/// a very large scene never holds the GPU near a driver's watchdog (2 s on Windows).
+pub const SUBMISSION_SECONDS: f64 = 0.05;
+
+/// Submissions in flight at most: each copies its status into a slot of a ring, and the host
+/// reads the ring back when it is full or when it needs the results.
+const STATUS_RING: usize = 32;
 
 /// Settings for tests: narrower dispatch grids and smaller storage bindings than the adapter's,
 /// so that small scenes take the paths of very large ones.
@@ -99,7 +117,17 @@ pub struct GpuSolver {
     /// Whether the collision response's band masks must be computed from the state before the
     /// next step (no response has left them: the first step, and after `set_state`).
     band_stale: bool,
+    /// Steps submitted.
     steps: u64,
+    /// The statuses of the submissions in flight, one slot each.
+    status_ring: wgpu::Buffer,
+    /// (steps before it, steps in it) of each submission in flight, in order.
+    in_flight: Vec<(u64, u64)>,
+    /// When the oldest submission in flight was made.
+    in_flight_since: Option<std::time::Instant>,
+    /// Steps per submission, chosen from the device time per step ([`SUBMISSION_SECONDS`]);
+    /// `None` until the first submission has been timed.
+    batch: Option<u64>,
     timings: Timings,
 }
 
@@ -259,9 +287,16 @@ impl GpuSolver {
         }
         // Holds x and v, the energy partials, the status; implicit Euler's progress and stage
         // tests grow it on demand.
+        let status_bytes = std::mem::size_of::<Status>() as u64;
         let readback = (2 * n * VEC4)
             .max(particles.groups() * 8 + m.div_ceil(WORKGROUP_SIZE) * 4)
-            .max(std::mem::size_of::<Status>() as u64);
+            .max(STATUS_RING as u64 * status_bytes);
+        let builder_ring = builder.buffer(&wgpu::BufferDescriptor {
+            label: Some("status ring"),
+            size: STATUS_RING as u64 * status_bytes,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
         Ok(GpuSolver {
             submitter: Submitter::new(gpu.clone(), readback),
             model,
@@ -279,6 +314,10 @@ impl GpuSolver {
             state_fresh: true,
             band_stale: true,
             steps: 0,
+            status_ring: builder_ring,
+            in_flight: Vec::new(),
+            in_flight_since: None,
+            batch: None,
             timings: Timings::default(),
         })
     }
@@ -299,8 +338,9 @@ impl GpuSolver {
         &self.chunks.ranges
     }
 
-    /// Submits `batch` steps and reads the status back.
-    fn run_batch(&mut self, batch: u64) -> Result<Status, StepError> {
+    /// Submits `batch` steps without waiting for them; their status goes into the next slot of
+    /// the ring.
+    fn submit_batch(&mut self, batch: u64) -> Result<(), StepError> {
         let started = std::time::Instant::now();
         // Ordered before the submission's commands.
         self.submitter.queue().write_buffer(
@@ -352,14 +392,66 @@ impl GpuSolver {
                 self.submitter.encoder("status")
             }
         };
-        let status = self.buffers.status.clone();
+        let mut encoder = encoder;
+        let size = std::mem::size_of::<Status>() as u64;
+        let slot = self.in_flight.len() as u64;
+        encoder.copy_buffer_to_buffer(
+            &self.buffers.status,
+            0,
+            &self.status_ring,
+            slot * size,
+            size,
+        );
+        self.submitter.submit(encoder);
+        self.in_flight.push((self.steps, batch));
+        self.in_flight_since
+            .get_or_insert_with(std::time::Instant::now);
+        self.steps += batch;
+        Ok(())
+    }
+
+    /// Waits for the submissions in flight and reads their statuses: the first instability
+    /// among them, if any (the steps submitted then count up to it). Sizes the next
+    /// submissions from the device time per step it saw.
+    fn settle(&mut self) -> Result<(), StepError> {
+        if self.in_flight.is_empty() {
+            return Ok(());
+        }
         let size = std::mem::size_of::<Status>();
         let started = std::time::Instant::now();
-        let bytes = self
-            .submitter
-            .submit_and_read(encoder, &[(&status, size as u64)])?;
+        let encoder = self.submitter.encoder("statuses");
+        let bytes = self.submitter.submit_and_read(
+            encoder,
+            &[(&self.status_ring, (self.in_flight.len() * size) as u64)],
+        )?;
         self.timings.add("device", started.elapsed().as_secs_f64());
-        Ok(bytemuck::pod_read_unaligned(&bytes[..size]))
+        let in_flight = std::mem::take(&mut self.in_flight);
+        if let Some(since) = self.in_flight_since.take() {
+            let steps: u64 = in_flight.iter().map(|&(_, batch)| batch).sum();
+            let per_step = since.elapsed().as_secs_f64() / steps as f64;
+            let batch = (SUBMISSION_SECONDS / per_step.max(1e-9)) as u64;
+            self.batch = Some(batch.clamp(1, STEPS_PER_SUBMISSION));
+        }
+        for (k, &(before, _)) in in_flight.iter().enumerate() {
+            let status: Status = bytemuck::pod_read_unaligned(&bytes[k * size..(k + 1) * size]);
+            if status.bad_step != NONE {
+                let step = before + u64::from(status.bad_step);
+                self.steps = step;
+                let particle = status.bad_particle;
+                return Err(StepError::Unstable(Instability {
+                    step,
+                    time: step as f64 * self.model.simulation.dt,
+                    particle,
+                    what: if status.bad_position == particle {
+                        "has a non-finite position"
+                    } else {
+                        "has a non-finite velocity"
+                    }
+                    .to_owned(),
+                }));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -438,31 +530,22 @@ impl Solver for GpuSolver {
         self.state_fresh = false;
         let mut done = 0;
         while done < steps {
-            let batch = (steps - done).min(STEPS_PER_SUBMISSION);
-            let status = self.run_batch(batch)?;
-            if status.bad_step != NONE {
-                let step = self.steps + u64::from(status.bad_step);
-                self.steps = step;
-                let particle = status.bad_particle;
-                return Err(StepError::Unstable(Instability {
-                    step,
-                    time: step as f64 * self.model.simulation.dt,
-                    particle,
-                    what: if status.bad_position == particle {
-                        "has a non-finite position"
-                    } else {
-                        "has a non-finite velocity"
-                    }
-                    .to_owned(),
-                }));
+            if self.in_flight.len() == STATUS_RING {
+                self.settle()?;
+            }
+            // The first submission is one step, timed alone; then as many as fit the time.
+            let batch = self.batch.unwrap_or(1).min(steps - done);
+            self.submit_batch(batch)?;
+            if self.batch.is_none() {
+                self.settle()?;
             }
             done += batch;
-            self.steps += batch;
         }
         Ok(())
     }
 
     fn sync(&mut self) -> Result<(), StepError> {
+        self.settle()?;
         self.submitter.wait()
     }
 
@@ -472,6 +555,7 @@ impl Solver for GpuSolver {
 
     fn state(&mut self) -> Result<&State, StepError> {
         self.submitter.healthy()?;
+        self.settle()?;
         if !self.state_fresh {
             let started = std::time::Instant::now();
             let n = self.model.len() as u64;
@@ -492,6 +576,7 @@ impl Solver for GpuSolver {
 
     fn set_state(&mut self, state: &State) -> Result<(), StepError> {
         self.submitter.healthy()?;
+        self.settle()?;
         check_state_len(&self.model, state)?;
         if !self.model.is_empty() {
             let queue = self.submitter.queue();
@@ -505,6 +590,7 @@ impl Solver for GpuSolver {
 
     fn history(&mut self) -> Result<History, StepError> {
         self.submitter.healthy()?;
+        self.settle()?;
         match &self.stepper {
             Stepper::Implicit(im) if !self.model.is_empty() => im.history(&mut self.submitter),
             _ => Ok(History::default()),
@@ -530,6 +616,7 @@ impl Solver for GpuSolver {
 
     fn energies(&mut self) -> Result<Energies, StepError> {
         self.submitter.healthy()?;
+        self.settle()?;
         let started = std::time::Instant::now();
         let energies = self.energy.energies(&mut self.submitter)?;
         self.timings
@@ -542,9 +629,12 @@ impl Solver for GpuSolver {
             Stepper::Implicit(im) => im.statistics.clone(),
             Stepper::Explicit(_) => Statistics::default(),
         };
+        let (dispatches, device_bytes) = self.builder.traffic().totals();
         Statistics {
             steps: self.steps,
             timings: self.timings.clone(),
+            dispatches,
+            device_bytes,
             ..implicit
         }
     }

@@ -34,7 +34,7 @@ use softbody_cpu::{CpuSolver, collision_response, energy, forces, spring_forces}
 use softbody_gpu::{Gpu, GpuSolver};
 use softbody_scene::{Integrator, Model, Scene, Solver, State, Statistics, StepError};
 use softbody_terrain::Surface;
-use softbody_testkit::{Failed, GpuTest, Rng};
+use softbody_testkit::{Failed, GpuTest, Rng, ensure};
 
 fn main() -> ExitCode {
     let tests: &[(&str, GpuTest)] = &[
@@ -102,6 +102,10 @@ fn main() -> ExitCode {
             instability_matches_cpu,
         ),
         ("a_lost_device_is_reported_not_a_panic", lost_device),
+        (
+            "the_design_counts_its_dispatches_and_traffic",
+            design_figures,
+        ),
         (
             "two_dimensional_grids_give_the_same_bits",
             two_dimensional_grids,
@@ -625,7 +629,8 @@ fn softbody_scale(cpu: &mut CpuSolver, e0: &softbody_scene::Energies) -> Result<
 /// Five free particles (no gravity) flying up with exactly representable f32 numbers: particles
 /// 3 and 4 overflow their position at step 300 (x = 2¹¹⁷(1748 + k), f32 max just below 2¹²⁸ =
 /// 2¹¹⁷·2048), particle 1 at step 400, particles 0 and 2 never. The report must be step 300,
-/// particle 3, position, across a submission boundary (256 steps per submission).
+/// particle 3, position, found in a later submission than the first of those in flight (the
+/// first is one step, the next up to 256), read back by `sync`: `advance` does not wait.
 fn instability_is_exact(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let scene = Scene::from_toml(
         "[simulation]\nintegrator = \"explicit-euler\"\ndt = 0.5\nduration = 1000.0\n\
@@ -646,7 +651,7 @@ fn instability_is_exact(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         state.v[i].y = v;
     }
     let mut g = open(gpu, &model, &state)?;
-    match g.advance(1000) {
+    match g.advance(1000).and_then(|()| g.sync()) {
         Err(StepError::Unstable(i)) => {
             println!("reported: {i}");
             if (i.step, i.particle, i.what.as_str(), i.time)
@@ -672,12 +677,60 @@ fn instability_matches_cpu(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     state.v[37] = DVec3::new(0.0, f64::NAN, 0.0);
     let mut g = open(gpu, &model, &state)?;
     let mut cpu = CpuSolver::new(model, state, Some(1)).map_err(|e| e.to_string())?;
-    let (got, want) = (g.advance(10), cpu.advance(10));
+    let (got, want) = (g.advance(10).and_then(|()| g.sync()), cpu.advance(10));
     println!("GPU: {got:?}\nCPU: {want:?}");
     match (got, want) {
         (Err(StepError::Unstable(a)), Err(StepError::Unstable(b))) if a == b => Ok(()),
         (got, want) => Err(format!("GPU {got:?} differs from CPU {want:?}").into()),
     }
+}
+
+/// The dispatches and the traffic a solver counts are the same for every step, whatever
+/// the submissions were (10 steps, then 30 in other batches, after the first), and grow with the integrator's
+/// stages: midpoint runs the force stages twice, RK4 four times. Symplectic Euler moves at
+/// least its state (x and v read and written: 4 × 16 bytes per particle) each step.
+fn design_figures(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    let mut per_step = Vec::new();
+    for integrator in [
+        Integrator::SymplecticEuler,
+        Integrator::Midpoint,
+        Integrator::Rk4,
+    ] {
+        let scene = cube_scene(integrator, 1e-3, 0.1, PLANE);
+        let (model, state) = Model::build(&scene);
+        let mut g = open(gpu, &model, &state)?;
+        let counts = |g: &mut GpuSolver, steps: u64| -> Result<(u64, u64), Failed> {
+            let before = g.statistics();
+            g.advance(steps)
+                .and_then(|()| g.sync())
+                .map_err(step_error)?;
+            let after = g.statistics();
+            Ok((
+                after.dispatches - before.dispatches,
+                after.device_bytes - before.device_bytes,
+            ))
+        };
+        // The first step also computes the collision response's band masks once.
+        counts(&mut g, 1)?;
+        let (d10, b10) = counts(&mut g, 10)?;
+        let (d30, b30) = counts(&mut g, 30)?;
+        ensure(d10 > 0 && 3 * d10 == d30 && 3 * b10 == b30, || {
+            format!("{integrator}: {d10} dispatches and {b10} B in 10 steps, {d30} and {b30} in 30")
+        })?;
+        let bytes = b10 as f64 / 10.0 / model.len() as f64;
+        println!(
+            "{integrator}: {} dispatches, {bytes:.0} B per particle-step",
+            d10 / 10
+        );
+        per_step.push((d10 / 10, bytes));
+    }
+    let [(symplectic, bytes), (midpoint, _), (rk4, _)] = per_step[..] else {
+        unreachable!("three integrators")
+    };
+    ensure(
+        symplectic < midpoint && midpoint < rk4 && bytes >= 64.0,
+        || format!("dispatches per step: {per_step:?}"),
+    )
 }
 
 /// After the device is gone, every call reports StepError::Device; nothing panics.
@@ -690,12 +743,12 @@ fn lost_device(_shared: &Arc<Gpu>) -> Result<(), Failed> {
     g.advance(10).map_err(step_error)?;
     g.debug_destroy_device();
     let results = [
-        g.advance(10).err(),
+        g.advance(10).and_then(|()| g.sync()).err(),
         g.energies().err(),
         g.state().err(),
         g.advance(1).err(),
     ];
-    for (call, result) in ["advance", "energies", "state", "advance again"]
+    for (call, result) in ["advance and sync", "energies", "state", "advance again"]
         .iter()
         .zip(results)
     {

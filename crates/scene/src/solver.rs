@@ -230,6 +230,11 @@ pub struct Statistics {
     pub cg_solves: u64,
     /// Largest relative residual a CG solve ended with.
     pub cg_max_residual: f64,
+    /// Compute dispatches encoded (a GPU backend; 0 on the CPU).
+    pub dispatches: u64,
+    /// Bytes of device memory those dispatches move by the design's count: every bound storage
+    /// buffer read once, every read-write one also written once (a GPU backend; 0 on the CPU).
+    pub device_bytes: u64,
     /// Wall-clock time per stage.
     pub timings: Timings,
 }
@@ -247,7 +252,9 @@ pub trait Solver: Send {
     fn device(&self) -> String;
     /// The model being stepped.
     fn model(&self) -> &Model;
-    /// Advances `steps` steps; stops at the first unstable one.
+    /// Advances `steps` steps; stops at the first unstable one. A solver that runs ahead
+    /// reports an instability here or by the next call that waits for its steps
+    /// ([`Solver::sync`], the state, the energies, the history).
     fn advance(&mut self, steps: u64) -> Result<(), StepError>;
     /// Waits until every step asked for has been computed (a no-op where stepping is
     /// synchronous): what a benchmark calls before stopping its clock.
