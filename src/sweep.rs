@@ -44,7 +44,6 @@ use std::time::Instant;
 
 use glam::DVec3;
 use rand::{RngExt, SeedableRng};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value as Json};
 use softbody_scene::error::Seg;
@@ -130,7 +129,7 @@ pub enum SweepError {
         /// Threads asked for.
         workers: usize,
         /// Why.
-        source: rayon::ThreadPoolBuildError,
+        source: io::Error,
     },
 }
 
@@ -1135,11 +1134,8 @@ pub fn run_local(
         .workers
         .unwrap_or((cores / sweep.threads).max(1))
         .max(1);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(workers)
-        .build()
-        .map_err(|source| SweepError::Threads { workers, source })?;
     let done = AtomicUsize::new(0);
+    let next = AtomicUsize::new(0);
     let counts = Mutex::new(Outcome {
         planned: planned.len(),
         skipped: planned.len() - todo.len(),
@@ -1147,9 +1143,14 @@ pub fn run_local(
     });
     let write_error: Mutex<Option<io::Error>> = Mutex::new(None);
     progress(0, todo.len());
-    pool.install(|| {
-        // One run per task, in plan order as far as the workers allow.
-        todo.par_iter().with_max_len(1).for_each(|&i| {
+    // Plain threads taking the next run from a counter, not a rayon pool: each run steps in
+    // its solver's own pool, and a rayon worker blocked in another pool's `install` steals
+    // work from its own meanwhile — another run, whose solver blocks in turn — so the runs
+    // nested on one stack until it overflowed (a 1,000-run sweep did).
+    let worker = || {
+        loop {
+            let k = next.fetch_add(1, Ordering::Relaxed);
+            let Some(&i) = todo.get(k) else { break };
             let record = sweep.job(i, out).run();
             {
                 let mut c = counts.lock().expect("not poisoned");
@@ -1164,8 +1165,17 @@ pub fn run_local(
                 write_error.lock().expect("not poisoned").get_or_insert(e);
             }
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, todo.len());
-        });
-    });
+        }
+    };
+    std::thread::scope(|scope| -> Result<(), SweepError> {
+        for w in 0..workers.min(todo.len()) {
+            std::thread::Builder::new()
+                .name(format!("sweep-{w}"))
+                .spawn_scoped(scope, worker)
+                .map_err(|source| SweepError::Threads { workers, source })?;
+        }
+        Ok(())
+    })?;
     if let Some(source) = write_error.into_inner().expect("not poisoned") {
         return Err(SweepError::Io {
             path: manifest.path().to_owned(),
@@ -1455,6 +1465,34 @@ friction = 0.3
         let merged = run_local(&s, &out, &Options::default(), &|_, _| {}).unwrap();
         assert_eq!((merged.skipped, merged.ok), (3, 0));
         assert_eq!(read_records(&out.join(MANIFEST)).unwrap().len(), 3);
+    }
+
+    /// 1,000 runs on two workers: each run's solver steps in a pool of its own, which nested
+    /// the runs on one stack (and overflowed it) when the workers were a rayon pool.
+    #[test]
+    fn a_thousand_runs_finish_on_two_workers() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = "[simulation]\ndt = 0.001\nduration = 0.005\nframe_rate = 200.0\n\
+                     [[body]]\nkind = \"particles\"\npositions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n";
+        std::fs::write(dir.path().join("p.toml"), scene).unwrap();
+        let text = "scene = \"p.toml\"\nformat = \"none\"\nmetrics = [\"final_time\"]\n\
+                    [random]\nruns = 1000\nseed = 5\n[random.parameters]\n\
+                    \"body[0].masses\" = { choice = [[1.0], [2.0]] }\n";
+        let s = Sweep::from_toml(text, &dir.path().join("sweep.toml")).unwrap();
+        let options = Options {
+            workers: Some(2),
+            task: None,
+        };
+        let out = dir.path().join("out");
+        let o = run_local(&s, &out, &options, &|_, _| {}).unwrap();
+        assert_eq!((o.planned, o.ok), (1000, 1000));
+        let records = read_manifest(&s, &out).unwrap();
+        assert_eq!(records.len(), 1000);
+        assert!(
+            records
+                .iter()
+                .all(|r| r.metrics["final_time"] == Json::from(0.005))
+        );
     }
 
     #[test]

@@ -106,6 +106,20 @@ fn sweep_failure(e: SweepError) -> Failure {
 /// The sweep on Ray, by the Python package's executor (Ray's client is Python).
 fn ray(args: &SweepArgs, address: &str, out: &std::path::Path) -> Result<(), Failure> {
     let python = std::env::var_os("SOFTBODY_PYTHON").unwrap_or_else(|| "python3".into());
+    // Said up front, in words, rather than as the interpreter's ModuleNotFoundError.
+    let usable = Command::new(&python)
+        .args(["-c", "import softbody, ray"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !usable {
+        return Err(bad_input(anyhow::anyhow!(
+            "--ray runs the sweep through the Python package, which {} cannot import with Ray: \
+             pip install ./crates/python ray (or name another interpreter with SOFTBODY_PYTHON)",
+            python.to_string_lossy()
+        )));
+    }
     let mut command = Command::new(&python);
     command
         .args(["-m", "softbody", "sweep"])

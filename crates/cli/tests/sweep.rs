@@ -176,3 +176,21 @@ fn unstable_runs_are_results_and_failed_writes_are_exit_1() {
     assert!(out.stderr.contains("1 runs failed"), "{}", out.stderr);
     assert_eq!(records(&sb, "manifest.jsonl")[0]["status"], "failed");
 }
+
+#[test]
+fn ray_without_the_python_package_is_bad_input() {
+    let (sb, sweep) = sandbox("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0]\n");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_softbody"))
+        .args(["sweep", &sweep, "--ray", "auto"])
+        .current_dir(sb.path())
+        .env("SOFTBODY_PYTHON", "/nonexistent/python")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(EXIT_BAD_INPUT));
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        stderr.contains("cannot import with Ray: pip install ./crates/python ray"),
+        "{stderr}"
+    );
+    assert!(!sb.path().join("out").exists());
+}
