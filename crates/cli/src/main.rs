@@ -47,6 +47,11 @@ mod status {
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// GPU adapter to run on (`--backend gpu`), by part of its name, e.g. "H100" or
+    /// "llvmpipe"; default: a discrete GPU before an integrated or software one. The same as
+    /// setting SOFTBODY_ADAPTER; WGPU_BACKEND chooses the backends.
+    #[arg(long, global = true, value_name = "NAME")]
+    adapter: Option<String>,
 }
 
 #[derive(Subcommand)]
@@ -90,6 +95,11 @@ fn bad_input(error: impl Into<anyhow::Error>) -> Failure {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(adapter) = &cli.adapter {
+        // SAFETY: no other thread runs yet (the solvers' pools, signal handlers and GPU
+        // devices are made later), so nothing reads the environment concurrently.
+        unsafe { std::env::set_var(softbody::gpu::ADAPTER_VARIABLE, adapter) };
+    }
     let result = match cli.command {
         Command::Run(args) => run::run(args),
         Command::Check(args) => check::check(args),

@@ -1,8 +1,10 @@
 //! Finding an adapter, opening its device, and catching what the device reports later.
 //!
 //! Backends come from the environment (`WGPU_BACKEND`, e.g. `vulkan` or `gl`; default: every
-//! backend compiled in), the power preference from `WGPU_POWER_PREF` (default: high
-//! performance). The device gets the adapter's own limits and no optional features.
+//! backend compiled in), the adapter from [`choose`]: a name asked for with `SOFTBODY_ADAPTER`
+//! (`--adapter`), else a discrete GPU before an integrated, virtual or software one
+//! (`WGPU_POWER_PREF=low` puts an integrated GPU first). The device gets the adapter's own
+//! limits and no optional features.
 //!
 //! wgpu's default handler for errors outside an error scope panics; [`Gpu::open`] installs one
 //! that records the first such error (and a device loss), and every solver on the device turns
@@ -82,9 +84,63 @@ pub fn backends_list(backends: wgpu::Backends) -> String {
     }
 }
 
+/// The environment variable that picks an adapter by (part of) its name, case-insensitive
+/// (`softbody --adapter NAME` sets it).
+pub const ADAPTER_VARIABLE: &str = "SOFTBODY_ADAPTER";
+
+/// Which of `adapters` to run on: those whose name contains `wanted` (case-insensitive) when
+/// it is given, then by kind: a discrete GPU first, then an integrated one (the other way round
+/// with `WGPU_POWER_PREF=low`), a virtual one, another, and a software adapter (llvmpipe,
+/// lavapipe, WARP) last; between equals, by backend (Vulkan, Metal, DX12, GL) and then the order
+/// wgpu lists them in, so that the choice is the same every time.
+pub fn choose(
+    adapters: &[wgpu::AdapterInfo],
+    wanted: Option<&str>,
+    preference: Option<wgpu::PowerPreference>,
+) -> Result<usize, String> {
+    use wgpu::{Backend, DeviceType};
+    let kind = |t: DeviceType| match (t, preference) {
+        (DeviceType::IntegratedGpu, Some(wgpu::PowerPreference::LowPower)) => 0,
+        (DeviceType::DiscreteGpu, _) => 1,
+        (DeviceType::IntegratedGpu, _) => 2,
+        (DeviceType::VirtualGpu, _) => 3,
+        (DeviceType::Other, _) => 4,
+        (DeviceType::Cpu, _) => 5,
+    };
+    let backend = |b: Backend| match b {
+        Backend::Vulkan => 0,
+        Backend::Metal => 1,
+        Backend::Dx12 => 2,
+        Backend::Gl => 3,
+        _ => 4,
+    };
+    let wanted_lower = wanted.map(str::to_lowercase);
+    adapters
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| {
+            wanted_lower
+                .as_ref()
+                .is_none_or(|w| a.name.to_lowercase().contains(w.as_str()))
+        })
+        .min_by_key(|&(k, a)| (kind(a.device_type), backend(a.backend), k))
+        .map(|(k, _)| k)
+        .ok_or_else(|| match wanted {
+            Some(w) => format!(
+                "no adapter's name contains `{w}` ({ADAPTER_VARIABLE}, --adapter); found: {}",
+                if adapters.is_empty() {
+                    "none".to_owned()
+                } else {
+                    adapters.iter().map(describe).collect::<Vec<_>>().join("; ")
+                }
+            ),
+            None => "wgpu found no adapter".to_owned(),
+        })
+}
+
 impl Gpu {
-    /// Finds an adapter that runs compute shaders and opens its device: a context that many
-    /// solvers may share ([`GpuSolver::on`](crate::GpuSolver::on)).
+    /// Finds an adapter that runs compute shaders ([`choose`]) and opens its device: a context
+    /// that many solvers may share ([`GpuSolver::on`](crate::GpuSolver::on)).
     pub fn open() -> Result<Arc<Gpu>, GpuError> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         let tried = desc.backends & wgpu::Instance::enabled_backend_features();
@@ -99,20 +155,21 @@ impl Gpu {
             });
         }
         let instance = wgpu::Instance::new(desc);
-        let adapter =
-            pollster::block_on(
-                instance.request_adapter(&wgpu::RequestAdapterOptions {
-                    power_preference: wgpu::PowerPreference::from_env()
-                        .unwrap_or(wgpu::PowerPreference::HighPerformance),
-                    force_fallback_adapter: false,
-                    compatible_surface: None,
-                    apply_limit_buckets: false,
-                }),
-            )
-            .map_err(|e| GpuError::NoAdapter {
-                tried: tried_names.clone(),
-                detail: e.to_string(),
-            })?;
+        let adapters = pollster::block_on(instance.enumerate_adapters(tried));
+        let infos: Vec<wgpu::AdapterInfo> = adapters.iter().map(|a| a.get_info()).collect();
+        let wanted = std::env::var(ADAPTER_VARIABLE)
+            .ok()
+            .filter(|w| !w.is_empty());
+        let preference = wgpu::PowerPreference::from_env();
+        let adapter = match choose(&infos, wanted.as_deref(), preference) {
+            Ok(k) => adapters.into_iter().nth(k).expect("an index of the list"),
+            Err(detail) => {
+                return Err(GpuError::NoAdapter {
+                    tried: tried_names,
+                    detail,
+                });
+            }
+        };
         let info = adapter.get_info();
         let name = describe(&info);
         let downlevel = adapter.get_downlevel_capabilities().flags;
@@ -163,4 +220,73 @@ impl Gpu {
 
 fn describe(info: &wgpu::AdapterInfo) -> String {
     format!("{} via {}", info.name, backend_name(info.backend))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::choose;
+    use wgpu::{AdapterInfo, Backend, DeviceType, PowerPreference};
+
+    fn adapter(name: &str, device_type: DeviceType, backend: Backend) -> AdapterInfo {
+        AdapterInfo {
+            name: name.to_owned(),
+            vendor: 0,
+            device: 0,
+            device_type,
+            device_pci_bus_id: String::new(),
+            driver: String::new(),
+            driver_info: String::new(),
+            backend,
+            subgroup_min_size: 4,
+            subgroup_max_size: 128,
+            transient_saves_memory: None,
+            limit_bucket: None,
+        }
+    }
+
+    /// A machine with a software adapter listed first (as Mesa lists llvmpipe), an integrated
+    /// and a discrete GPU, the discrete one on two backends.
+    #[test]
+    fn a_discrete_gpu_is_chosen_before_integrated_and_software_ones() {
+        let adapters = [
+            adapter(
+                "llvmpipe (LLVM 15.0.6, 256 bits)",
+                DeviceType::Cpu,
+                Backend::Vulkan,
+            ),
+            adapter(
+                "Intel(R) UHD Graphics 770",
+                DeviceType::IntegratedGpu,
+                Backend::Vulkan,
+            ),
+            adapter(
+                "NVIDIA H100 80GB HBM3",
+                DeviceType::DiscreteGpu,
+                Backend::Gl,
+            ),
+            adapter(
+                "NVIDIA H100 80GB HBM3",
+                DeviceType::DiscreteGpu,
+                Backend::Vulkan,
+            ),
+        ];
+        assert_eq!(choose(&adapters, None, None), Ok(3));
+        assert_eq!(
+            choose(&adapters, None, Some(PowerPreference::LowPower)),
+            Ok(1)
+        );
+        assert_eq!(choose(&adapters, Some("LLVMPIPE"), None), Ok(0));
+        assert_eq!(choose(&adapters[..1], None, None), Ok(0));
+        let e = choose(&adapters, Some("radeon"), None).unwrap_err();
+        assert!(
+            e.starts_with(
+                "no adapter's name contains `radeon` (SOFTBODY_ADAPTER, --adapter); found: llvmpipe"
+            ),
+            "{e}"
+        );
+        assert_eq!(
+            choose(&[], None, None),
+            Err("wgpu found no adapter".to_owned())
+        );
+    }
 }

@@ -44,7 +44,7 @@ mod spring_forces;
 mod submit;
 pub mod terrain;
 
-pub use device::Gpu;
+pub use device::{ADAPTER_VARIABLE, Gpu};
 pub use grid::Grid;
 pub use integrators::implicit_euler::CG_TOLERANCE_F32;
 pub use solver::{GpuOptions, GpuSolver, STEPS_PER_SUBMISSION};
