@@ -5,7 +5,8 @@
 //! [`Backend`], and [`run`](run::run) it frame by frame into a [`FrameSink`](output::FrameSink)
 //! (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series; JSON Lines read back by
 //! [`output::jsonl::Reader`]), or measure the integrators against a converged reference with a
-//! [`compare::Study`].
+//! [`compare::Study`]. Any value of a scene file can be changed by its key path with a
+//! [`Setting`] ([`load_scene`]), and a [`sweep`] runs a scene many times with values changed.
 //!
 //! ```
 //! use softbody::{Backend, Scene, Solver};

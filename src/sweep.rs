@@ -1491,7 +1491,7 @@ friction = 0.3
         assert!(
             records
                 .iter()
-                .all(|r| r.metrics["final_time"] == Json::from(0.005))
+                .all(|r| r.metrics["final_time"] == 0.005)
         );
     }
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import softbody
-from conftest import CUBE, require_gpu
+from conftest import CUBE, SCENES, require_gpu
 
 
 def test_step_positions_velocities_and_time(cube: softbody.Scene) -> None:
@@ -103,9 +103,7 @@ def test_instability_raises_with_where_it_happened() -> None:
 
 
 def test_the_gil_is_released_while_stepping() -> None:
-    jelly = softbody.load_scene(
-        softbody.Scene.from_file(__import__("conftest").SCENES / "jelly-on-ground.toml")
-    )
+    jelly = softbody.load_scene(SCENES / "jelly-on-ground.toml")
     sim = softbody.Simulation(jelly, threads=1)
     ticks = 0
     stepping = threading.Event()
@@ -127,7 +125,9 @@ def test_the_gil_is_released_while_stepping() -> None:
     worker.join()
     elapsed = time.perf_counter() - started
     assert sim.steps == 4000
-    assert ticks >= 0.3 * elapsed / 0.002, (ticks, elapsed)
+    # Holding the GIL, the step would block this thread until it ends: a tick or two at most.
+    # Released, this thread ticks every millisecond or so of the ~0.1 s of stepping.
+    assert ticks >= 5, (ticks, elapsed)
 
 
 def test_the_gpu_backend_runs_the_same_scene(cube: softbody.Scene) -> None:
