@@ -49,11 +49,7 @@ use std::str::FromStr;
 /// The vector types of the API (`State::x` is a `Vec<glam::DVec3>`), so that an embedder uses
 /// the same version.
 pub use glam;
-pub use overrides::{
-    OverrideError, Overrides, Setting, load_scene, scene_from_toml, scene_text,
-};
-/// The TOML crate of [`Setting`] values, so that an embedder uses the same version.
-pub use toml;
+pub use overrides::{OverrideError, Overrides, Setting, load_scene, scene_from_toml, scene_text};
 /// The CPU solver crate.
 pub use softbody_cpu as cpu;
 pub use softbody_cpu::CpuSolver;
@@ -68,6 +64,8 @@ pub use softbody_scene::{
 };
 /// The terrain crate: point queries, the heightfield split rule, signed-distance grids.
 pub use softbody_terrain as terrain;
+/// The TOML crate of [`Setting`] values, so that an embedder uses the same version.
+pub use toml;
 
 // Every Rust snippet of the README and of docs/scene-format.md compiles as a doc-test (and
 // runs, unless it says `no_run`); docs/physics.md holds equations, no code.

@@ -1488,11 +1488,7 @@ friction = 0.3
         assert_eq!((o.planned, o.ok), (1000, 1000));
         let records = read_manifest(&s, &out).unwrap();
         assert_eq!(records.len(), 1000);
-        assert!(
-            records
-                .iter()
-                .all(|r| r.metrics["final_time"] == 0.005)
-        );
+        assert!(records.iter().all(|r| r.metrics["final_time"] == 0.005));
     }
 
     #[test]
