@@ -237,6 +237,8 @@ pub struct Measurement {
     pub design: Option<Design>,
     /// What ran it (thread count, adapter).
     pub device: String,
+    /// The spring kernel that ran ([`softbody_scene::Statistics::kernel`]).
+    pub kernel: &'static str,
 }
 
 /// What a GPU solver's design costs per step, counted as it encodes (so the same on any
@@ -267,7 +269,7 @@ impl Measurement {
     }
 
     /// One JSON object: `particles`, `springs`, `steps`, `seconds`, `particle_steps_per_s`,
-    /// `spring_steps_per_s`, `bytes_per_particle`, and
+    /// `spring_steps_per_s`, `bytes_per_particle`, `kernel`, and
     /// `cg_iterations_per_step` for implicit Euler, plus what was run (`n`, `backend`,
     /// `device`, `integrator`, `dt`, `stiffness`, `warmup_steps`).
     pub fn to_json(&self, options: &Options) -> serde_json::Value {
@@ -287,6 +289,7 @@ impl Measurement {
             "particle_steps_per_s": self.particle_steps_per_s(),
             "spring_steps_per_s": self.spring_steps_per_s(),
             "bytes_per_particle": self.bytes_per_particle,
+            "kernel": self.kernel,
         });
         if let Some(design) = &self.design {
             v["dispatches_per_step"] = design.dispatches_per_step.into();
@@ -422,5 +425,6 @@ fn time(
                 / particles as f64,
         }),
         device: solver.device(),
+        kernel: after.kernel,
     })
 }

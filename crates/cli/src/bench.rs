@@ -112,8 +112,8 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
             if !header {
                 header = true;
                 text.push_str(&format!(
-                    "{} on {} ({}), k_s = {} N/m\n",
-                    options.integrator, options.backend, m.device, options.stiffness
+                    "{} on {} ({}), k_s = {} N/m, kernel {}\n",
+                    options.integrator, options.backend, m.device, options.stiffness, m.kernel
                 ));
                 text.push_str(&format!(
                     "{}{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}{}\n",

@@ -34,16 +34,21 @@
 //! Each spring is computed once, by the same kernel, from the same inputs, and every sum has
 //! the gather's order, so the result does not depend on the number of chunks or threads.
 //!
-//! Models that are not forward take the plain route: every spring force into a buffer, then a
-//! gather per particle.
+//! Models whose bodies are all cuboids take the stencil route instead
+//! ([`crate::spring_forces::stencil`]): one slab of planes per chunk, partners at constant
+//! offsets, the sums again in the gather's order. Models that are not forward take the plain
+//! route: every spring force into a buffer, then a gather per particle. All three give the
+//! same bits.
 
 use std::marker::PhantomData;
 use std::ops::Range;
+use std::sync::Mutex;
 
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{Model, Springs};
 
+use crate::spring_forces::stencil::{Slab, Stencil};
 use crate::spring_forces::{Cursor, Kernel, LANES, Sum, gather_block};
 
 /// Particles gathered, or updated, together.
@@ -59,10 +64,49 @@ pub(crate) struct Plan {
     threads: usize,
     /// Chunk c is particles `bounds[c]..bounds[c + 1]`.
     bounds: Vec<usize>,
-    /// The sweep's plan, for forward models.
-    forward: Option<Forward>,
-    /// Plain route: the force of every spring.
-    per_spring: Vec<DVec3>,
+    route: Route,
+}
+
+/// How a pass finds each particle's springs.
+#[derive(Debug)]
+enum Route {
+    /// Every body a cuboid: the stencil of each lattice, and chunk c's slab of planes.
+    Stencil {
+        stencils: Vec<Stencil>,
+        slabs: Vec<Mutex<Slab>>,
+    },
+    /// Forward models: the sweep.
+    Sweep(Forward),
+    /// Others: every spring force into `per_spring`, then a gather per particle.
+    Gather { per_spring: Vec<DVec3> },
+}
+
+impl Clone for Route {
+    fn clone(&self) -> Route {
+        match self {
+            Route::Stencil { stencils, slabs } => Route::Stencil {
+                stencils: stencils.clone(),
+                slabs: (slabs.iter())
+                    .map(|s| Mutex::new(s.lock().unwrap_or_else(|e| e.into_inner()).clone()))
+                    .collect(),
+            },
+            Route::Sweep(f) => Route::Sweep(f.clone()),
+            Route::Gather { per_spring } => Route::Gather {
+                per_spring: per_spring.clone(),
+            },
+        }
+    }
+}
+
+/// The routes a plan can take ([`Plan::with_route`]), by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RouteKind {
+    /// [`crate::spring_forces::stencil`], for models of cuboids only.
+    Stencil,
+    /// The fused sweep over springs sorted by their first end, for forward models.
+    Sweep,
+    /// Every spring into a buffer, then a gather per particle: any model.
+    Gather,
 }
 
 #[derive(Debug, Clone)]
@@ -82,13 +126,55 @@ struct Forward {
 }
 
 impl Plan {
-    /// The plan of `model` for the current rayon pool.
+    /// The plan of `model` for the current rayon pool, by the fastest route that applies.
     pub(crate) fn new(model: &Model) -> Plan {
+        let route = if Plan::stencil_applies(model) {
+            RouteKind::Stencil
+        } else if forward_starts(model.len(), &model.springs).is_some() {
+            RouteKind::Sweep
+        } else {
+            RouteKind::Gather
+        };
+        Plan::with_route(model, route)
+    }
+
+    /// Whether every body of `model` is a lattice with a stencil.
+    fn stencil_applies(model: &Model) -> bool {
+        !model.lattices.is_empty() && model.lattices.len() == model.bodies.len()
+    }
+
+    /// The plan of `model` for the current rayon pool by `route`; panics if it does not apply.
+    pub(crate) fn with_route(model: &Model, route: RouteKind) -> Plan {
         let n = model.len();
         let threads = rayon::current_num_threads();
         let springs = &model.springs;
-        let (bounds, forward) = match forward_starts(n, springs) {
-            Some(a_start) => {
+        let (bounds, route) = match route {
+            RouteKind::Stencil => {
+                assert!(Plan::stencil_applies(model), "a model of cuboids only");
+                // About one slab per thread on the whole, in proportion to each body's
+                // particles; each costs its thread the springs from the two planes below it
+                // again.
+                let stencils: Vec<Stencil> = model.lattices.iter().map(Stencil::new).collect();
+                let mut bounds = vec![0];
+                let mut slabs = Vec::new();
+                for (l, stencil) in stencils.iter().enumerate() {
+                    let planes = stencil.planes();
+                    let share = (threads * planes * stencil.plane_particles() + n / 2) / n.max(1);
+                    let count = share.clamp(1, planes);
+                    for c in 0..count {
+                        let (k0, k1) = (c * planes / count, (c + 1) * planes / count);
+                        let slab = Slab::new(stencil, l, k0, k1);
+                        let (first, end) = slab.particles(stencil);
+                        assert_eq!(first, *bounds.last().expect("bounds start at 0"));
+                        bounds.push(end);
+                        slabs.push(Mutex::new(slab));
+                    }
+                }
+                assert_eq!(bounds.last(), Some(&n), "the lattices cover the particles");
+                (bounds, Route::Stencil { stencils, slabs })
+            }
+            RouteKind::Sweep => {
+                let a_start = forward_starts(n, springs).expect("a forward model");
                 // One chunk per thread (each boundary costs phase-A work), placed so that the
                 // chunks' phase B take about equal time: a chunk computes the forces of its
                 // springs before its tail (the last chunk: all of its springs), and sums all.
@@ -126,23 +212,44 @@ impl Plan {
                     tail_reach,
                     sums: vec![Sum::ZERO; n],
                 };
-                (bounds, Some(forward))
+                (bounds, Route::Sweep(forward))
             }
-            None => {
+            RouteKind::Gather => {
                 // Gathers are independent: four chunks per thread balance the load.
                 let k = (4 * threads).min(n / MIN_CHUNK).max(1);
-                ((0..=k).map(|c| c * n / k).collect(), None)
+                let per_spring = vec![DVec3::ZERO; springs.len()];
+                (
+                    (0..=k).map(|c| c * n / k).collect(),
+                    Route::Gather { per_spring },
+                )
             }
-        };
-        let per_spring = match forward {
-            Some(_) => Vec::new(),
-            None => vec![DVec3::ZERO; springs.len()],
         };
         Plan {
             threads,
             bounds,
-            forward,
-            per_spring,
+            route,
+        }
+    }
+
+    /// The route's name, with the instruction set its kernel uses
+    /// ([`softbody_scene::Statistics::kernel`]).
+    pub(crate) fn kernel_name(&self) -> &'static str {
+        let avx2 = crate::spring_forces::avx2();
+        match (self.route(), avx2) {
+            (RouteKind::Stencil, true) => "stencil-avx2",
+            (RouteKind::Stencil, false) => "stencil",
+            (RouteKind::Sweep, true) => "sweep-avx2",
+            (RouteKind::Sweep, false) => "sweep",
+            (RouteKind::Gather, _) => "gather",
+        }
+    }
+
+    /// The route the plan takes.
+    pub(crate) fn route(&self) -> RouteKind {
+        match self.route {
+            Route::Stencil { .. } => RouteKind::Stencil,
+            Route::Sweep(_) => RouteKind::Sweep,
+            Route::Gather { .. } => RouteKind::Gather,
         }
     }
 
@@ -154,16 +261,22 @@ impl Plan {
     /// Bytes held on the heap.
     pub(crate) fn memory_bytes(&self) -> u64 {
         use crate::vec_bytes;
-        vec_bytes(&self.per_spring)
-            + vec_bytes(&self.bounds)
-            + self.forward.as_ref().map_or(0, |f| {
-                vec_bytes(&f.a_start)
-                    + vec_bytes(&f.tail)
-                    + vec_bytes(&f.tail_offset)
-                    + vec_bytes(&f.tail_reach)
-                    + vec_bytes(&f.tail_forces)
-                    + vec_bytes(&f.sums)
-            })
+        vec_bytes(&self.bounds)
+            + match &self.route {
+                Route::Stencil { slabs, .. } => slabs
+                    .iter()
+                    .map(|s| s.lock().map_or(0, |s| s.memory_bytes()))
+                    .sum(),
+                Route::Sweep(f) => {
+                    vec_bytes(&f.a_start)
+                        + vec_bytes(&f.tail)
+                        + vec_bytes(&f.tail_offset)
+                        + vec_bytes(&f.tail_reach)
+                        + vec_bytes(&f.tail_forces)
+                        + vec_bytes(&f.sums)
+                }
+                Route::Gather { per_spring } => vec_bytes(per_spring),
+            }
     }
 }
 
@@ -363,29 +476,49 @@ where
     let ctx = Chunks {
         bounds: &plan.bounds,
     };
-    let Some(fw) = &mut plan.forward else {
-        // The plain route: every spring, then a gather per block of particles.
-        let per_spring = &mut plan.per_spring[..];
-        kernel.compute(springs, x, v, per_spring);
-        let per_spring = &*per_spring;
-        let leaf = |c: usize, _: &mut [Sum], mut out: O::Chunk| {
-            let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
-            let mut bad = None;
-            let mut sums = [DVec3::ZERO; BLOCK];
-            for b0 in (start..end).step_by(BLOCK) {
-                let b1 = (b0 + BLOCK).min(end);
-                let sums = &mut sums[..b1 - b0];
-                gather_block(&model.adjacency, per_spring, b0, sums);
-                for (k, &f) in sums.iter().enumerate() {
-                    let i = b0 + k;
-                    if !update(i, f, O::item(&mut out, i - start)) && bad.is_none() {
-                        bad = Some(i);
+    let fw = match &mut plan.route {
+        Route::Stencil { stencils, slabs } => {
+            let (stencils, slabs) = (&stencils[..], &slabs[..]);
+            let leaf = |c: usize, _: &mut [Sum], mut out: O::Chunk| {
+                // Each chunk's slab is locked by its one task only.
+                let mut slab = slabs[c].lock().unwrap_or_else(|e| e.into_inner());
+                let start = ctx.bounds[c];
+                let mut bad = None;
+                let stencil = &stencils[slab.lattice];
+                slab.sweep(stencil, x, v, &mut |p, f| {
+                    if !update(p, f, O::item(&mut out, p - start)) && bad.is_none() {
+                        bad = Some(p);
+                    }
+                });
+                bad
+            };
+            return ctx.chunks::<O>(0, k, &mut [], outputs, &leaf);
+        }
+        Route::Sweep(fw) => fw,
+        Route::Gather { per_spring } => {
+            // The plain route: every spring, then a gather per block of particles.
+            let per_spring = &mut per_spring[..];
+            kernel.compute(springs, x, v, per_spring);
+            let per_spring = &*per_spring;
+            let leaf = |c: usize, _: &mut [Sum], mut out: O::Chunk| {
+                let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
+                let mut bad = None;
+                let mut sums = [DVec3::ZERO; BLOCK];
+                for b0 in (start..end).step_by(BLOCK) {
+                    let b1 = (b0 + BLOCK).min(end);
+                    let sums = &mut sums[..b1 - b0];
+                    gather_block(&model.adjacency, per_spring, b0, sums);
+                    for (k, &f) in sums.iter().enumerate() {
+                        let i = b0 + k;
+                        if !update(i, f, O::item(&mut out, i - start)) && bad.is_none() {
+                            bad = Some(i);
+                        }
                     }
                 }
-            }
-            bad
-        };
-        return ctx.chunks::<O>(0, k, &mut [], outputs, &leaf);
+                bad
+            };
+            return ctx.chunks::<O>(0, k, &mut [], outputs, &leaf);
+        }
     };
     let Forward {
         a_start,
@@ -502,25 +635,23 @@ mod tests {
     use super::*;
     use crate::spring_forces::{gather, spring_force};
 
-    /// A 13×11×17 cube (2431 particles, up to 9 chunks) with every particle moved and moving
-    /// differently, and one spring crushed to zero length.
-    fn perturbed() -> (Model, Vec<DVec3>, Vec<DVec3>) {
-        let text = r#"
-            [simulation]
-            integrator = "symplectic-euler"
-            dt = 1e-5
-            duration = 0.0
-            [[body]]
-            name = "b"
-            kind = "cuboid"
-            size = [1.2, 1.0, 1.6]
-            resolution = [13, 11, 17]
-            mass = 2.0
-            structural = { stiffness = 2000.0, damping = 5.0 }
-            shear = { stiffness = 2000.0, damping = 5.0 }
-            bending = { stiffness = 2000.0, damping = 5.0 }
-        "#;
-        let scene = Scene::from_toml(text, Path::new("test.toml")).expect("valid scene");
+    /// Cuboids of `resolutions` side by side (one body each), with every particle moved and
+    /// moving differently, and one spring crushed to zero length.
+    fn perturbed_bodies(resolutions: &[[u32; 3]]) -> (Model, Vec<DVec3>, Vec<DVec3>) {
+        let mut text = String::from(
+            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-5\nduration = 0.0\n",
+        );
+        for (b, [nx, ny, nz]) in resolutions.iter().enumerate() {
+            text += &format!(
+                "[[body]]\nname = \"b{b}\"\nkind = \"cuboid\"\ncenter = [{x}, 1.0, 0.0]\n\
+                 size = [1.2, 1.0, 1.6]\nresolution = [{nx}, {ny}, {nz}]\nmass = 2.0\n\
+                 structural = {{ stiffness = 2000.0, damping = 5.0 }}\n\
+                 shear = {{ stiffness = 1500.0, damping = 4.0 }}\n\
+                 bending = {{ stiffness = 700.0, damping = 3.0 }}\n",
+                x = 3.0 * b as f64,
+            );
+        }
+        let scene = Scene::from_toml(&text, Path::new("test.toml")).expect("valid scene");
         let (model, state) = Model::build(&scene);
         let wobble = |i: usize, a: f64, b: f64, c: f64| {
             let t = i as f64;
@@ -533,6 +664,11 @@ mod tests {
         let s = model.springs.len() / 2;
         x[model.springs.b[s] as usize] = x[model.springs.a[s] as usize];
         (model, x, v)
+    }
+
+    /// A 13×11×17 cube (2431 particles, up to 9 chunks), perturbed.
+    fn perturbed() -> (Model, Vec<DVec3>, Vec<DVec3>) {
+        perturbed_bodies(&[[13, 11, 17]])
     }
 
     /// Every spring's force by the scalar definition, `spring_force`.
@@ -585,11 +721,52 @@ mod tests {
         }
     }
 
-    /// The fused sweep (forward models) and the plain route (others) hand every particle the
-    /// bits of the scalar gather, for any number of threads and so of chunks.
+    /// Sums of a pass over `model` at (x, v) by `route` (the stencil's scalar path if
+    /// `scalar`), on `threads` threads.
+    fn pass_sums(
+        model: &Model,
+        x: &[DVec3],
+        v: &[DVec3],
+        (route, scalar): (RouteKind, bool),
+        threads: usize,
+    ) -> Vec<DVec3> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool");
+        pool.install(|| {
+            let mut plan = Plan::with_route(model, route);
+            assert_eq!(plan.route(), route);
+            if let (Route::Stencil { stencils, .. }, true) = (&mut plan.route, scalar) {
+                stencils.iter_mut().for_each(Stencil::scalar);
+            }
+            let n = model.len();
+            let (mut sums, mut seen) = (vec![DVec3::NAN; n], vec![DVec3::NAN; n]);
+            let bad = pass(
+                &mut plan,
+                Kernel::new(&model.springs),
+                model,
+                x,
+                v,
+                (&mut sums[..], &mut seen[..]),
+                |i, f, (sum, at)| {
+                    (*sum, *at) = (f, x[i]);
+                    true
+                },
+            );
+            assert_eq!(bad, None);
+            assert_eq!(bits(&seen), bits(x), "every particle updated once");
+            sums
+        })
+    }
+
+    /// Every route (the stencil and the fused sweep for models of cuboids, the plain route for
+    /// any) hands every particle the bits of the scalar gather, for any number of threads and
+    /// so of chunks.
     #[test]
     fn pass_sums_are_the_gather_for_any_thread_count() {
         let (forward, x, v) = perturbed();
+        assert_eq!(Plan::new(&forward).route(), RouteKind::Stencil);
         // The same springs with every third one reversed: no longer forward.
         let mut plain = forward.clone();
         for k in (0..plain.springs.len()).step_by(3) {
@@ -597,35 +774,46 @@ mod tests {
             (s.a[k], s.b[k]) = (s.b[k], s.a[k]);
         }
         plain.adjacency = Adjacency::build(plain.len(), &plain.springs);
-        for model in [&forward, &plain] {
+        plain.lattices.clear();
+        assert_eq!(Plan::new(&plain).route(), RouteKind::Gather);
+        let cases = [
+            (&forward, RouteKind::Stencil),
+            (&forward, RouteKind::Sweep),
+            (&forward, RouteKind::Gather),
+            (&plain, RouteKind::Gather),
+        ];
+        for (model, route) in cases {
             let expected = bits(&reference(model, &x, &v));
             for threads in [1, 2, 3, 4, 7] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .expect("thread pool");
-                let got = pool.install(|| {
-                    let mut plan = Plan::new(model);
-                    assert_eq!(plan.forward.is_some(), std::ptr::eq(model, &forward));
-                    let n = model.len();
-                    let (mut sums, mut seen) = (vec![DVec3::NAN; n], vec![DVec3::NAN; n]);
-                    let bad = pass(
-                        &mut plan,
-                        Kernel::new(&model.springs),
-                        model,
-                        &x,
-                        &v,
-                        (&mut sums[..], &mut seen[..]),
-                        |i, f, (sum, at)| {
-                            (*sum, *at) = (f, x[i]);
-                            true
-                        },
-                    );
-                    assert_eq!(bad, None);
-                    assert_eq!(bits(&seen), bits(&x), "every particle updated once");
-                    sums
-                });
-                assert_eq!(bits(&got), expected, "{threads} threads");
+                let got = pass_sums(model, &x, &v, (route, false), threads);
+                assert_eq!(bits(&got), expected, "{route:?}, {threads} threads");
+            }
+        }
+    }
+
+    /// The stencil (its vector and its scalar path) equals the scalar definition on lattices
+    /// two and three particles wide along each axis (where bending springs are missing or
+    /// single), on several bodies at once, for 1 to 7 threads.
+    #[test]
+    fn the_stencil_is_the_gather_on_thin_and_several_lattices() {
+        let shapes: [&[[u32; 3]]; 5] = [
+            &[[2, 2, 2]],
+            &[[3, 2, 5], [2, 3, 4]],
+            &[[5, 3, 2], [2, 7, 3], [4, 4, 4]],
+            &[[9, 2, 6]],
+            &[[6, 5, 12], [3, 3, 3]],
+        ];
+        for resolutions in shapes {
+            let (model, x, v) = perturbed_bodies(resolutions);
+            assert_eq!(model.lattices.len(), resolutions.len());
+            let expected = bits(&reference(&model, &x, &v));
+            for threads in 1..=7 {
+                for scalar in [false, true] {
+                    let route = (RouteKind::Stencil, scalar);
+                    let got = pass_sums(&model, &x, &v, route, threads);
+                    let what = format!("{resolutions:?}, scalar {scalar}, {threads} threads");
+                    assert_eq!(bits(&got), expected, "{what}");
+                }
             }
         }
     }

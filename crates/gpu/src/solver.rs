@@ -635,6 +635,12 @@ impl Solver for GpuSolver {
             timings: self.timings.clone(),
             dispatches,
             device_bytes,
+            // The design of `integrators/mod.rs`: per-spring forces in chunks, gathered per
+            // particle through the adjacency.
+            kernel: match self.stepper {
+                Stepper::Implicit(_) => "matrix-free",
+                Stepper::Explicit(_) => "per-spring + gather",
+            },
             ..implicit
         }
     }

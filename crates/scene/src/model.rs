@@ -217,6 +217,75 @@ impl Adjacency {
     }
 }
 
+/// A cuboid body's springs as a stencil: particle (i, j, k) of the body, global index
+/// `first + i + nx·(j + ny·k)`, is joined to the particle at (i, j, k) + o for every offset o
+/// of `springs` where that lies in the grid, with that offset's parameters. These are the
+/// springs [`Model::springs`] holds for the body, in its order
+/// ([`topology::for_each_cuboid_spring`]): a solver may take them from either.
+///
+/// (Mesh bodies are lattices too, and their springs follow the same offsets and rest lengths,
+/// but their particles are the kept lattice points only, so a partner is no constant index
+/// offset away: they have no `Lattice` here.)
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lattice {
+    /// The body (an index into [`Model::bodies`]).
+    pub body: u32,
+    /// Its first particle.
+    pub first: u32,
+    /// Particles per axis (nx, ny, nz).
+    pub dims: [u32; 3],
+    /// The offsets with springs, in [`topology::OFFSETS`] order (families the body leaves out
+    /// have none).
+    pub springs: Vec<LatticeSpring>,
+}
+
+/// The springs of one lattice offset.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LatticeSpring {
+    /// Index into [`topology::OFFSETS`].
+    pub offset: usize,
+    /// r, metres: [`topology::offset_rest`].
+    pub rest: f64,
+    /// k_s, N/m.
+    pub stiffness: f64,
+    /// k_d, N·s/m.
+    pub damping: f64,
+}
+
+impl Lattice {
+    /// The lattice of a body of `dims` points at cell edges `spacing` whose families have the
+    /// parameters `params` gives (`None`: left out).
+    fn new(
+        body: u32,
+        first: u32,
+        dims: [u32; 3],
+        spacing: DVec3,
+        params: impl Fn(SpringKind) -> Option<crate::scene::SpringParams>,
+    ) -> Lattice {
+        let springs = (topology::OFFSETS.iter().enumerate())
+            .filter_map(|(offset, &(o, kind))| {
+                params(kind).map(|p| LatticeSpring {
+                    offset,
+                    rest: topology::offset_rest(spacing, o),
+                    stiffness: p.stiffness,
+                    damping: p.damping,
+                })
+            })
+            .collect();
+        Lattice {
+            body,
+            first,
+            dims,
+            springs,
+        }
+    }
+
+    /// The springs of offset `o` (an index into [`topology::OFFSETS`]), if the body has them.
+    pub fn spring(&self, o: usize) -> Option<&LatticeSpring> {
+        self.springs.iter().find(|s| s.offset == o)
+    }
+}
+
 /// Where a body's particles sit in the global arrays.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BodyRange {
@@ -250,6 +319,9 @@ pub struct Model {
     pub springs: Springs,
     /// Each particle's springs.
     pub adjacency: Adjacency,
+    /// The springs of the cuboid bodies again, as stencils on their lattices (one per cuboid,
+    /// in body order): what lets a solver find a spring's partner at a constant offset.
+    pub lattices: Vec<Lattice>,
     /// Springs of each family.
     pub spring_counts: SpringCounts,
     /// Bodies in particle order.
@@ -443,6 +515,7 @@ impl Model {
         };
         let mut mass = Vec::with_capacity(n);
         let mut springs = Springs::default();
+        let mut lattices = Vec::new();
         let mut bodies = Vec::with_capacity(scene.bodies.len());
         let mut pinned = vec![false; n];
         let mut surface = Vec::new();
@@ -468,12 +541,19 @@ impl Model {
                         SpringKind::Shear => c.shear,
                         SpringKind::Bending => c.bending,
                     };
-                    topology::for_each_cuboid_spring(c.resolution, |a, b, kind| {
-                        if let Some(p) = params(kind) {
-                            let rest = x[a as usize].distance(x[b as usize]);
-                            springs.push(first + a, first + b, rest, p.stiffness, p.damping);
+                    let lattice = Lattice::new(
+                        b as u32,
+                        first,
+                        c.resolution,
+                        topology::cuboid_spacing(c),
+                        params,
+                    );
+                    topology::for_each_cuboid_spring(c.resolution, |a, b, o| {
+                        if let Some(s) = lattice.spring(o) {
+                            springs.push(first + a, first + b, s.rest, s.stiffness, s.damping);
                         }
                     });
+                    lattices.push(lattice);
                     state.x.extend(x);
                     surface.extend(
                         topology::cuboid_surface(c.resolution)
@@ -500,18 +580,16 @@ impl Model {
                         SpringKind::Shear => m.shear,
                         SpringKind::Bending => m.bending,
                     };
+                    let points = v.lattice_points();
+                    let lattice =
+                        Lattice::new(b as u32, first, points, DVec3::splat(v.cell()), params);
                     let particle = v.particle_of();
-                    topology::for_each_lattice_spring(
-                        v.lattice_points(),
-                        Some(v.present()),
-                        |a, b, kind| {
-                            if let Some(p) = params(kind) {
-                                let (a, b) = (particle[a as usize], particle[b as usize]);
-                                let rest = x[a as usize].distance(x[b as usize]);
-                                springs.push(first + a, first + b, rest, p.stiffness, p.damping);
-                            }
-                        },
-                    );
+                    topology::for_each_lattice_spring(points, Some(v.present()), |a, b, o| {
+                        if let Some(s) = lattice.spring(o) {
+                            let (a, b) = (particle[a as usize], particle[b as usize]);
+                            springs.push(first + a, first + b, s.rest, s.stiffness, s.damping);
+                        }
+                    });
                     state.x.extend(x);
                     match m.surface {
                         SurfaceKind::Lattice => surface.extend(
@@ -589,6 +667,7 @@ impl Model {
             inv_mass,
             springs,
             adjacency,
+            lattices,
             spring_counts: scene.spring_counts(),
             bodies,
             surface,

@@ -49,10 +49,25 @@ pub const OFFSETS: [([i32; 3], SpringKind); 16] = {
     ]
 };
 
+/// Rest length of every spring of grid offset `o` on a lattice of cell edges `spacing`:
+/// |o ⊙ spacing|, one value per offset. The lattice is regular, so this is the distance
+/// between the spring's ends at rest; computing it once per offset rather than from each
+/// pair's rotated and translated positions (which differ from it by rounding, particle to
+/// particle) makes a lattice body's springs a stencil: the same parameters at every particle.
+pub fn offset_rest(spacing: DVec3, o: [i32; 3]) -> f64 {
+    (DVec3::new(f64::from(o[0]), f64::from(o[1]), f64::from(o[2])) * spacing).length()
+}
+
+/// Cell edges of a cuboid's lattice per axis: size / (resolution − 1).
+pub fn cuboid_spacing(c: &Cuboid) -> DVec3 {
+    let [nx, ny, nz] = c.resolution.map(|r| f64::from(r - 1));
+    c.size / DVec3::new(nx, ny, nz)
+}
+
 /// Initial particle positions of a cuboid, in index order.
 pub fn cuboid_positions(c: &Cuboid) -> Vec<DVec3> {
     let [nx, ny, nz] = c.resolution.map(|r| r as usize);
-    let spacing = c.size / DVec3::new((nx - 1) as f64, (ny - 1) as f64, (nz - 1) as f64);
+    let spacing = cuboid_spacing(c);
     let rot = rotation_from_degrees(c.rotation);
     let mut out = Vec::with_capacity(nx * ny * nz);
     for k in 0..nz {
@@ -66,13 +81,13 @@ pub fn cuboid_positions(c: &Cuboid) -> Vec<DVec3> {
     out
 }
 
-/// Calls `f(a, b, kind)` for every spring of a full grid of `resolution` particles, in order:
+/// Calls `f(a, b, o)` for every spring of a full grid of `resolution` particles, in order:
 /// the lattice with every cell present ([`for_each_lattice_spring`]).
-pub fn for_each_cuboid_spring(resolution: [u32; 3], f: impl FnMut(u32, u32, SpringKind)) {
+pub fn for_each_cuboid_spring(resolution: [u32; 3], f: impl FnMut(u32, u32, usize)) {
     for_each_lattice_spring(resolution, None, f);
 }
 
-/// Calls `f(a, b, kind)` for every spring of a lattice of `points` particles per axis whose
+/// Calls `f(a, b, o)` (o the spring's index in [`OFFSETS`]) for every spring of a lattice of `points` particles per axis whose
 /// cells (`points − 1` per axis, x fastest) are present where `cells` says (`None`: all), in
 /// the order of the module doc; `a`, `b` are lattice point indices `i + nx·(j + ny·k)`.
 ///
@@ -84,7 +99,7 @@ pub fn for_each_cuboid_spring(resolution: [u32; 3], f: impl FnMut(u32, u32, Spri
 pub fn for_each_lattice_spring(
     points: [u32; 3],
     cells: Option<&[bool]>,
-    mut f: impl FnMut(u32, u32, SpringKind),
+    mut f: impl FnMut(u32, u32, usize),
 ) {
     let [nx, ny, nz] = points.map(|r| r as i64);
     let (cx, cy, cz) = (nx - 1, ny - 1, nz - 1);
@@ -117,7 +132,7 @@ pub fn for_each_lattice_spring(
         for j in 0..ny {
             for i in 0..nx {
                 let p = i + nx * (j + ny * k);
-                for ([di, dj, dk], kind) in OFFSETS {
+                for (o, ([di, dj, dk], kind)) in OFFSETS.into_iter().enumerate() {
                     let (qi, qj, qk) = (i + di as i64, j + dj as i64, k + dk as i64);
                     if !((0..nx).contains(&qi) && (0..ny).contains(&qj) && (0..nz).contains(&qk)) {
                         continue;
@@ -133,7 +148,7 @@ pub fn for_each_lattice_spring(
                         }
                     };
                     if kept {
-                        f(p as u32, (qi + nx * (qj + ny * qk)) as u32, kind);
+                        f(p as u32, (qi + nx * (qj + ny * qk)) as u32, o);
                     }
                 }
             }
@@ -254,9 +269,9 @@ mod tests {
     fn enumerate(res: [u32; 3]) -> (SpringCounts, Vec<(u32, u32)>) {
         let mut c = SpringCounts::default();
         let mut pairs = Vec::new();
-        for_each_cuboid_spring(res, |a, b, kind| {
+        for_each_cuboid_spring(res, |a, b, o| {
             pairs.push((a, b));
-            match kind {
+            match OFFSETS[o].1 {
                 SpringKind::Structural => c.structural += 1,
                 SpringKind::Shear => c.shear += 1,
                 SpringKind::Bending => c.bending += 1,

@@ -480,8 +480,8 @@ impl Voxels {
             }
         }
         let mut springs = SpringCounts::default();
-        topology::for_each_lattice_spring(cells.map(|c| c + 1), Some(&present), |_, _, kind| {
-            match kind {
+        topology::for_each_lattice_spring(cells.map(|c| c + 1), Some(&present), |_, _, o| {
+            match topology::OFFSETS[o].1 {
                 SpringKind::Structural => springs.structural += 1,
                 SpringKind::Shear => springs.shear += 1,
                 SpringKind::Bending => springs.bending += 1,

@@ -32,6 +32,11 @@ impl Midpoint {
         }
     }
 
+    /// The fused passes it steps with.
+    pub(crate) fn passes(&self) -> &Passes {
+        &self.passes
+    }
+
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
         self.passes.memory_bytes() + vec_bytes(&self.mid_x) + vec_bytes(&self.mid_v)

@@ -143,9 +143,24 @@ impl Stepper {
     /// The integrator's own counters (implicit Euler's CG iterations and solves; zero for the
     /// others).
     pub fn statistics(&self) -> Statistics {
+        let kernel = |p: &Passes| p.plan.kernel_name();
         match self {
-            Stepper::ImplicitEuler(s) => s.statistics.clone(),
-            _ => Statistics::default(),
+            Stepper::ImplicitEuler(s) => Statistics {
+                kernel: "matrix-free",
+                ..s.statistics.clone()
+            },
+            Stepper::ExplicitEuler(p) | Stepper::SymplecticEuler(p) => Statistics {
+                kernel: kernel(p),
+                ..Statistics::default()
+            },
+            Stepper::Midpoint(s) => Statistics {
+                kernel: kernel(s.passes()),
+                ..Statistics::default()
+            },
+            Stepper::Rk4(s) => Statistics {
+                kernel: kernel(s.passes()),
+                ..Statistics::default()
+            },
         }
     }
 }

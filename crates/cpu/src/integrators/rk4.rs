@@ -39,6 +39,11 @@ impl Rk4 {
         }
     }
 
+    /// The fused passes it steps with.
+    pub(crate) fn passes(&self) -> &Passes {
+        &self.passes
+    }
+
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
         self.passes.memory_bytes()

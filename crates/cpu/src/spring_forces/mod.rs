@@ -303,7 +303,8 @@ fn spring_chunk(springs: usize) -> usize {
         .next_multiple_of(LANES)
 }
 
-fn avx2() -> bool {
+/// Whether the CPU runs AVX2 (then the kernels use it).
+pub(crate) fn avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::is_x86_feature_detected!("avx2")
@@ -385,3 +386,5 @@ mod sse;
 
 #[cfg(target_arch = "x86_64")]
 mod avx;
+
+pub(crate) mod stencil;

@@ -1,0 +1,538 @@
+//! Spring forces of lattice bodies ([`softbody_scene::Lattice`]) as a stencil: a spring's
+//! partner is a constant offset away, so no spring is stored, loaded or indexed.
+//!
+//! The force of each spring is [`spring_force`](super::spring_force) (the same IEEE operations
+//! in the same order), and particle p's sum is the one [`gather`](super::gather) forms, the
+//! same bits: the gather adds, in ascending spring order, −f of every spring ending at p (its
+//! first end a = p − o ascends as the linear offset o descends), then +f of every spring
+//! starting at p, in [`OFFSETS`] order. Here, for four consecutive particles of a grid row at
+//! once:
+//!
+//! 1. the force of every spring starting in the row is computed once, four lanes at a time,
+//!    and kept in a ring of three planes of per-offset rows (zero where no spring starts);
+//! 2. the row's sums take −f from the ring at p − o, offsets by descending linear offset, then
+//!    +f at p in [`OFFSETS`] order. Missing springs read +0, and adding or subtracting +0 leaves
+//!    a sum's bits as they are (a sum that starts at +0 is never −0), so the boundary needs no
+//!    branch.
+//!
+//! Positions and velocities are first copied into rows padded to a multiple of four with at
+//! least two spare slots (so that a partner beyond the row's end, or before its start, lands
+//! in zeros of the padding), structure of arrays. A row needs the forces of the two planes
+//! below it, so each thread sweeps its own slab of planes upwards and first computes the
+//! springs that reach into its slab from the two planes below (computed again, with the same
+//! bits, by the thread below): the result does not depend on how many slabs there are.
+
+use glam::DVec3;
+use softbody_scene::Lattice;
+use softbody_scene::topology::OFFSETS;
+
+use super::spring_force;
+
+/// Zeros before and after every buffer, so that partners one or two slots before a row's start
+/// stay inside it.
+const GUARD: usize = 4;
+/// Particles side by side.
+const LANES: usize = 4;
+
+/// The springs of one lattice offset, as the stencil uses them.
+#[derive(Debug, Clone, Copy)]
+struct Offset {
+    /// (di, dj, dk).
+    o: [i32; 3],
+    rest: f64,
+    ks: f64,
+    kd: f64,
+}
+
+/// A lattice body's stencil: its geometry in the padded layout and its offsets.
+#[derive(Debug, Clone)]
+pub(crate) struct Stencil {
+    /// Global index of particle (0, 0, 0).
+    first: usize,
+    /// Particles per axis.
+    dims: [usize; 3],
+    /// Slots per padded row: nx + 2 rounded up to a multiple of [`LANES`].
+    row: usize,
+    /// The offsets with springs, in [`OFFSETS`] order: the order of the forward sums, and each
+    /// one's place in the ring.
+    offsets: Vec<Offset>,
+    /// The offsets (indices into `offsets`) by descending linear offset: the order of the
+    /// backward sums.
+    backward: Vec<usize>,
+    /// Per offset and group of four slots of a row (offset after offset): the lanes where a
+    /// spring of that offset starts (all ones) or none does (zero), whatever the row.
+    lane_masks: Vec<[u64; LANES]>,
+    avx2: bool,
+}
+
+impl Stencil {
+    /// The stencil of `lattice`.
+    pub(crate) fn new(lattice: &Lattice) -> Stencil {
+        let dims = lattice.dims.map(|d| d as usize);
+        let [nx, ny, _] = dims;
+        let row = (nx + 2).next_multiple_of(LANES);
+        let offsets: Vec<Offset> = (lattice.springs.iter())
+            .map(|s| Offset {
+                o: OFFSETS[s.offset].0,
+                rest: s.rest,
+                ks: s.stiffness,
+                kd: s.damping,
+            })
+            .collect();
+        let linear = |o: [i32; 3]| {
+            i64::from(o[0]) + nx as i64 * (i64::from(o[1]) + ny as i64 * i64::from(o[2]))
+        };
+        let mut backward: Vec<usize> = (0..offsets.len()).collect();
+        // Two offsets of equal linear offset never both end at one particle (its partner
+        // would be one particle at two places), so their relative order does not matter.
+        backward.sort_by_key(|&r| std::cmp::Reverse(linear(offsets[r].o)));
+        let mut lane_masks = Vec::with_capacity(row / LANES * offsets.len());
+        for off in &offsets {
+            for g in 0..row / LANES {
+                lane_masks.push(std::array::from_fn(|l| {
+                    let i = (LANES * g + l) as i64;
+                    let q = i + i64::from(off.o[0]);
+                    let starts = i < nx as i64 && (0..nx as i64).contains(&q);
+                    if starts { u64::MAX } else { 0 }
+                }));
+            }
+        }
+        Stencil {
+            first: lattice.first as usize,
+            dims,
+            row,
+            offsets,
+            backward,
+            lane_masks,
+            avx2: super::avx2(),
+        }
+    }
+
+    /// Takes the scalar path whatever the CPU (for tests of that path on AVX2 machines).
+    #[cfg(test)]
+    pub(crate) fn scalar(&mut self) {
+        self.avx2 = false;
+    }
+
+    /// Particles of one plane.
+    pub(crate) fn plane_particles(&self) -> usize {
+        self.dims[0] * self.dims[1]
+    }
+
+    /// Planes (k).
+    pub(crate) fn planes(&self) -> usize {
+        self.dims[2]
+    }
+
+    /// Global index of the first particle of plane k.
+    pub(crate) fn plane_start(&self, k: usize) -> usize {
+        self.first + k * self.plane_particles()
+    }
+
+    /// Slots of one padded plane.
+    fn plane_slots(&self) -> usize {
+        self.row * self.dims[1]
+    }
+
+    /// Whether springs of offset `o` start in row (j, k): their partners' row lies in the grid.
+    #[inline]
+    fn row_has(&self, o: [i32; 3], j: usize, k: usize) -> bool {
+        let (j, k) = (j as i64 + i64::from(o[1]), k as i64 + i64::from(o[2]));
+        (0..self.dims[1] as i64).contains(&j) && (0..self.dims[2] as i64).contains(&k)
+    }
+
+    /// Whether springs of offset `o` end in row (j, k).
+    #[inline]
+    fn row_receives(&self, o: [i32; 3], j: usize, k: usize) -> bool {
+        let (j, k) = (j as i64 - i64::from(o[1]), k as i64 - i64::from(o[2]));
+        (0..self.dims[1] as i64).contains(&j) && (0..self.dims[2] as i64).contains(&k)
+    }
+}
+
+/// One thread's part of a lattice: planes `k0..k1`, with its padded copies of the state and its
+/// ring of forces.
+#[derive(Debug, Clone)]
+pub(crate) struct Slab {
+    /// The lattice (an index into the pass's stencils).
+    pub(crate) lattice: usize,
+    k0: usize,
+    k1: usize,
+    /// First plane copied: k0 − 2 or 0 (the springs from below start there).
+    kb: usize,
+    /// Slots of each of the six state arrays (x, y, z of x; x, y, z of v).
+    len: usize,
+    state: Vec<f64>,
+    /// Slots of each ring row array: a guarded padded plane.
+    ring_len: usize,
+    /// Per plane k % 3, offset and component: the forces of the springs starting there.
+    ring: Vec<f64>,
+    /// A row's sums, per component.
+    sums: Vec<f64>,
+}
+
+impl Slab {
+    /// Planes `k0..k1` of `stencil` (the `lattice`-th).
+    pub(crate) fn new(stencil: &Stencil, lattice: usize, k0: usize, k1: usize) -> Slab {
+        let kb = k0.saturating_sub(2);
+        // The planes above the slab that its springs reach: up to two.
+        let ke = (k1 + 2).min(stencil.planes());
+        let len = GUARD + (ke - kb) * stencil.plane_slots() + GUARD;
+        let ring_len = GUARD + stencil.plane_slots() + GUARD;
+        Slab {
+            lattice,
+            k0,
+            k1,
+            kb,
+            len,
+            state: vec![0.0; 6 * len],
+            ring_len,
+            ring: vec![0.0; 3 * stencil.offsets.len() * 3 * ring_len],
+            sums: vec![0.0; 3 * stencil.row],
+        }
+    }
+
+    /// Bytes held on the heap.
+    pub(crate) fn memory_bytes(&self) -> u64 {
+        use crate::vec_bytes;
+        vec_bytes(&self.state) + vec_bytes(&self.ring) + vec_bytes(&self.sums)
+    }
+
+    /// Global index of the slab's first particle and one past its last.
+    pub(crate) fn particles(&self, stencil: &Stencil) -> (usize, usize) {
+        (stencil.plane_start(self.k0), stencil.plane_start(self.k1))
+    }
+
+    /// Slot of (i, j, k) in the state arrays.
+    #[inline]
+    fn slot(&self, stencil: &Stencil, i: usize, j: usize, k: usize) -> usize {
+        GUARD + i + stencil.row * j + stencil.plane_slots() * (k - self.kb)
+    }
+
+    /// Start of ring array (plane k % 3, offset r, component c).
+    #[inline]
+    fn ring_at(&self, stencil: &Stencil, k: usize, r: usize, c: usize) -> usize {
+        ((k % 3 * stencil.offsets.len() + r) * 3 + c) * self.ring_len + GUARD
+    }
+
+    /// Hands every particle of the slab, in ascending order, to `done` with the sum of its
+    /// spring forces at (x, v) (the whole model's arrays).
+    pub(crate) fn sweep(
+        &mut self,
+        stencil: &Stencil,
+        x: &[DVec3],
+        v: &[DVec3],
+        done: &mut impl FnMut(usize, DVec3),
+    ) {
+        let [nx, ny, nz] = stencil.dims;
+        let ke = (self.k1 + 2).min(nz);
+        // The state of planes kb..ke into padded rows.
+        {
+            let mut arrays = split6(&mut self.state, self.len);
+            for k in self.kb..ke {
+                for j in 0..ny {
+                    let p0 = stencil.first + nx * (j + ny * k);
+                    let s0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - self.kb);
+                    let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
+                    let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + nx]);
+                    for i in 0..nx {
+                        (r0[i], r1[i], r2[i]) = (xs[i].x, xs[i].y, xs[i].z);
+                        (r3[i], r4[i], r5[i]) = (vs[i].x, vs[i].y, vs[i].z);
+                    }
+                }
+            }
+        }
+        // The springs from the two planes below that reach into the slab.
+        for k in self.kb..self.k0 {
+            for j in 0..ny {
+                self.compute_row(stencil, j, k, (self.k0 - k) as i32);
+            }
+        }
+        for k in self.k0..self.k1 {
+            for j in 0..ny {
+                self.compute_row(stencil, j, k, 0);
+                self.sum_row(stencil, j, k);
+                let p0 = stencil.first + nx * (j + ny * k);
+                let r = stencil.row;
+                for i in 0..nx {
+                    let f = DVec3::new(self.sums[i], self.sums[r + i], self.sums[2 * r + i]);
+                    done(p0 + i, f);
+                }
+            }
+        }
+    }
+
+    /// The forces of the springs of offsets with dk ≥ `min_dk` starting in row (j, k), into
+    /// the ring.
+    fn compute_row(&mut self, stencil: &Stencil, j: usize, k: usize, min_dk: i32) {
+        #[cfg(target_arch = "x86_64")]
+        if stencil.avx2 {
+            // SAFETY: AVX2 was detected at run time.
+            unsafe { avx::compute_row(self, stencil, j, k, min_dk) };
+            return;
+        }
+        let a0 = self.slot(stencil, 0, j, k);
+        let groups = stencil.row / LANES;
+        for (r, off) in stencil.offsets.iter().enumerate() {
+            if off.o[2] < min_dk || !stencil.row_has(off.o, j, k) {
+                continue;
+            }
+            let delta = offset_slots(stencil, off.o);
+            let out = self.ring_at(stencil, k, r, 0) + stencil.row * j;
+            for g in 0..groups {
+                let mask = stencil.lane_masks[r * groups + g];
+                for (l, &lane) in mask.iter().enumerate() {
+                    let a = a0 + LANES * g + l;
+                    let b = a.wrapping_add_signed(delta);
+                    let at = |s: usize| {
+                        let c = |c: usize| self.state[c * self.len + s];
+                        (DVec3::new(c(0), c(1), c(2)), DVec3::new(c(3), c(4), c(5)))
+                    };
+                    let f = if lane != 0 {
+                        let ((xa, va), (xb, vb)) = (at(a), at(b));
+                        spring_force(xa, xb, va, vb, off.rest, off.ks, off.kd)
+                    } else {
+                        DVec3::ZERO
+                    };
+                    let s = out + LANES * g + l;
+                    for (c, value) in f.to_array().into_iter().enumerate() {
+                        self.ring[s + c * self.ring_len] = value;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Where the sums of row (j, k) take their forces from, in order: the first slot (of the
+    /// x component) of the ring row of each spring ending in the row, lined up with the row's
+    /// particles, then of each starting there.
+    fn sources(&self, stencil: &Stencil, j: usize, k: usize) -> Sources {
+        let r = stencil.row;
+        let mut sources = Sources {
+            back: [0; 16],
+            forth: [0; 16],
+            counts: (0, 0),
+        };
+        for &q in &stencil.backward {
+            let o = stencil.offsets[q].o;
+            if stencil.row_receives(o, j, k) {
+                let kk = (k as i64 - i64::from(o[2])) as usize;
+                let jj = (j as i64 - i64::from(o[1])) as usize;
+                let at = self.ring_at(stencil, kk, q, 0) + r * jj;
+                // Partners up to two slots before the row's start: the guard or the previous
+                // row's padding, both zero.
+                sources.back[sources.counts.0] = at.wrapping_add_signed(-o[0] as isize);
+                sources.counts.0 += 1;
+            }
+        }
+        for (q, off) in stencil.offsets.iter().enumerate() {
+            if stencil.row_has(off.o, j, k) {
+                sources.forth[sources.counts.1] = self.ring_at(stencil, k, q, 0) + r * j;
+                sources.counts.1 += 1;
+            }
+        }
+        for &at in sources.back().iter().chain(sources.forth()) {
+            assert!(at >= GUARD - 2 && at + r + 2 * self.ring_len <= self.ring.len());
+        }
+        sources
+    }
+
+    /// The sums of row (j, k) into `sums`: −f of the springs ending there, then +f of those
+    /// starting there.
+    fn sum_row(&mut self, stencil: &Stencil, j: usize, k: usize) {
+        let sources = self.sources(stencil, j, k);
+        #[cfg(target_arch = "x86_64")]
+        if stencil.avx2 {
+            // SAFETY: AVX2 was detected at run time; `sources` checked the slots.
+            unsafe { avx::sum_row(self, stencil.row, &sources) };
+            return;
+        }
+        let r = stencil.row;
+        for (c, sums) in self.sums.chunks_mut(r).enumerate() {
+            let component = c * self.ring_len;
+            sums.fill(0.0);
+            for &at in sources.back() {
+                for (i, s) in sums.iter_mut().enumerate() {
+                    *s -= self.ring[at + component + i];
+                }
+            }
+            for &at in sources.forth() {
+                for (i, s) in sums.iter_mut().enumerate() {
+                    *s += self.ring[at + component + i];
+                }
+            }
+        }
+    }
+}
+
+/// A row's sources ([`Slab::sources`]).
+struct Sources {
+    back: [usize; 16],
+    forth: [usize; 16],
+    counts: (usize, usize),
+}
+
+impl Sources {
+    fn back(&self) -> &[usize] {
+        &self.back[..self.counts.0]
+    }
+    fn forth(&self) -> &[usize] {
+        &self.forth[..self.counts.1]
+    }
+}
+
+/// The six arrays of `len` slots of a slab's state, apart.
+fn split6(state: &mut [f64], len: usize) -> [&mut [f64]; 6] {
+    let (c0, rest) = state.split_at_mut(len);
+    let (c1, rest) = rest.split_at_mut(len);
+    let (c2, rest) = rest.split_at_mut(len);
+    let (c3, rest) = rest.split_at_mut(len);
+    let (c4, c5) = rest.split_at_mut(len);
+    [c0, c1, c2, c3, c4, c5]
+}
+
+/// The slots between a particle and its partner at offset `o` in the state arrays.
+#[inline]
+fn offset_slots(stencil: &Stencil, o: [i32; 3]) -> isize {
+    o[0] as isize
+        + stencil.row as isize * (o[1] as isize + stencil.dims[1] as isize * o[2] as isize)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    //! The stencil's rows in 256-bit vectors: four consecutive particles per group, each lane
+    //! doing exactly [`spring_force`](crate::spring_forces::spring_force)'s IEEE operations in
+    //! its order (nothing fused), and the sums' additions in the scalar path's order.
+
+    use std::arch::x86_64::*;
+
+    use super::{GUARD, LANES, Slab, Sources, Stencil, offset_slots};
+
+    /// Four f64 from `p`.
+    ///
+    /// # Safety
+    /// `p..p + 4` is readable.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn load(p: *const f64) -> __m256d {
+        // SAFETY: the caller's promise.
+        unsafe { _mm256_loadu_pd(p) }
+    }
+
+    /// # Safety
+    /// AVX2 is available.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn compute_row(
+        slab: &mut Slab,
+        stencil: &Stencil,
+        j: usize,
+        k: usize,
+        min_dk: i32,
+    ) {
+        let a0 = slab.slot(stencil, 0, j, k);
+        let groups = stencil.row / LANES;
+        let (len, rl) = (slab.len, slab.ring_len);
+        // Every slot read lies in the state buffer: a's row and b's row are rows of the
+        // buffer (b's row is in the grid: `row_has`), and b's lanes are at most two slots
+        // before its row's start (GUARD) or after a's lanes (the padding).
+        assert!(a0 >= GUARD && a0 + stencil.row <= len);
+        assert_eq!(stencil.lane_masks.len(), groups * stencil.offsets.len());
+        let state = slab.state.as_ptr();
+        let ring = slab.ring.as_mut_ptr();
+        let zero = _mm256_setzero_pd();
+        let minus = _mm256_set1_pd(-0.0);
+        let one = _mm256_set1_pd(1.0);
+        for (r, off) in stencil.offsets.iter().enumerate() {
+            if off.o[2] < min_dk || !stencil.row_has(off.o, j, k) {
+                continue;
+            }
+            let b0 = a0.wrapping_add_signed(offset_slots(stencil, off.o));
+            assert!(b0 >= GUARD - 2 && b0 + stencil.row <= len);
+            let out = slab.ring_at(stencil, k, r, 0) + stencil.row * j;
+            assert!(out + 2 * rl + stencil.row <= slab.ring.len());
+            let (rest, ks, kd) = (
+                _mm256_set1_pd(off.rest),
+                _mm256_set1_pd(off.ks),
+                _mm256_set1_pd(off.kd),
+            );
+            // SAFETY: asserted above: rows a0.., b0.. of every state array and row out.. of
+            // every ring array hold `stencil.row` slots, and the mask table this offset's
+            // groups.
+            unsafe {
+                let pa: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + a0));
+                let pb: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + b0));
+                let dst = [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)];
+                let masks = stencil.lane_masks.as_ptr().add(r * groups).cast::<f64>();
+                for g in 0..groups {
+                    let i = LANES * g;
+                    let d = |c: usize| _mm256_sub_pd(load(pa[c].add(i)), load(pb[c].add(i)));
+                    let (dx, dy, dz) = (d(0), d(1), d(2));
+                    let (wx, wy, wz) = (d(3), d(4), d(5));
+                    // |d| = sqrt((dx² + dy²) + dz²)
+                    let n = _mm256_sqrt_pd(_mm256_add_pd(
+                        _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
+                        _mm256_mul_pd(dz, dz),
+                    ));
+                    // u = 1/|d|, s = −(k_s(|d| − r) + k_d((w·d)u))u, f = s·d.
+                    let u = _mm256_div_pd(one, n);
+                    let wd = _mm256_add_pd(
+                        _mm256_add_pd(_mm256_mul_pd(wx, dx), _mm256_mul_pd(wy, dy)),
+                        _mm256_mul_pd(wz, dz),
+                    );
+                    let s = _mm256_mul_pd(
+                        _mm256_xor_pd(
+                            _mm256_add_pd(
+                                _mm256_mul_pd(ks, _mm256_sub_pd(n, rest)),
+                                _mm256_mul_pd(kd, _mm256_mul_pd(wd, u)),
+                            ),
+                            minus,
+                        ),
+                        u,
+                    );
+                    // Lanes without a spring, or of zero length, exert no force (+0).
+                    let mask = load(masks.add(i));
+                    let live = _mm256_and_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(n, zero), mask);
+                    _mm256_storeu_pd(dst[0].add(i), _mm256_and_pd(_mm256_mul_pd(s, dx), live));
+                    _mm256_storeu_pd(dst[1].add(i), _mm256_and_pd(_mm256_mul_pd(s, dy), live));
+                    _mm256_storeu_pd(dst[2].add(i), _mm256_and_pd(_mm256_mul_pd(s, dz), live));
+                }
+            }
+        }
+    }
+
+    /// # Safety
+    /// AVX2 is available, and `sources` were made by [`Slab::sources`] for this slab.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn sum_row(slab: &mut Slab, r: usize, sources: &Sources) {
+        let ring = slab.ring.as_ptr();
+        let sums = slab.sums.as_mut_ptr();
+        let rl = slab.ring_len;
+        for g in 0..r / LANES {
+            let (mut sx, mut sy, mut sz) = (
+                _mm256_setzero_pd(),
+                _mm256_setzero_pd(),
+                _mm256_setzero_pd(),
+            );
+            // SAFETY: `Slab::sources` checked that each component's row lies in the ring.
+            unsafe {
+                for &at in sources.back() {
+                    let p = ring.add(at + LANES * g);
+                    sx = _mm256_sub_pd(sx, load(p));
+                    sy = _mm256_sub_pd(sy, load(p.add(rl)));
+                    sz = _mm256_sub_pd(sz, load(p.add(2 * rl)));
+                }
+                for &at in sources.forth() {
+                    let p = ring.add(at + LANES * g);
+                    sx = _mm256_add_pd(sx, load(p));
+                    sy = _mm256_add_pd(sy, load(p.add(rl)));
+                    sz = _mm256_add_pd(sz, load(p.add(2 * rl)));
+                }
+            }
+            // SAFETY: `sums` holds three rows of r slots.
+            unsafe {
+                _mm256_storeu_pd(sums.add(LANES * g), sx);
+                _mm256_storeu_pd(sums.add(r + LANES * g), sy);
+                _mm256_storeu_pd(sums.add(2 * r + LANES * g), sz);
+            }
+        }
+    }
+}
