@@ -9,7 +9,9 @@
 //! once:
 //!
 //! 1. the force of every spring starting in the row is computed once, four lanes at a time,
-//!    and kept in a ring of three planes of per-offset rows (zero where no spring starts);
+//!    and kept in a ring of per-offset planes of rows (zero where no spring starts), as many
+//!    planes as the offset reaches up (dk + 1: a plane's sums read its own and, for offsets
+//!    with dk > 0, the planes dk below);
 //! 2. the row's sums take −f from the ring at p − o, offsets by descending linear offset, then
 //!    +f at p in [`OFFSETS`] order. Missing springs read +0, and adding or subtracting +0 leaves
 //!    a sum's bits as they are (a sum that starts at +0 is never −0), so the boundary needs no
@@ -39,6 +41,8 @@ const LANES: usize = 4;
 struct Offset {
     /// (di, dj, dk).
     o: [i32; 3],
+    /// Its first plane in the ring (it has dk + 1, plane k at `ring + k % (dk + 1)`).
+    ring: usize,
     rest: f64,
     ks: f64,
     kd: f64,
@@ -71,12 +75,19 @@ impl Stencil {
         let dims = lattice.dims.map(|d| d as usize);
         let [nx, ny, _] = dims;
         let row = (nx + 2).next_multiple_of(LANES);
+        let mut planes = 0;
         let offsets: Vec<Offset> = (lattice.springs.iter())
-            .map(|s| Offset {
-                o: OFFSETS[s.offset].0,
-                rest: s.rest,
-                ks: s.stiffness,
-                kd: s.damping,
+            .map(|s| {
+                let o = OFFSETS[s.offset].0;
+                let ring = planes;
+                planes += o[2] as usize + 1;
+                Offset {
+                    o,
+                    ring,
+                    rest: s.rest,
+                    ks: s.stiffness,
+                    kd: s.damping,
+                }
             })
             .collect();
         let linear = |o: [i32; 3]| {
@@ -112,6 +123,11 @@ impl Stencil {
     #[cfg(test)]
     pub(crate) fn scalar(&mut self) {
         self.avx2 = false;
+    }
+
+    /// Planes of the ring: dk + 1 per offset.
+    fn ring_planes(&self) -> usize {
+        self.offsets.iter().map(|o| o.o[2] as usize + 1).sum()
     }
 
     /// Particles of one plane.
@@ -164,7 +180,7 @@ pub(crate) struct Slab {
     state: Vec<f64>,
     /// Slots of each ring row array: a guarded padded plane.
     ring_len: usize,
-    /// Per plane k % 3, offset and component: the forces of the springs starting there.
+    /// Per offset, plane k % (dk + 1) and component: the forces of the springs starting there.
     ring: Vec<f64>,
     /// A row's sums, per component.
     sums: Vec<f64>,
@@ -186,7 +202,7 @@ impl Slab {
             len,
             state: vec![0.0; 6 * len],
             ring_len,
-            ring: vec![0.0; 3 * stencil.offsets.len() * 3 * ring_len],
+            ring: vec![0.0; stencil.ring_planes() * 3 * ring_len],
             sums: vec![0.0; 3 * stencil.row],
         }
     }
@@ -208,10 +224,12 @@ impl Slab {
         GUARD + i + stencil.row * j + stencil.plane_slots() * (k - self.kb)
     }
 
-    /// Start of ring array (plane k % 3, offset r, component c).
+    /// Start of the ring array of offset r, plane k, component c.
     #[inline]
     fn ring_at(&self, stencil: &Stencil, k: usize, r: usize, c: usize) -> usize {
-        ((k % 3 * stencil.offsets.len() + r) * 3 + c) * self.ring_len + GUARD
+        let off = &stencil.offsets[r];
+        let plane = off.ring + k % (off.o[2] as usize + 1);
+        (plane * 3 + c) * self.ring_len + GUARD
     }
 
     /// Hands every particle of the slab, in ascending order, to `done` with the sum of its
