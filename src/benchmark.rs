@@ -58,6 +58,7 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             drag: 0.0,
             contact_distance: 0.0,
             body_contact: Default::default(),
+            preconditioner: Default::default(),
         },
         bodies: vec![jelly(
             "cube".into(),
@@ -145,6 +146,7 @@ pub fn pile(n: u32) -> Scene {
                 friction: 0.4,
                 friction_model: FrictionModel::Coulomb,
             },
+            preconditioner: Default::default(),
         },
         bodies,
         terrain: vec![Terrain {

@@ -38,6 +38,7 @@ use std::str::FromStr;
 
 pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
 pub use format::FrictionModel;
+pub use implicit::Preconditioner;
 pub use format::SurfaceKind;
 pub use model::{Adjacency, BodyRange, Contacts, Model, Springs, State};
 pub use scene::{
