@@ -101,13 +101,13 @@ pub fn solve(
     let inv_diag = std::mem::take(&mut system.inv_diag);
     let inv = &inv_diag;
     // out = S P⁻¹ r for a filtered r.
-    let mut precondition = |system: &mut System, r: &[DVec3], out: &mut [DVec3]| match &mut preconditioner {
+    let mut precondition = |r: &[DVec3], out: &mut [DVec3]| match &mut preconditioner {
         Preconditioner::BlockJacobi => out
             .par_iter_mut()
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, out)| *out = constraints[i].filter(inv[i] * r[i])),
-        Preconditioner::Multigrid(mg) => mg.apply(system, model, constraints, r, out),
+        Preconditioner::Multigrid(mg) => mg.apply(constraints, r, out),
     };
     dv.par_iter_mut()
         .zip(constraints.par_iter().zip(z.par_iter()))
@@ -118,14 +118,14 @@ pub fn solve(
         .zip(constraints.par_iter().zip(b.par_iter()))
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(r, (s, b))| *r = s.filter(*b));
-    precondition(system, r, p);
+    precondition(r, p);
     let delta0 = dot(r, p);
     system.apply(model, dv, q);
     r.par_iter_mut()
         .enumerate()
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(i, r)| *r = constraints[i].filter(b[i] - q[i]));
-    precondition(system, r, c);
+    precondition(r, c);
     let mut delta = dot(r, c);
     // Relative to the larger of the right-hand side and the warm start's residual: a body at
     // rest has S·b ≈ 0 while its prescribed contact velocities still leave a residual, and a
@@ -154,11 +154,11 @@ pub fn solve(
                 *dv += alpha * *c;
                 *r -= alpha * *q;
             });
-        precondition(system, r, p);
+        precondition(r, p);
         let delta_new = dot(r, p);
         // In exact arithmetic the residual never grows by orders of magnitude; in floating
         // point it does once round-off dominates: stop there rather than follow it.
-        if !delta_new.is_finite() || delta_new > 1e6 * smallest {
+        if !(delta_new >= 0.0 && delta_new.is_finite()) || delta_new > 1e6 * smallest {
             delta = smallest;
             break;
         }

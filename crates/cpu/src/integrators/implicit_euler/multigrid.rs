@@ -60,7 +60,10 @@ pub const DENSE_NODES: usize = 200;
 /// Damped block-Jacobi sweeps at a coarsest level too large to factorise.
 pub const COARSEST_SWEEPS: usize = 20;
 /// Damping of the block-Jacobi smoother.
-pub const OMEGA: f64 = 0.65;
+pub const OMEGA: f64 = 0.9;
+/// Scale of every coarse correction (over-correction: piecewise-constant aggregates make the
+/// Galerkin coarse operator too stiff, so the plain correction falls short).
+pub const CORRECTION: f64 = 1.5;
 /// Rows per parallel task on the coarse levels.
 const ROW_CHUNK: usize = 256;
 
@@ -282,8 +285,6 @@ pub struct Multigrid {
     direct: Direct,
     /// Fine level: (S D S + I − S)⁻¹ times ω per particle.
     fine_smoother: Vec<DMat3>,
-    fine_res: Vec<DVec3>,
-    fine_tmp: Vec<DVec3>,
 }
 
 /// S_x M S_y.
@@ -359,8 +360,6 @@ impl Multigrid {
             levels,
             direct: Direct::Sweeps,
             fine_smoother: vec![DMat3::ZERO; n],
-            fine_res: vec![DVec3::ZERO; n],
-            fine_tmp: vec![DVec3::ZERO; n],
         })
     }
 
@@ -380,19 +379,18 @@ impl Multigrid {
                 Direct::Sweeps => 0,
             }
             + vec_bytes(&self.fine_smoother)
-            + vec_bytes(&self.fine_res)
-            + vec_bytes(&self.fine_tmp)
     }
 
     /// Computes the levels' values for the system `system` (assembled) under `constraints`.
     pub fn prepare(&mut self, system: &System, model: &Model, constraints: &[Constraint]) {
         let (diag, inv_diag) = (&system.diag, &system.inv_diag);
+        let omega = OMEGA;
         self.fine_smoother
             .par_iter_mut()
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, m)| {
-                *m = OMEGA
+                *m = omega
                     * match constraints[i] {
                         Constraint::Free => inv_diag[i],
                         s => filtered(s, diag[i]).inverse(),
@@ -460,75 +458,32 @@ impl Multigrid {
                     let e = (offsets[row]..offsets[row + 1])
                         .find(|&e| cols[e as usize] as usize == row)
                         .expect("every row has its diagonal entry");
-                    *m = OMEGA * values[e as usize].inverse();
+                    *m = omega * values[e as usize].inverse();
                 });
         }
         self.direct = factor(self.levels.last().unwrap());
     }
 
-    /// z = S·MG·S r for a filtered r (the preconditioner of the filtered CG).
-    pub fn apply(
-        &mut self,
-        system: &mut System,
-        model: &Model,
-        constraints: &[Constraint],
-        r: &[DVec3],
-        z: &mut [DVec3],
-    ) {
+    /// z = S·MG·S r for a filtered r (the preconditioner of the filtered CG):
+    /// z = S(ω D̂⁻¹ r + α P cycle(Pᵀ r)).
+    pub fn apply(&mut self, constraints: &[Constraint], r: &[DVec3], z: &mut [DVec3]) {
         let Multigrid {
             levels,
             direct,
             fine_smoother,
-            fine_res,
-            fine_tmp,
         } = self;
-        let smoother = &*fine_smoother;
-        // Pre-smoothing from zero.
-        z.par_iter_mut()
-            .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, z)| *z = smoother[i] * r[i]);
-        fine_residual(system, model, constraints, r, z, fine_res, fine_tmp);
-        // Coarse correction.
         let first = &mut levels[0];
-        restrict(&first.members, fine_res, &mut first.rhs);
+        restrict(&first.members, r, &mut first.rhs);
         cycle(levels, direct);
         let (parent, x) = (&levels[0].parent, &levels[0].x);
+        let smoother = &*fine_smoother;
         z.par_iter_mut()
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, z)| *z += x[parent[i] as usize]);
-        // Post-smoothing, then the filter.
-        fine_residual(system, model, constraints, r, z, fine_res, fine_tmp);
-        z.par_iter_mut()
-            .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, z)| *z = constraints[i].filter(*z + smoother[i] * fine_res[i]));
+            .for_each(|(i, z)| {
+                *z = constraints[i].filter(smoother[i] * r[i] + CORRECTION * x[parent[i] as usize])
+            });
     }
-}
-
-/// res = r − Â z with Â z = S A S z + (I − S) z (`tmp` holds S z).
-fn fine_residual(
-    system: &mut System,
-    model: &Model,
-    constraints: &[Constraint],
-    r: &[DVec3],
-    z: &[DVec3],
-    res: &mut [DVec3],
-    tmp: &mut [DVec3],
-) {
-    tmp.par_iter_mut()
-        .enumerate()
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(i, t)| *t = constraints[i].filter(z[i]));
-    system.apply(model, tmp, res);
-    res.par_iter_mut()
-        .enumerate()
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(i, res)| {
-            let s = constraints[i];
-            *res = r[i] - (s.filter(*res) + (z[i] - tmp[i]));
-        });
 }
 
 /// coarse = Pᵀ fine: each node's members summed in ascending order.
@@ -579,7 +534,7 @@ fn cycle(levels: &mut [Level], direct: &Direct) {
         .par_iter_mut()
         .enumerate()
         .with_min_len(ROW_CHUNK)
-        .for_each(|(i, x)| *x += correction[parent[i] as usize]);
+        .for_each(|(i, x)| *x += CORRECTION * correction[parent[i] as usize]);
     this.smooth();
 }
 
