@@ -101,7 +101,10 @@ fn multigrid_iterations_do_not_grow_with_the_size() {
         let (model, state) = deformed(n);
         let mut mg = Multigrid::new(&model).expect("a lattice");
         let (dv, outcome, seconds) = solve_once(&model, &state, Some(&mut mg));
-        assert!(outcome.relative_residual <= CG_TOLERANCE, "{n}³: {outcome:?}");
+        assert!(
+            outcome.relative_residual <= CG_TOLERANCE,
+            "{n}³: {outcome:?}"
+        );
         let mut line = format!(
             "{n}³: levels {:?}, multigrid {} iterations ({seconds:.3} s)",
             mg.level_sizes(),
@@ -109,7 +112,10 @@ fn multigrid_iterations_do_not_grow_with_the_size() {
         );
         if n <= 22 {
             let (dv_bj, bj, bj_seconds) = solve_once(&model, &state, None);
-            let diff = dv.iter().zip(&dv_bj).map(|(a, b)| (*a - *b).length_squared());
+            let diff = dv
+                .iter()
+                .zip(&dv_bj)
+                .map(|(a, b)| (*a - *b).length_squared());
             let norm = dv_bj.iter().map(|v| v.length_squared()).sum::<f64>();
             line += &format!(
                 ", block Jacobi {} ({bj_seconds:.3} s), |Δv_mg − Δv_bj|/|Δv| = {:.1e}",
@@ -129,10 +135,7 @@ fn multigrid_iterations_do_not_grow_with_the_size() {
 /// `steps` steps of the scene with each preconditioner (two threads), and the largest
 /// differences of positions and velocities relative to the largest displacement from the start
 /// and the largest velocity (at least h|g|).
-fn both_preconditioners(
-    (model, state): (Model, State),
-    steps: u64,
-) -> (f64, f64, [u64; 2]) {
+fn both_preconditioners((model, state): (Model, State), steps: u64) -> (f64, f64, [u64; 2]) {
     let run = |p: softbody_scene::Preconditioner| {
         let mut model = model.clone();
         model.simulation.preconditioner = p;
@@ -264,7 +267,10 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
         mg.apply(&constraints, &y, &mut my);
         let asymmetry = (dot(&x, &my) - dot(&y, &mx)).abs();
         let scale = norm(&x) * norm(&my);
-        println!("|xᵀMy − yᵀMx| = {asymmetry:.1e} ({scale:.1e}), xᵀMx = {:.3e}", dot(&x, &mx));
+        println!(
+            "|xᵀMy − yᵀMx| = {asymmetry:.1e} ({scale:.1e}), xᵀMx = {:.3e}",
+            dot(&x, &mx)
+        );
         assert!(asymmetry <= 1e-12 * scale, "{asymmetry:e} of {scale:e}");
         assert!(dot(&x, &mx) > 0.0 && dot(&y, &my) > 0.0);
     }

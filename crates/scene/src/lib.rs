@@ -38,8 +38,8 @@ use std::str::FromStr;
 
 pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
 pub use format::FrictionModel;
-pub use implicit::Preconditioner;
 pub use format::SurfaceKind;
+pub use implicit::Preconditioner;
 pub use model::{Adjacency, BodyRange, Contacts, Model, Springs, State};
 pub use scene::{
     Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, MeshBody, MeshMass,

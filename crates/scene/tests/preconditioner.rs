@@ -38,7 +38,8 @@ fn the_preconditioner_key_takes_its_two_values_and_defaults_to_multigrid() {
         (4, "simulation.preconditioner".to_owned())
     );
     assert!(
-        d.message.starts_with("unknown variant `amg`, expected `multigrid` or `block-jacobi`"),
+        d.message
+            .starts_with("unknown variant `amg`, expected `multigrid` or `block-jacobi`"),
         "{}",
         d.message
     );

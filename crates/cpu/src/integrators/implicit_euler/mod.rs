@@ -228,15 +228,6 @@ impl ImplicitEuler {
                     CG_MAX_ITERATIONS,
                 )
             });
-            if std::env::var_os("MG_TRACE").is_some() {
-                eprintln!(
-                    "step {} solve: {} it, residual {:.1e}, {} candidates",
-                    self.statistics.cg_solves,
-                    outcome.iterations,
-                    outcome.relative_residual,
-                    candidates.len()
-                );
-            }
             let st = &mut self.statistics;
             st.cg_iterations += outcome.iterations as u64;
             st.cg_solves += 1;

@@ -210,11 +210,9 @@ impl System {
         let pairs = self.pairs.as_ref();
         b.par_iter_mut()
             .zip(
-                self.mass_diag.par_iter_mut().zip(
-                    self.diag
-                        .par_iter_mut()
-                        .zip(self.inv_diag.par_iter_mut()),
-                ),
+                self.mass_diag
+                    .par_iter_mut()
+                    .zip(self.diag.par_iter_mut().zip(self.inv_diag.par_iter_mut())),
             )
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
