@@ -16,10 +16,12 @@ use softbody_testkit::scenes::*;
 
 /// The benchmark's stiff cube (`softbody bench --stiffness 1e4 --dt 1/60`): n³ particles on a
 /// unit cube of mass 1, k_s = 10⁴ N/m, k_d = 5 N·s/m on every family, h = 1/60 s, its bottom
-/// `lift` metres above the ground plane y = 0 (no friction, restitution 0.5).
+/// `lift` metres above the ground plane y = 0 (no friction, restitution 0.5), contact distance
+/// 0.
 fn stiff_cube(n: u32, lift: f64, preconditioner: softbody_scene::Preconditioner) -> (Model, State) {
     let mut sim = simulation(Integrator::ImplicitEuler, 1.0 / 60.0);
     sim.preconditioner = preconditioner;
+    sim.contact_distance = 0.0;
     let params = SpringParams {
         stiffness: 1e4,
         damping: 5.0,
@@ -273,5 +275,33 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
         );
         assert!(asymmetry <= 1e-12 * scale, "{asymmetry:e} of {scale:e}");
         assert!(dot(&x, &mx) > 0.0 && dot(&y, &my) > 0.0);
+    }
+}
+
+/// Not a check, a measurement (`-- --ignored --nocapture`; set `SIZES`, e.g. `10,22,46`, and
+/// `PRECONDITIONERS`): CG iterations and solves per step over the first 120 steps (2 s: the
+/// fall, the impact, the settling) of `softbody bench`'s stiff cube (its bottom 0.5 m above
+/// the ground, k_s = 10⁴ N/m, h = 1/60 s), two threads, and the wall-clock steps per second.
+#[test]
+#[ignore]
+fn iterations_per_step_of_the_benchmark_run() {
+    let list = |name: &str, default: &str| std::env::var(name).unwrap_or(default.into());
+    for n in list("SIZES", "10,22").split(',') {
+        let n: u32 = n.parse().unwrap();
+        for p in list("PRECONDITIONERS", "multigrid,block-jacobi").split(',') {
+            let p: softbody_scene::Preconditioner = p.parse().unwrap();
+            let (model, state) = stiff_cube(n, 0.5, p);
+            let mut solver = CpuSolver::new(model, state, Some(2)).unwrap();
+            let started = Instant::now();
+            solver.advance(120).unwrap();
+            let seconds = started.elapsed().as_secs_f64();
+            let st = solver.statistics();
+            println!(
+                "{n}³ {p}: {:.1} CG iterations and {:.2} solves per step, {:.1} steps/s",
+                st.cg_iterations as f64 / 120.0,
+                st.cg_solves as f64 / 120.0,
+                120.0 / seconds
+            );
+        }
     }
 }
