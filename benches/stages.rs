@@ -129,6 +129,7 @@ fn cg_solve(c: &mut Criterion) {
         &z,
         &mut dv,
         &mut scratch,
+        cg::Preconditioner::BlockJacobi,
         1e-8,
         2000,
     );
@@ -147,6 +148,7 @@ fn cg_solve(c: &mut Criterion) {
                 &z,
                 &mut dv,
                 &mut scratch,
+                cg::Preconditioner::BlockJacobi,
                 1e-8,
                 2000,
             )

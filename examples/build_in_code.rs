@@ -31,6 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             drag: 0.0,
             contact_distance: 1e-3,
             body_contact: Default::default(),
+            preconditioner: Default::default(),
         },
         bodies: vec![Body {
             name: "pendulum".into(),

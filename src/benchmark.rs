@@ -12,8 +12,8 @@ use std::time::Instant;
 
 use glam::DVec3;
 use softbody_scene::{
-    Body, BodyContact, BodyShape, Cuboid, FrictionModel, Integrator, Scene, Simulation, Solver,
-    SpringParams, StepError, Terrain, TerrainShape,
+    Body, BodyContact, BodyShape, Cuboid, FrictionModel, Integrator, Preconditioner, Scene,
+    Simulation, Solver, SpringParams, StepError, Terrain, TerrainShape,
 };
 
 use crate::{Backend, OpenError};
@@ -58,6 +58,7 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             drag: 0.0,
             contact_distance: 0.0,
             body_contact: Default::default(),
+            preconditioner: Default::default(),
         },
         bodies: vec![jelly(
             "cube".into(),
@@ -145,6 +146,7 @@ pub fn pile(n: u32) -> Scene {
                 friction: 0.4,
                 friction_model: FrictionModel::Coulomb,
             },
+            preconditioner: Default::default(),
         },
         bodies,
         terrain: vec![Terrain {
@@ -184,6 +186,8 @@ pub struct Options {
     /// Whether the cube touches itself (`self_contact`, its default contact radius): what
     /// contact between particles costs when nothing is in contact but everything is checked.
     pub self_contact: bool,
+    /// Implicit Euler's CG preconditioner (the CPU's; the GPU always runs block Jacobi).
+    pub preconditioner: Preconditioner,
 }
 
 impl Default for Options {
@@ -196,6 +200,7 @@ impl Default for Options {
             stiffness: STIFFNESS,
             dt: None,
             self_contact: false,
+            preconditioner: Preconditioner::default(),
         }
     }
 }
@@ -233,6 +238,9 @@ pub struct Measurement {
     pub cg_iterations_per_step: Option<f64>,
     /// Implicit Euler: CG solves per timed step (more than one when contacts change).
     pub cg_solves_per_step: Option<f64>,
+    /// Implicit Euler: the preconditioner that ran (block Jacobi where the backend reports
+    /// none: the GPU).
+    pub preconditioner: Option<Preconditioner>,
     /// The GPU design's figures over the timed steps (`None` on the CPU).
     pub design: Option<Design>,
     /// What ran it (thread count, adapter).
@@ -270,7 +278,8 @@ impl Measurement {
 
     /// One JSON object: `particles`, `springs`, `steps`, `seconds`, `particle_steps_per_s`,
     /// `spring_steps_per_s`, `bytes_per_particle`, `kernel`, and
-    /// `cg_iterations_per_step` for implicit Euler, plus what was run (`n`, `backend`,
+    /// `cg_iterations_per_step`, `cg_solves_per_step` and `preconditioner` for implicit Euler,
+    /// plus what was run (`n`, `backend`,
     /// `device`, `integrator`, `dt`, `stiffness`, `warmup_steps`).
     pub fn to_json(&self, options: &Options) -> serde_json::Value {
         let mut v = serde_json::json!({
@@ -298,6 +307,7 @@ impl Measurement {
         if let Some(cg) = self.cg_iterations_per_step {
             v["cg_iterations_per_step"] = cg.into();
             v["cg_solves_per_step"] = self.cg_solves_per_step.into();
+            v["preconditioner"] = self.preconditioner.map(Preconditioner::name).into();
         }
         v
     }
@@ -352,6 +362,7 @@ pub fn measure(
         .unwrap_or_else(|| 0.5 * dt_max_symplectic_with(n, options.stiffness));
     let mut scene = cube(n, options.stiffness, options.integrator, dt);
     scene.bodies[0].self_contact = options.self_contact;
+    scene.simulation.preconditioner = options.preconditioner;
     scene.validate().map_err(|e| BenchError::Invalid {
         n,
         key: e.key.to_string(),
@@ -419,6 +430,8 @@ fn time(
         cg_iterations_per_step: implicit
             .then(|| per_step(after.cg_iterations - before.cg_iterations)),
         cg_solves_per_step: implicit.then(|| per_step(after.cg_solves - before.cg_solves)),
+        preconditioner: implicit
+            .then(|| after.preconditioner.unwrap_or(Preconditioner::BlockJacobi)),
         design: (after.dispatches > before.dispatches).then(|| Design {
             dispatches_per_step: per_step(after.dispatches - before.dispatches),
             bytes_per_particle_step: per_step(after.device_bytes - before.device_bytes)

@@ -3,7 +3,7 @@
 use std::io::Write;
 
 use clap::Args;
-use softbody::{Backend, Integrator};
+use softbody::{Backend, Integrator, Preconditioner};
 
 use crate::args::{positive, time_step};
 use crate::{Failure, bad_input, open_failure, progress, status};
@@ -16,6 +16,10 @@ pub struct BenchArgs {
     /// Integrator: explicit-euler, symplectic-euler, midpoint, rk4 or implicit-euler.
     #[arg(long, default_value = "symplectic-euler")]
     integrator: Integrator,
+    /// Implicit Euler's CG preconditioner on the CPU: multigrid or block-jacobi (the GPU always
+    /// runs block Jacobi).
+    #[arg(long, default_value = "multigrid")]
+    preconditioner: Preconditioner,
     /// Cube sizes: n for n³ particles, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "10,22,46,100",
           value_parser = clap::value_parser!(u32).range(2..=1000))]
@@ -55,6 +59,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
         stiffness: args.stiffness.unwrap_or(benchmark::STIFFNESS),
         dt: args.dt,
         self_contact: false,
+        preconditioner: args.preconditioner,
     };
     let with_contact = Options {
         self_contact: true,
@@ -112,8 +117,15 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
             if !header {
                 header = true;
                 text.push_str(&format!(
-                    "{} on {} ({}), k_s = {} N/m, kernel {}\n",
-                    options.integrator, options.backend, m.device, options.stiffness, m.kernel
+                    "{}{} on {} ({}), k_s = {} N/m, kernel {}
+",
+                    options.integrator,
+                    m.preconditioner
+                        .map_or(String::new(), |p| format!(" ({p} preconditioner)")),
+                    options.backend,
+                    m.device,
+                    options.stiffness,
+                    m.kernel
                 ));
                 text.push_str(&format!(
                     "{}{:>5} {:>10} {:>11} {:>7} {:>10} {:>8} {:>14} {:>13} {:>9}{}{}\n",

@@ -201,6 +201,7 @@ fn cg_solution_matches_a_direct_sparse_solve() {
         &z,
         &mut dv,
         &mut scratch,
+        cg::Preconditioner::BlockJacobi,
         CG_TOLERANCE,
         CG_MAX_ITERATIONS,
     );
@@ -254,6 +255,7 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
         &z,
         &mut dv,
         &mut scratch,
+        cg::Preconditioner::BlockJacobi,
         CG_TOLERANCE,
         CG_MAX_ITERATIONS,
     );

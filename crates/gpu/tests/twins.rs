@@ -1011,6 +1011,7 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
             &z,
             &mut dv,
             &mut scratch,
+            cg::Preconditioner::BlockJacobi,
             tol,
             CG_MAX_ITERATIONS,
         );

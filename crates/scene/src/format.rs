@@ -12,7 +12,7 @@
 
 use serde::Deserialize;
 
-use crate::Integrator;
+use crate::{Integrator, Preconditioner};
 
 /// `[simulation]`.
 #[derive(Debug, Clone, Deserialize)]
@@ -36,6 +36,8 @@ pub struct SimulationFile {
     pub body_friction: f64,
     #[serde(default)]
     pub body_friction_model: FrictionModel,
+    #[serde(default)]
+    pub preconditioner: Preconditioner,
 }
 
 fn default_integrator() -> Integrator {

@@ -13,7 +13,7 @@ use crate::format::{
     BodyFile, BodyKind, FrictionModel, OneOrThree, SceneFile, SurfaceKind, TerrainFile, TerrainKind,
 };
 use crate::voxel::{LatticeSize, VoxelKey, Voxels};
-use crate::{Integrator, topology};
+use crate::{Integrator, Preconditioner, topology};
 
 /// `[simulation]`, validated.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,6 +35,8 @@ pub struct Simulation {
     /// The laws of contact between particles of bodies (`body_restitution`, `body_friction`,
     /// `body_friction_model`).
     pub body_contact: BodyContact,
+    /// Implicit Euler's CG preconditioner on the CPU (the GPU always runs block Jacobi).
+    pub preconditioner: Preconditioner,
 }
 
 /// The laws of contact between particles of bodies: the same as a terrain surface's, one set for
@@ -501,6 +503,7 @@ fn convert(file: SceneFile, base: &Path) -> Result<Scene, Invalid> {
             friction: s.body_friction,
             friction_model: s.body_friction_model,
         },
+        preconditioner: s.preconditioner,
     };
     let bodies = file
         .bodies

@@ -230,6 +230,9 @@ pub struct Statistics {
     pub cg_solves: u64,
     /// Largest relative residual a CG solve ended with.
     pub cg_max_residual: f64,
+    /// The preconditioner of the CG solves (implicit Euler on a backend that reports it; the
+    /// GPU runs block Jacobi and reports none).
+    pub preconditioner: Option<crate::Preconditioner>,
     /// Compute dispatches encoded (a GPU backend; 0 on the CPU).
     pub dispatches: u64,
     /// Bytes of device memory those dispatches move by the design's count: every bound storage

@@ -30,6 +30,7 @@ pub fn simulation(integrator: Integrator, dt: f64) -> Simulation {
         drag: 0.0,
         contact_distance: 0.001,
         body_contact: Default::default(),
+        preconditioner: Default::default(),
     }
 }
 

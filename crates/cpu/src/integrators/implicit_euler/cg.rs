@@ -5,8 +5,9 @@
 //! orthogonal to a contact normal, or none), and the prescribed part of Δv is `z` (zero in the
 //! free directions). CG then runs in the free subspace: residuals and search directions are
 //! filtered, so Δv keeps the prescribed components exactly and S(A Δv − b) → 0. The
-//! preconditioner is block Jacobi, S P⁻¹ S, which is symmetric positive definite on that
-//! subspace.
+//! preconditioner ([`Preconditioner`]) is block Jacobi, S P⁻¹ S with P the diagonal blocks, or
+//! aggregation multigrid, S·MG·S ([`super::multigrid`]); both are symmetric positive definite
+//! on that subspace, and one CG loop runs either.
 //!
 //! Convergence: stop when rᵀP⁻¹r ≤ tol²·max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀), i.e. the preconditioned
 //! residual is `tol` relative to the filtered right-hand side or to the initial residual,
@@ -19,6 +20,7 @@ use softbody_scene::Model;
 
 pub use softbody_scene::implicit::Constraint;
 
+use super::multigrid::Multigrid;
 use super::system::System;
 use crate::forces::PARTICLE_CHUNK;
 use crate::reduce::chunked_sum;
@@ -32,12 +34,23 @@ pub struct CgOutcome {
     pub relative_residual: f64,
 }
 
+/// CG's preconditioner P⁻¹ (applied filtered: S P⁻¹ S).
+#[derive(Debug)]
+pub enum Preconditioner<'a> {
+    /// The inverse of each particle's diagonal block.
+    BlockJacobi,
+    /// One multigrid cycle, its values computed for the solve's constraints at its start.
+    Multigrid(&'a mut Multigrid),
+}
+
 /// CG's vectors, allocated once.
 #[derive(Debug, Default)]
 pub struct Scratch {
     r: Vec<DVec3>,
     c: Vec<DVec3>,
     q: Vec<DVec3>,
+    /// The preconditioned residual.
+    p: Vec<DVec3>,
 }
 
 impl Scratch {
@@ -47,12 +60,13 @@ impl Scratch {
             r: vec![DVec3::ZERO; n],
             c: vec![DVec3::ZERO; n],
             q: vec![DVec3::ZERO; n],
+            p: vec![DVec3::ZERO; n],
         }
     }
 
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
-        [&self.r, &self.c, &self.q]
+        [&self.r, &self.c, &self.q, &self.p]
             .into_iter()
             .map(crate::vec_bytes)
             .sum()
@@ -63,7 +77,8 @@ fn dot(a: &[DVec3], b: &[DVec3]) -> f64 {
     chunked_sum(a.len(), |i| a[i].dot(b[i]))
 }
 
-/// Solves for `dv` (which holds a warm start on entry; its constrained part is replaced by `z`).
+/// Solves for `dv` (which holds a warm start on entry; its constrained part is replaced by `z`),
+/// preconditioned by `preconditioner`.
 #[allow(clippy::too_many_arguments)]
 pub fn solve(
     system: &mut System,
@@ -73,31 +88,44 @@ pub fn solve(
     z: &[DVec3],
     dv: &mut [DVec3],
     scratch: &mut Scratch,
+    mut preconditioner: Preconditioner<'_>,
     tolerance: f64,
     max_iterations: u32,
 ) -> CgOutcome {
-    let Scratch { r, c, q } = scratch;
+    let Scratch { r, c, q, p } = scratch;
+    p.resize(r.len(), DVec3::ZERO);
+    if let Preconditioner::Multigrid(mg) = &mut preconditioner {
+        mg.prepare(system, model, constraints);
+    }
     // Moved out for the solve so that `system` can lend its per-spring scratch to `apply`.
     let inv_diag = std::mem::take(&mut system.inv_diag);
     let inv = &inv_diag;
+    // out = S P⁻¹ r for a filtered r.
+    let mut precondition = |r: &[DVec3], out: &mut [DVec3]| match &mut preconditioner {
+        Preconditioner::BlockJacobi => out
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, out)| *out = constraints[i].filter(inv[i] * r[i])),
+        Preconditioner::Multigrid(mg) => mg.apply(constraints, r, out),
+    };
     dv.par_iter_mut()
         .zip(constraints.par_iter().zip(z.par_iter()))
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(dv, (s, z))| *dv = s.filter(*dv) + *z);
-    let delta0 = chunked_sum(b.len(), |i| {
-        let sb = constraints[i].filter(b[i]);
-        sb.dot(constraints[i].filter(inv[i] * sb))
-    });
+    // (Sb)ᵀ P⁻¹ (Sb), with r holding S b for the moment.
+    r.par_iter_mut()
+        .zip(constraints.par_iter().zip(b.par_iter()))
+        .with_min_len(PARTICLE_CHUNK)
+        .for_each(|(r, (s, b))| *r = s.filter(*b));
+    precondition(r, p);
+    let delta0 = dot(r, p);
     system.apply(model, dv, q);
     r.par_iter_mut()
-        .zip(c.par_iter_mut())
         .enumerate()
         .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(i, (r, c))| {
-            let s = constraints[i];
-            *r = s.filter(b[i] - q[i]);
-            *c = s.filter(inv[i] * *r);
-        });
+        .for_each(|(i, r)| *r = constraints[i].filter(b[i] - q[i]));
+    precondition(r, c);
     let mut delta = dot(r, c);
     // Relative to the larger of the right-hand side and the warm start's residual: a body at
     // rest has S·b ≈ 0 while its prescribed contact velocities still leave a residual, and a
@@ -126,10 +154,11 @@ pub fn solve(
                 *dv += alpha * *c;
                 *r -= alpha * *q;
             });
-        let delta_new = chunked_sum(r.len(), |i| r[i].dot(inv[i] * r[i]));
+        precondition(r, p);
+        let delta_new = dot(r, p);
         // In exact arithmetic the residual never grows by orders of magnitude; in floating
         // point it does once round-off dominates: stop there rather than follow it.
-        if !delta_new.is_finite() || delta_new > 1e6 * smallest {
+        if !(delta_new >= 0.0 && delta_new.is_finite()) || delta_new > 1e6 * smallest {
             delta = smallest;
             break;
         }
@@ -137,9 +166,9 @@ pub fn solve(
         let beta = delta_new / delta;
         delta = delta_new;
         c.par_iter_mut()
-            .enumerate()
+            .zip(p.par_iter())
             .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, c)| *c = constraints[i].filter(inv[i] * r[i] + beta * *c));
+            .for_each(|(c, p)| *c = *p + beta * *c);
         iterations += 1;
     }
     system.inv_diag = inv_diag;

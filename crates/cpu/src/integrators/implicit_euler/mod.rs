@@ -2,9 +2,11 @@
 //!
 //! (M − h ∂f/∂v − h² ∂f/∂x) Δv = h (f + h ∂f/∂x v),  v' = v + Δv,  x' = x + h v',
 //!
-//! solved matrix-free by filtered, block-Jacobi-preconditioned CG ([`cg`], [`system`]) to a
-//! relative residual of [`CG_TOLERANCE`] or at most [`CG_MAX_ITERATIONS`] iterations, warm
-//! started from the previous step's Δv.
+//! solved matrix-free by filtered, preconditioned CG ([`cg`], [`system`]) to a relative
+//! residual of [`CG_TOLERANCE`] or at most [`CG_MAX_ITERATIONS`] iterations, warm started from
+//! the previous step's Δv. The preconditioner is the scene's `preconditioner`: aggregation
+//! multigrid on the lattice ([`multigrid`]; the default, where every particle has lattice
+//! coordinates) or block Jacobi (a model with a `particles` body always runs block Jacobi).
 //!
 //! Contact and friction live inside the solve, as velocity constraints (Baraff and Witkin's
 //! constraint filtering), because explicit contact forces or position projections pump energy
@@ -36,6 +38,7 @@
 //! sticks.
 
 pub mod cg;
+pub mod multigrid;
 pub mod system;
 
 use glam::DVec3;
@@ -44,6 +47,7 @@ pub use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
 use softbody_scene::{FrictionModel, History, Model, State, Statistics, StepError, Timings};
 
 use self::cg::{Constraint, Scratch};
+use self::multigrid::Multigrid;
 use self::system::System;
 use crate::body_contact::Partners;
 use crate::forces::PARTICLE_CHUNK;
@@ -82,6 +86,8 @@ struct Candidate {
 /// Implicit Euler's state between steps and its scratch.
 pub struct ImplicitEuler {
     system: System,
+    /// The multigrid preconditioner (`None`: block Jacobi).
+    multigrid: Option<Multigrid>,
     scratch: Scratch,
     b: Vec<DVec3>,
     rhs: Vec<DVec3>,
@@ -102,8 +108,21 @@ impl ImplicitEuler {
     pub fn new(model: &Model) -> ImplicitEuler {
         let n = model.len();
         let zeros = || vec![DVec3::ZERO; n];
+        let multigrid = match model.simulation.preconditioner {
+            softbody_scene::Preconditioner::Multigrid => Multigrid::new(model),
+            softbody_scene::Preconditioner::BlockJacobi => None,
+        };
+        let statistics = Statistics {
+            preconditioner: Some(if multigrid.is_some() {
+                softbody_scene::Preconditioner::Multigrid
+            } else {
+                softbody_scene::Preconditioner::BlockJacobi
+            }),
+            ..Statistics::default()
+        };
         ImplicitEuler {
             system: System::new(model),
+            multigrid,
             scratch: Scratch::new(n),
             b: zeros(),
             rhs: zeros(),
@@ -113,7 +132,7 @@ impl ImplicitEuler {
             constraints: vec![Constraint::Free; n],
             touching: vec![false; n],
             sticking: vec![false; n],
-            statistics: Statistics::default(),
+            statistics,
         }
     }
 
@@ -121,6 +140,7 @@ impl ImplicitEuler {
     pub fn memory_bytes(&self) -> u64 {
         use crate::vec_bytes;
         self.system.memory_bytes()
+            + self.multigrid.as_ref().map_or(0, Multigrid::memory_bytes)
             + self.scratch.memory_bytes()
             + [&self.b, &self.rhs, &self.z, &self.dv, &self.impulse]
                 .into_iter()
@@ -200,6 +220,10 @@ impl ImplicitEuler {
                     &self.z,
                     &mut self.dv,
                     &mut self.scratch,
+                    match self.multigrid.as_mut() {
+                        Some(mg) => cg::Preconditioner::Multigrid(mg),
+                        None => cg::Preconditioner::BlockJacobi,
+                    },
                     CG_TOLERANCE,
                     CG_MAX_ITERATIONS,
                 )

@@ -46,6 +46,8 @@ pub struct System {
     pub per_spring: Vec<DVec3>,
     /// m_i (1 + h·drag): the mass part of each diagonal block.
     pub mass_diag: Vec<f64>,
+    /// Diagonal blocks (mass, springs and pairs; what the multigrid coarsens).
+    pub diag: Vec<DMat3>,
     /// Inverse diagonal blocks (block-Jacobi preconditioner).
     pub inv_diag: Vec<DMat3>,
     /// The pairs of bodies in contact, when the model has contact between bodies.
@@ -130,6 +132,7 @@ impl System {
             gamma: vec![0.0; s],
             per_spring: vec![DVec3::ZERO; s],
             mass_diag: vec![0.0; n],
+            diag: vec![DMat3::IDENTITY; n],
             inv_diag: vec![DMat3::IDENTITY; n],
             pairs: model.contact.enabled().then(PairBlocks::default),
         }
@@ -143,6 +146,7 @@ impl System {
             + vec_bytes(&self.gamma)
             + vec_bytes(&self.per_spring)
             + vec_bytes(&self.mass_diag)
+            + vec_bytes(&self.diag)
             + vec_bytes(&self.inv_diag)
             + self.pairs.as_ref().map_or(0, PairBlocks::memory_bytes)
     }
@@ -208,11 +212,11 @@ impl System {
             .zip(
                 self.mass_diag
                     .par_iter_mut()
-                    .zip(self.inv_diag.par_iter_mut()),
+                    .zip(self.diag.par_iter_mut().zip(self.inv_diag.par_iter_mut())),
             )
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, (b, (md, inv)))| {
+            .for_each(|(i, (b, (md, (diag, inv))))| {
                 let m = model.mass[i];
                 let mut f =
                     m * sim.gravity - sim.drag * m * v[i] + gather(&model.adjacency, per_spring, i);
@@ -230,6 +234,7 @@ impl System {
                     }
                 }
                 *b = h * f;
+                *diag = block;
                 *inv = block.inverse();
             });
     }
@@ -281,6 +286,6 @@ impl System {
 }
 
 /// β uuᵀ.
-fn outer(u: DVec3, beta: f64) -> DMat3 {
+pub(crate) fn outer(u: DVec3, beta: f64) -> DMat3 {
     DMat3::from_cols(u * u.x, u * u.y, u * u.z) * beta
 }

@@ -1,0 +1,627 @@
+//! Aggregation multigrid on the lattice: the preconditioner of implicit Euler's filtered CG
+//! when every particle has lattice coordinates (cuboid and mesh bodies).
+//!
+//! **Operator.** CG runs in the free subspace of the constraints (S_i the per-particle filter
+//! of [`Constraint`]), so the operator multigrid approximates is the filtered one,
+//!
+//! Â = S A S + (I − S),
+//!
+//! which equals S A S on the free directions and the identity on the prescribed ones, so the
+//! coarse levels see contacts and pins. A is the step's system matrix ([`super::system`]):
+//! A = M(1 + h·drag) + Σ_springs B_s ⊗ (e_a − e_b)(e_a − e_b)ᵀ + pair blocks, B_s = β uuᵀ + γ I.
+//!
+//! **Aggregates.** Fine particle (i, j, k) of body b belongs to coarse node (b, ⌊i/2⌋, ⌊j/2⌋,
+//! ⌊k/2⌋); coarse nodes are aggregated again by halving their coordinates, until a level has
+//! at most [`COARSEST_NODES`] nodes or stops shrinking (then every body is one node). Node
+//! numbers follow the first appearance in the finer level's order, so the hierarchy is a
+//! function of the model. P is piecewise constant (each fine value copies its node's).
+//!
+//! **Coarse operators.** Galerkin, Â_{l+1} = Pᵀ Â_l P, exactly. On the first coarse level, with
+//! D_a the fine diagonal block (mass, springs and pairs), node A's diagonal block is
+//! Σ_{a∈A} (S_a D_a S_a + I − S_a) − Σ_{springs (a,b) inside A} (S_a B_s S_b + S_b B_s S_a),
+//! and a spring (a, b) from node A to node B ≠ A adds −S_a B_s S_b to block (A, B) and its
+//! transpose to (B, A). Deeper levels sum the finer level's blocks: (C, D) = Σ_{A∈C, B∈D}
+//! Â_l(A, B). The pairs of bodies in contact (which change every step) are lumped: their
+//! diagonal blocks are in D_a, their off-diagonal blocks −β nnᵀ are left out of the coarse
+//! levels (a positive semi-definite change, so the coarse operators stay SPD). Each level is a
+//! block-sparse matrix (3×3 blocks, rows over its nodes) whose pattern and, per entry, the list
+//! of fine springs or finer entries it sums are computed once per model; only the values are
+//! computed per solve (constraints change between active-set rounds), each entry a gather in a
+//! fixed order.
+//!
+//! **Preconditioner.** On the fine level the smoothing and the coarse correction are added,
+//! not applied one after the other:
+//!
+//! z = S (ω D̂⁻¹ r + α P W(Pᵀ r)),
+//!
+//! D̂ = S D S + I − S the fine diagonal blocks (the block-Jacobi blocks of the free particles),
+//! ω = [`OMEGA`], α = [`CORRECTION`], W the coarse levels' cycle. This costs no product with
+//! the fine matrix, where a symmetric multiplicative cycle costs two (one per smoothing): on
+//! the stiff 22³ cube the multiplicative cycle needed 24 CG iterations per solve and the
+//! additive one 44, but each of its iterations costs a third. W on level l: x = ω D_l⁻¹ r, then
+//! the coarse correction x += α P e_c with e_c the next level's W on Pᵀ(r − A_l x), run twice
+//! (a W-cycle: e_c ← e_c + W(Pᵀ(r − A_l x) − A_{l+1} e_c)) except above the coarsest level,
+//! then x += ω D_l⁻¹(r − A_l x). The coarsest level is solved by a dense Cholesky
+//! factorisation (up to [`DENSE_NODES`] nodes; beyond, where coarsening stalled on many
+//! bodies, by [`COARSEST_SWEEPS`] damped block-Jacobi sweeps from zero). α > 1
+//! (over-correction) because piecewise-constant aggregates make the Galerkin coarse operators
+//! too stiff. Both smoothings of a level are the same symmetric operator and the coarse
+//! solves are symmetric, so W is symmetric; it is positive definite when each level's error
+//! propagation (I − ωD⁻¹A)(I − αP W Pᵀ A)(I − ωD⁻¹A) has A-norm below 1, which holds for
+//! ω ≤ 1 (the diagonal blocks bound A: A ≤ 2D) and 0 < α < 2 with an exact coarse solve, and
+//! is checked by `tests/multigrid.rs` for the W-cycle. The additive sum of two SPD terms is
+//! SPD, and so is S·MG·S on the free subspace: PCG stays valid. Measured iterations for one solve of the
+//! deformed stiff cube (k_s = 10⁴ N/m, h = 1/60 s; `tests/multigrid.rs`): 40, 44, 46 at
+//! 10³, 22³, 46³ (block Jacobi: 112, 248, 266).
+//!
+//! **Determinism.** Every per-node sum is a gather in a fixed order (members, pattern entries,
+//! sources) and there are no reductions, so the bits do not depend on the thread count.
+
+use std::collections::HashMap;
+
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+use softbody_scene::Model;
+
+use super::cg::Constraint;
+use super::system::{System, outer};
+use crate::forces::PARTICLE_CHUNK;
+
+/// Coarsening stops once a level has at most this many nodes.
+pub const COARSEST_NODES: usize = 40;
+/// The coarsest level is factorised when it has at most this many nodes.
+pub const DENSE_NODES: usize = 200;
+/// Damped block-Jacobi sweeps at a coarsest level too large to factorise.
+pub const COARSEST_SWEEPS: usize = 20;
+/// Damping of the block-Jacobi smoother.
+pub const OMEGA: f64 = 0.9;
+/// Scale of every coarse correction (over-correction: piecewise-constant aggregates make the
+/// Galerkin coarse operator too stiff, so the plain correction falls short).
+pub const CORRECTION: f64 = 1.5;
+/// Rows per parallel task on the coarse levels: smaller levels run on the calling thread
+/// (handing 1,331 rows of the 22³ cube's first coarse level to two threads cost three times
+/// the work).
+const ROW_CHUNK: usize = 4096;
+
+/// Compressed rows of u32 items.
+#[derive(Debug, Default)]
+struct Rows {
+    offsets: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl Rows {
+    fn of(&self, i: usize) -> &[u32] {
+        &self.items[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    fn memory_bytes(&self) -> u64 {
+        crate::vec_bytes(&self.offsets) + crate::vec_bytes(&self.items)
+    }
+}
+
+/// The finer nodes of each node, ascending, from each finer node's parent.
+fn members(parent: &[u32], nodes: usize) -> Rows {
+    let mut offsets = vec![0u32; nodes + 1];
+    for &p in parent {
+        offsets[p as usize + 1] += 1;
+    }
+    for i in 0..nodes {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut next = offsets.clone();
+    let mut items = vec![0u32; parent.len()];
+    for (i, &p) in parent.iter().enumerate() {
+        items[next[p as usize] as usize] = i as u32;
+        next[p as usize] += 1;
+    }
+    Rows { offsets, items }
+}
+
+/// Aggregates nodes with keys (body, lattice coordinates) by halving the coordinates: each
+/// node's parent and the parents' keys, numbered in order of first appearance.
+fn aggregate(keys: &[(u32, [i32; 3])]) -> (Vec<u32>, Vec<(u32, [i32; 3])>) {
+    let mut index: HashMap<(u32, [i32; 3]), u32> = HashMap::new();
+    let mut coarse = Vec::new();
+    let parent = keys
+        .iter()
+        .map(|&(body, c)| {
+            let key = (body, c.map(|x| x.div_euclid(2)));
+            *index.entry(key).or_insert_with(|| {
+                coarse.push(key);
+                (coarse.len() - 1) as u32
+            })
+        })
+        .collect();
+    (parent, coarse)
+}
+
+/// One coarse level: a block-sparse symmetric matrix over its nodes, how it comes from the
+/// finer level, and its cycle's vectors.
+#[derive(Debug, Default)]
+struct Level {
+    /// The node of this level of each node of the finer level.
+    parent: Vec<u32>,
+    /// The finer level's nodes of each node.
+    members: Rows,
+    /// Row offsets into `cols`/`values`.
+    offsets: Vec<u32>,
+    /// Column of each entry, ascending within a row.
+    cols: Vec<u32>,
+    /// Row of each entry.
+    rows: Vec<u32>,
+    /// Each entry's sources: on the first coarse level `2·spring + side` (side 1 when the
+    /// row's node holds the spring's second end; on a diagonal entry the springs inside the
+    /// node), below it the finer level's entries.
+    sources: Rows,
+    /// The blocks.
+    values: Vec<DMat3>,
+    /// ω times the inverse diagonal blocks.
+    smoother: Vec<DMat3>,
+    rhs: Vec<DVec3>,
+    x: Vec<DVec3>,
+    res: Vec<DVec3>,
+    acc: Vec<DVec3>,
+}
+
+impl Level {
+    /// A level from (row, column, source) triples; `u32::MAX` sources only make an entry.
+    fn new(parent: Vec<u32>, nodes: usize, mut triples: Vec<(u32, u32, u32)>) -> Level {
+        triples.sort_unstable();
+        let mut offsets = vec![0u32; nodes + 1];
+        let (mut cols, mut rows) = (Vec::new(), Vec::new());
+        let mut sources = Rows {
+            offsets: vec![0],
+            items: Vec::new(),
+        };
+        let mut last = None;
+        for &(r, c, s) in &triples {
+            if last != Some((r, c)) {
+                if last.is_some() {
+                    sources.offsets.push(sources.items.len() as u32);
+                }
+                last = Some((r, c));
+                cols.push(c);
+                rows.push(r);
+                offsets[r as usize + 1] += 1;
+            }
+            if s != u32::MAX {
+                sources.items.push(s);
+            }
+        }
+        sources.offsets.push(sources.items.len() as u32);
+        for i in 0..nodes {
+            offsets[i + 1] += offsets[i];
+        }
+        let entries = cols.len();
+        let zeros = || vec![DVec3::ZERO; nodes];
+        Level {
+            members: members(&parent, nodes),
+            parent,
+            offsets,
+            cols,
+            rows,
+            sources,
+            values: vec![DMat3::ZERO; entries],
+            smoother: vec![DMat3::ZERO; nodes],
+            rhs: zeros(),
+            x: zeros(),
+            res: zeros(),
+            acc: zeros(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.offsets.len() - 1
+    }
+
+    fn memory_bytes(&self) -> u64 {
+        use crate::vec_bytes;
+        vec_bytes(&self.parent)
+            + self.members.memory_bytes()
+            + vec_bytes(&self.offsets)
+            + vec_bytes(&self.cols)
+            + vec_bytes(&self.rows)
+            + self.sources.memory_bytes()
+            + vec_bytes(&self.values)
+            + vec_bytes(&self.smoother)
+            + [&self.rhs, &self.x, &self.res, &self.acc]
+                .into_iter()
+                .map(vec_bytes)
+                .sum::<u64>()
+    }
+
+    /// The entries of the next coarser level, from this level's pattern and `parent` (this
+    /// level's node → coarser node).
+    fn coarser(&self, parent: Vec<u32>, nodes: usize) -> Level {
+        let triples = (0..self.cols.len())
+            .map(|e| {
+                let (r, c) = (self.rows[e] as usize, self.cols[e] as usize);
+                (parent[r], parent[c], e as u32)
+            })
+            .collect();
+        Level::new(parent, nodes, triples)
+    }
+
+    /// res = rhs − A x.
+    fn residual(&mut self) {
+        let (offsets, cols, values) = (&self.offsets, &self.cols, &self.values);
+        let (rhs, x) = (&self.rhs, &self.x);
+        self.res
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(ROW_CHUNK)
+            .for_each(|(row, res)| {
+                let mut sum = rhs[row];
+                for e in offsets[row] as usize..offsets[row + 1] as usize {
+                    sum -= values[e] * x[cols[e] as usize];
+                }
+                *res = sum;
+            });
+    }
+
+    /// x = ω D⁻¹ rhs.
+    fn smooth_from_zero(&mut self) {
+        let (smoother, rhs) = (&self.smoother, &self.rhs);
+        self.x
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(ROW_CHUNK)
+            .for_each(|(i, x)| *x = smoother[i] * rhs[i]);
+    }
+
+    /// x += ω D⁻¹ (rhs − A x).
+    fn smooth(&mut self) {
+        self.residual();
+        let (smoother, res) = (&self.smoother, &self.res);
+        self.x
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(ROW_CHUNK)
+            .for_each(|(i, x)| *x += smoother[i] * res[i]);
+    }
+}
+
+/// The coarsest level's solve.
+#[derive(Debug, Default)]
+enum Direct {
+    /// The lower Cholesky factor L (A = L Lᵀ) of the 3m×3m matrix, row-major.
+    Cholesky(Vec<f64>),
+    /// Sweeps of the smoother (too large to factorise, or not positive definite in floating
+    /// point).
+    #[default]
+    Sweeps,
+}
+
+/// The multigrid hierarchy of a model and its per-solve values.
+#[derive(Debug)]
+pub struct Multigrid {
+    /// Coarse levels, finest first.
+    levels: Vec<Level>,
+    direct: Direct,
+    /// Fine level: (S D S + I − S)⁻¹ times ω per particle.
+    fine_smoother: Vec<DMat3>,
+}
+
+/// S_x M S_y.
+#[inline]
+fn sandwich(sx: Constraint, m: DMat3, sy: Constraint) -> DMat3 {
+    let projector = |s: Constraint| match s {
+        Constraint::Free => None,
+        Constraint::Normal(n) => Some(DMat3::IDENTITY - outer(n, 1.0)),
+        Constraint::Fixed => Some(DMat3::ZERO),
+    };
+    match (sx, sy) {
+        (Constraint::Free, Constraint::Free) => m,
+        (Constraint::Fixed, _) | (_, Constraint::Fixed) => DMat3::ZERO,
+        _ => {
+            let left = projector(sx).map_or(m, |p| p * m);
+            projector(sy).map_or(left, |p| left * p)
+        }
+    }
+}
+
+/// S D S + (I − S).
+#[inline]
+fn filtered(s: Constraint, d: DMat3) -> DMat3 {
+    match s {
+        Constraint::Free => d,
+        Constraint::Fixed => DMat3::IDENTITY,
+        Constraint::Normal(n) => sandwich(s, d, s) + outer(n, 1.0),
+    }
+}
+
+impl Multigrid {
+    /// The hierarchy of `model`, or `None` when some particle has no lattice coordinates (a
+    /// `particles` body) or the model is empty.
+    pub fn new(model: &Model) -> Option<Multigrid> {
+        let n = model.len();
+        if n == 0 {
+            return None;
+        }
+        let keys: Vec<(u32, [i32; 3])> = (0..n)
+            .map(|i| Some((model.contact.body[i], model.contact.lattice[i]?)))
+            .collect::<Option<_>>()?;
+        let (parent, mut keys) = aggregate(&keys);
+        let m = keys.len();
+        let springs = &model.springs;
+        let mut triples: Vec<(u32, u32, u32)> = (0..m as u32).map(|a| (a, a, u32::MAX)).collect();
+        triples.reserve(2 * springs.len());
+        for s in 0..springs.len() {
+            let (a, b) = (parent[springs.a[s] as usize], parent[springs.b[s] as usize]);
+            let code = 2 * s as u32;
+            if a == b {
+                triples.push((a, a, code));
+            } else {
+                triples.push((a, b, code));
+                triples.push((b, a, code + 1));
+            }
+        }
+        let mut levels = vec![Level::new(parent, m, triples)];
+        loop {
+            let last = levels.last().unwrap();
+            let nodes = last.len();
+            if nodes <= COARSEST_NODES {
+                break;
+            }
+            let (parent, next) = aggregate(&keys);
+            if 10 * next.len() > 9 * nodes {
+                break; // stalled: every body is (nearly) one node
+            }
+            let level = last.coarser(parent, next.len());
+            levels.push(level);
+            keys = next;
+        }
+        Some(Multigrid {
+            levels,
+            direct: Direct::Sweeps,
+            fine_smoother: vec![DMat3::ZERO; n],
+        })
+    }
+
+    /// Nodes of each level, the fine one first.
+    pub fn level_sizes(&self) -> Vec<usize> {
+        std::iter::once(self.fine_smoother.len())
+            .chain(self.levels.iter().map(Level::len))
+            .collect()
+    }
+
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        use crate::vec_bytes;
+        self.levels.iter().map(Level::memory_bytes).sum::<u64>()
+            + match &self.direct {
+                Direct::Cholesky(l) => vec_bytes(l),
+                Direct::Sweeps => 0,
+            }
+            + vec_bytes(&self.fine_smoother)
+    }
+
+    /// Computes the levels' values for the system `system` (assembled) under `constraints`.
+    pub fn prepare(&mut self, system: &System, model: &Model, constraints: &[Constraint]) {
+        let (diag, inv_diag) = (&system.diag, &system.inv_diag);
+        let omega = OMEGA;
+        self.fine_smoother
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, m)| {
+                *m = omega
+                    * match constraints[i] {
+                        Constraint::Free => inv_diag[i],
+                        s => filtered(s, diag[i]).inverse(),
+                    };
+            });
+        let springs = &model.springs;
+        let (u, beta, gamma) = (&system.u, &system.beta, &system.gamma);
+        let block = |s: usize| outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
+        let first = &mut self.levels[0];
+        let (rows, cols, sources, members) =
+            (&first.rows, &first.cols, &first.sources, &first.members);
+        first
+            .values
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(ROW_CHUNK)
+            .for_each(|(e, value)| {
+                let (row, col) = (rows[e], cols[e]);
+                let mut sum = DMat3::ZERO;
+                if row == col {
+                    for &a in members.of(row as usize) {
+                        let a = a as usize;
+                        sum += filtered(constraints[a], diag[a]);
+                    }
+                    for &code in sources.of(e) {
+                        let s = (code >> 1) as usize;
+                        let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+                        let m = sandwich(constraints[a], block(s), constraints[b]);
+                        sum -= m + m.transpose();
+                    }
+                } else {
+                    for &code in sources.of(e) {
+                        let s = (code >> 1) as usize;
+                        let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+                        let (x, y) = if code & 1 == 0 { (a, b) } else { (b, a) };
+                        sum -= sandwich(constraints[x], block(s), constraints[y]);
+                    }
+                }
+                *value = sum;
+            });
+        for k in 1..self.levels.len() {
+            let (finer, coarser) = self.levels.split_at_mut(k);
+            let (finer, level) = (&finer[k - 1], &mut coarser[0]);
+            let sources = &level.sources;
+            level
+                .values
+                .par_iter_mut()
+                .enumerate()
+                .with_min_len(ROW_CHUNK)
+                .for_each(|(e, value)| {
+                    *value = sources
+                        .of(e)
+                        .iter()
+                        .fold(DMat3::ZERO, |sum, &f| sum + finer.values[f as usize]);
+                });
+        }
+        for level in &mut self.levels {
+            let (offsets, cols, values) = (&level.offsets, &level.cols, &level.values);
+            level
+                .smoother
+                .par_iter_mut()
+                .enumerate()
+                .with_min_len(ROW_CHUNK)
+                .for_each(|(row, m)| {
+                    let e = (offsets[row]..offsets[row + 1])
+                        .find(|&e| cols[e as usize] as usize == row)
+                        .expect("every row has its diagonal entry");
+                    *m = omega * values[e as usize].inverse();
+                });
+        }
+        self.direct = factor(self.levels.last().unwrap());
+    }
+
+    /// z = S·MG·S r for a filtered r (the preconditioner of the filtered CG):
+    /// z = S(ω D̂⁻¹ r + α P cycle(Pᵀ r)).
+    pub fn apply(&mut self, constraints: &[Constraint], r: &[DVec3], z: &mut [DVec3]) {
+        let Multigrid {
+            levels,
+            direct,
+            fine_smoother,
+        } = self;
+        let first = &mut levels[0];
+        restrict(&first.members, r, &mut first.rhs);
+        cycle(levels, direct);
+        let (parent, x) = (&levels[0].parent, &levels[0].x);
+        let smoother = &*fine_smoother;
+        z.par_iter_mut()
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, z)| {
+                *z = constraints[i].filter(smoother[i] * r[i] + CORRECTION * x[parent[i] as usize])
+            });
+    }
+}
+
+/// coarse = Pᵀ fine: each node's members summed in ascending order.
+fn restrict(members: &Rows, fine: &[DVec3], coarse: &mut [DVec3]) {
+    coarse
+        .par_iter_mut()
+        .enumerate()
+        .with_min_len(ROW_CHUNK)
+        .for_each(|(c, v)| {
+            *v = members
+                .of(c)
+                .iter()
+                .fold(DVec3::ZERO, |sum, &f| sum + fine[f as usize]);
+        });
+}
+
+/// levels[0].x ≈ A₀⁻¹ levels[0].rhs by the cycle of the module doc.
+fn cycle(levels: &mut [Level], direct: &Direct) {
+    let (this, rest) = levels.split_first_mut().unwrap();
+    if rest.is_empty() {
+        solve_coarsest(this, direct);
+        return;
+    }
+    this.smooth_from_zero();
+    this.residual();
+    let next = &mut rest[0];
+    restrict(&next.members, &this.res, &mut next.rhs);
+    cycle(rest, direct);
+    let correction = if rest.len() > 1 {
+        // W-cycle: a second cycle on the residual the first left.
+        let next = &mut rest[0];
+        next.residual();
+        next.acc.copy_from_slice(&next.x);
+        std::mem::swap(&mut next.rhs, &mut next.res);
+        cycle(rest, direct);
+        let next = &mut rest[0];
+        next.acc
+            .par_iter_mut()
+            .zip(next.x.par_iter())
+            .with_min_len(ROW_CHUNK)
+            .for_each(|(a, x)| *a += *x);
+        &rest[0].acc
+    } else {
+        &rest[0].x
+    };
+    let parent = &rest[0].parent;
+    this.x
+        .par_iter_mut()
+        .enumerate()
+        .with_min_len(ROW_CHUNK)
+        .for_each(|(i, x)| *x += CORRECTION * correction[parent[i] as usize]);
+    this.smooth();
+}
+
+/// The coarsest level's solve.
+fn solve_coarsest(level: &mut Level, direct: &Direct) {
+    match direct {
+        Direct::Cholesky(l) => {
+            let n = 3 * level.len();
+            let mut y: Vec<f64> = level.rhs.iter().flat_map(|v| v.to_array()).collect();
+            for i in 0..n {
+                let row = &l[i * n..i * n + i];
+                let s = row.iter().zip(&y[..i]).fold(y[i], |s, (l, y)| s - l * y);
+                y[i] = s / l[i * n + i];
+            }
+            for i in (0..n).rev() {
+                let mut s = y[i];
+                for j in i + 1..n {
+                    s -= l[j * n + i] * y[j];
+                }
+                y[i] = s / l[i * n + i];
+            }
+            for (x, c) in level.x.iter_mut().zip(y.chunks_exact(3)) {
+                *x = DVec3::new(c[0], c[1], c[2]);
+            }
+        }
+        Direct::Sweeps => {
+            level.smooth_from_zero();
+            for _ in 1..COARSEST_SWEEPS {
+                level.smooth();
+            }
+        }
+    }
+}
+
+/// The Cholesky factor of the coarsest level's matrix, where it is small enough and positive
+/// definite.
+fn factor(level: &Level) -> Direct {
+    let m = level.len();
+    if m > DENSE_NODES {
+        return Direct::Sweeps;
+    }
+    let n = 3 * m;
+    let mut a = vec![0.0; n * n];
+    for e in 0..level.cols.len() {
+        let (r, c) = (level.rows[e] as usize, level.cols[e] as usize);
+        let block = level.values[e];
+        for j in 0..3 {
+            let col = block.col(j);
+            for i in 0..3 {
+                a[(3 * r + i) * n + 3 * c + j] = col[i];
+            }
+        }
+    }
+    // In place: the lower triangle becomes L.
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= a[j * n + k] * a[j * n + k];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return Direct::Sweeps;
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = s / d;
+        }
+    }
+    Direct::Cholesky(a)
+}
