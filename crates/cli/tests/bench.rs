@@ -77,6 +77,7 @@ fn implicit_reports_cg_iterations_and_takes_dt_and_stiffness() {
     assert_eq!(v["dt"].as_f64(), Some(1.0 / 60.0));
     assert_eq!(v["stiffness"].as_f64(), Some(1e4));
     assert_eq!(v["device"], "CPU, 1 thread");
+    assert_eq!(v["preconditioner"], "multigrid");
     positive_number(v, "cg_iterations_per_step");
     positive_number(v, "particle_steps_per_s");
     positive_number(v, "bytes_per_particle");
@@ -164,4 +165,35 @@ fn contact_times_each_size_without_and_with_self_contact() {
     table.expect_status(EXIT_OK);
     let text = table.stdout_text();
     assert!(text.contains("% time"), "{text}");
+}
+
+#[test]
+fn block_jacobi_is_selectable_and_reported() {
+    let sandbox = Sandbox::new();
+    let out = sandbox.run(&[
+        "bench",
+        "--integrator",
+        "implicit-euler",
+        "--preconditioner",
+        "block-jacobi",
+        "--sizes",
+        "4",
+        "--steps",
+        "3",
+        "--threads",
+        "1",
+    ]);
+    out.expect_status(EXIT_OK);
+    let text = out.stdout_text();
+    assert!(
+        text.starts_with("implicit-euler (block-jacobi preconditioner) on cpu"),
+        "{text}"
+    );
+    let out = sandbox.run(&["bench", "--preconditioner", "amg", "--sizes", "4"]);
+    out.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        out.stderr.contains("unknown preconditioner `amg`"),
+        "{}",
+        out.stderr
+    );
 }

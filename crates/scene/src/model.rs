@@ -18,8 +18,9 @@ pub const MAX_PARTICLES: u64 = u32::MAX as u64 - 1;
 pub const MAX_SPRINGS: u64 = (u32::MAX >> 1) as u64;
 
 /// Upper estimate of what a solver holds per particle: state, mass, adjacency offsets and the
-/// largest integrator scratch (RK4 keeps four stage derivatives and a trial state).
-pub const BYTES_PER_PARTICLE: u64 = 512;
+/// largest integrator scratch (implicit Euler's vectors and its multigrid hierarchy, about
+/// 600 B per particle; RK4 keeps four stage derivatives and a trial state).
+pub const BYTES_PER_PARTICLE: u64 = 1024;
 /// Upper estimate per spring: topology, parameters, two adjacency entries, per-spring force and
 /// the implicit solver's Jacobian data.
 pub const BYTES_PER_SPRING: u64 = 144;
