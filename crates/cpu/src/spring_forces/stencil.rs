@@ -149,19 +149,31 @@ impl Stencil {
     fn plane_slots(&self) -> usize {
         self.row * self.dims[1]
     }
+}
 
-    /// Whether springs of offset `o` start in row (j, k): their partners' row lies in the grid.
+/// What the rows of one plane k need of the ring, per offset (worked out once per plane, so
+/// that a row costs no division): where its springs starting in the plane go and where those
+/// ending in it come from (the x component's array; plane k − dk), and the rows j where they
+/// start (the partner's row j + dj and plane k + dk lie in the grid) and end (j − dj, k − dk).
+#[derive(Debug, Clone, Copy)]
+struct PlaneRing {
+    own: [usize; 16],
+    below: [usize; 16],
+    starts: [(usize, usize); 16],
+    ends: [(usize, usize); 16],
+}
+
+impl PlaneRing {
+    /// Whether springs of offset r start in row j.
     #[inline]
-    fn row_has(&self, o: [i32; 3], j: usize, k: usize) -> bool {
-        let (j, k) = (j as i64 + i64::from(o[1]), k as i64 + i64::from(o[2]));
-        (0..self.dims[1] as i64).contains(&j) && (0..self.dims[2] as i64).contains(&k)
+    fn starts(&self, r: usize, j: usize) -> bool {
+        (self.starts[r].0..self.starts[r].1).contains(&j)
     }
 
-    /// Whether springs of offset `o` end in row (j, k).
+    /// Whether springs of offset r end in row j.
     #[inline]
-    fn row_receives(&self, o: [i32; 3], j: usize, k: usize) -> bool {
-        let (j, k) = (j as i64 - i64::from(o[1]), k as i64 - i64::from(o[2]));
-        (0..self.dims[1] as i64).contains(&j) && (0..self.dims[2] as i64).contains(&k)
+    fn ends(&self, r: usize, j: usize) -> bool {
+        (self.ends[r].0..self.ends[r].1).contains(&j)
     }
 }
 
@@ -224,12 +236,41 @@ impl Slab {
         GUARD + i + stencil.row * j + stencil.plane_slots() * (k - self.kb)
     }
 
-    /// Start of the ring array of offset r, plane k, component c.
-    #[inline]
-    fn ring_at(&self, stencil: &Stencil, k: usize, r: usize, c: usize) -> usize {
+    /// Start of the ring array of offset r, plane k, x component.
+    fn ring_at(&self, stencil: &Stencil, k: usize, r: usize) -> usize {
         let off = &stencil.offsets[r];
         let plane = off.ring + k % (off.o[2] as usize + 1);
-        (plane * 3 + c) * self.ring_len + GUARD
+        plane * 3 * self.ring_len + GUARD
+    }
+
+    /// Plane k's view of the ring.
+    fn plane_ring(&self, stencil: &Stencil, k: usize) -> PlaneRing {
+        let [_, ny, nz] = stencil.dims.map(|d| d as i64);
+        let mut plane = PlaneRing {
+            own: [0; 16],
+            below: [0; 16],
+            starts: [(0, 0); 16],
+            ends: [(0, 0); 16],
+        };
+        // Rows j with j + d in 0..ny, when plane k + e is in 0..nz (else none).
+        let rows = |d: i64, e: i64| {
+            let k = k as i64 + e;
+            if (0..nz).contains(&k) {
+                ((-d).max(0) as usize, (ny - d).min(ny).max(0) as usize)
+            } else {
+                (0, 0)
+            }
+        };
+        for (r, off) in stencil.offsets.iter().enumerate() {
+            let [_, dj, dk] = off.o.map(i64::from);
+            plane.own[r] = self.ring_at(stencil, k, r);
+            plane.starts[r] = rows(dj, dk);
+            plane.ends[r] = rows(-dj, -dk);
+            if plane.ends[r].0 < plane.ends[r].1 {
+                plane.below[r] = self.ring_at(stencil, k - dk as usize, r);
+            }
+        }
+        plane
     }
 
     /// Hands every particle of the slab, in ascending order, to `done` with the sum of its
@@ -261,14 +302,16 @@ impl Slab {
         }
         // The springs from the two planes below that reach into the slab.
         for k in self.kb..self.k0 {
+            let plane = self.plane_ring(stencil, k);
             for j in 0..ny {
-                self.compute_row(stencil, j, k, (self.k0 - k) as i32);
+                self.compute_row(stencil, &plane, j, k, (self.k0 - k) as i32);
             }
         }
         for k in self.k0..self.k1 {
+            let plane = self.plane_ring(stencil, k);
             for j in 0..ny {
-                self.compute_row(stencil, j, k, 0);
-                self.sum_row(stencil, j, k);
+                self.compute_row(stencil, &plane, j, k, 0);
+                self.sum_row(stencil, &plane, j);
                 let p0 = stencil.first + nx * (j + ny * k);
                 let r = stencil.row;
                 for i in 0..nx {
@@ -281,21 +324,28 @@ impl Slab {
 
     /// The forces of the springs of offsets with dk ≥ `min_dk` starting in row (j, k), into
     /// the ring.
-    fn compute_row(&mut self, stencil: &Stencil, j: usize, k: usize, min_dk: i32) {
+    fn compute_row(
+        &mut self,
+        stencil: &Stencil,
+        plane: &PlaneRing,
+        j: usize,
+        k: usize,
+        min_dk: i32,
+    ) {
         #[cfg(target_arch = "x86_64")]
         if stencil.avx2 {
             // SAFETY: AVX2 was detected at run time.
-            unsafe { avx::compute_row(self, stencil, j, k, min_dk) };
+            unsafe { avx::compute_row(self, stencil, plane, j, k, min_dk) };
             return;
         }
         let a0 = self.slot(stencil, 0, j, k);
         let groups = stencil.row / LANES;
         for (r, off) in stencil.offsets.iter().enumerate() {
-            if off.o[2] < min_dk || !stencil.row_has(off.o, j, k) {
+            if off.o[2] < min_dk || !plane.starts(r, j) {
                 continue;
             }
             let delta = offset_slots(stencil, off.o);
-            let out = self.ring_at(stencil, k, r, 0) + stencil.row * j;
+            let out = plane.own[r] + stencil.row * j;
             for g in 0..groups {
                 let mask = stencil.lane_masks[r * groups + g];
                 for (l, &lane) in mask.iter().enumerate() {
@@ -323,7 +373,7 @@ impl Slab {
     /// Where the sums of row (j, k) take their forces from, in order: the first slot (of the
     /// x component) of the ring row of each spring ending in the row, lined up with the row's
     /// particles, then of each starting there.
-    fn sources(&self, stencil: &Stencil, j: usize, k: usize) -> Sources {
+    fn sources(&self, stencil: &Stencil, plane: &PlaneRing, j: usize) -> Sources {
         let r = stencil.row;
         let mut sources = Sources {
             back: [0; 16],
@@ -332,19 +382,18 @@ impl Slab {
         };
         for &q in &stencil.backward {
             let o = stencil.offsets[q].o;
-            if stencil.row_receives(o, j, k) {
-                let kk = (k as i64 - i64::from(o[2])) as usize;
-                let jj = (j as i64 - i64::from(o[1])) as usize;
-                let at = self.ring_at(stencil, kk, q, 0) + r * jj;
+            if plane.ends(q, j) {
+                let jj = j.wrapping_add_signed(-o[1] as isize);
                 // Partners up to two slots before the row's start: the guard or the previous
                 // row's padding, both zero.
-                sources.back[sources.counts.0] = at.wrapping_add_signed(-o[0] as isize);
+                let at = (plane.below[q] + r * jj).wrapping_add_signed(-o[0] as isize);
+                sources.back[sources.counts.0] = at;
                 sources.counts.0 += 1;
             }
         }
-        for (q, off) in stencil.offsets.iter().enumerate() {
-            if stencil.row_has(off.o, j, k) {
-                sources.forth[sources.counts.1] = self.ring_at(stencil, k, q, 0) + r * j;
+        for q in 0..stencil.offsets.len() {
+            if plane.starts(q, j) {
+                sources.forth[sources.counts.1] = plane.own[q] + r * j;
                 sources.counts.1 += 1;
             }
         }
@@ -356,8 +405,8 @@ impl Slab {
 
     /// The sums of row (j, k) into `sums`: −f of the springs ending there, then +f of those
     /// starting there.
-    fn sum_row(&mut self, stencil: &Stencil, j: usize, k: usize) {
-        let sources = self.sources(stencil, j, k);
+    fn sum_row(&mut self, stencil: &Stencil, plane: &PlaneRing, j: usize) {
+        let sources = self.sources(stencil, plane, j);
         #[cfg(target_arch = "x86_64")]
         if stencil.avx2 {
             // SAFETY: AVX2 was detected at run time; `sources` checked the slots.
@@ -423,7 +472,7 @@ mod avx {
 
     use std::arch::x86_64::*;
 
-    use super::{GUARD, LANES, Slab, Sources, Stencil, offset_slots};
+    use super::{GUARD, LANES, PlaneRing, Slab, Sources, Stencil, offset_slots};
 
     /// Four f64 from `p`.
     ///
@@ -442,6 +491,7 @@ mod avx {
     pub(super) unsafe fn compute_row(
         slab: &mut Slab,
         stencil: &Stencil,
+        plane: &PlaneRing,
         j: usize,
         k: usize,
         min_dk: i32,
@@ -450,7 +500,7 @@ mod avx {
         let groups = stencil.row / LANES;
         let (len, rl) = (slab.len, slab.ring_len);
         // Every slot read lies in the state buffer: a's row and b's row are rows of the
-        // buffer (b's row is in the grid: `row_has`), and b's lanes are at most two slots
+        // buffer (b's row is in the grid: `PlaneRing::starts`), and b's lanes are at most two slots
         // before its row's start (GUARD) or after a's lanes (the padding).
         assert!(a0 >= GUARD && a0 + stencil.row <= len);
         assert_eq!(stencil.lane_masks.len(), groups * stencil.offsets.len());
@@ -460,12 +510,12 @@ mod avx {
         let minus = _mm256_set1_pd(-0.0);
         let one = _mm256_set1_pd(1.0);
         for (r, off) in stencil.offsets.iter().enumerate() {
-            if off.o[2] < min_dk || !stencil.row_has(off.o, j, k) {
+            if off.o[2] < min_dk || !plane.starts(r, j) {
                 continue;
             }
             let b0 = a0.wrapping_add_signed(offset_slots(stencil, off.o));
             assert!(b0 >= GUARD - 2 && b0 + stencil.row <= len);
-            let out = slab.ring_at(stencil, k, r, 0) + stencil.row * j;
+            let out = plane.own[r] + stencil.row * j;
             assert!(out + 2 * rl + stencil.row <= slab.ring.len());
             let (rest, ks, kd) = (
                 _mm256_set1_pd(off.rest),
