@@ -84,6 +84,47 @@ unsafe fn take(sum: __m256d, row: __m256d, t: *mut Sum) -> __m256d {
     _mm256_add_pd(sum, row)
 }
 
+/// The forces of four springs, one per lane, from their end points' differences d = x_a − x_b
+/// (`dx`, `dy`, `dz`) and w = v_a − v_b, rest lengths `r` and parameters: [`spring_force`]'s
+/// IEEE operations in its order, u = 1/|d|, s = −(k_s(|d| − r) + k_d((w·d)u))u, f = s·d. Lanes
+/// of zero length, and lanes where `live` is zero, exert no force (+0).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+#[target_feature(enable = "avx2")]
+pub(super) fn forces(
+    dx: __m256d,
+    dy: __m256d,
+    dz: __m256d,
+    [wx, wy, wz]: [__m256d; 3],
+    r: __m256d,
+    ks: __m256d,
+    kd: __m256d,
+    live: __m256d,
+) -> [__m256d; 3] {
+    // |d| = sqrt((dx² + dy²) + dz²)
+    let n = _mm256_sqrt_pd(_mm256_add_pd(
+        _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
+        _mm256_mul_pd(dz, dz),
+    ));
+    let u = _mm256_div_pd(_mm256_set1_pd(1.0), n);
+    let wd = _mm256_add_pd(
+        _mm256_add_pd(_mm256_mul_pd(wx, dx), _mm256_mul_pd(wy, dy)),
+        _mm256_mul_pd(wz, dz),
+    );
+    let s = _mm256_mul_pd(
+        _mm256_xor_pd(
+            _mm256_add_pd(
+                _mm256_mul_pd(ks, _mm256_sub_pd(n, r)),
+                _mm256_mul_pd(kd, _mm256_mul_pd(wd, u)),
+            ),
+            _mm256_set1_pd(-0.0),
+        ),
+        u,
+    );
+    let live = _mm256_and_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(n, _mm256_setzero_pd()), live);
+    [dx, dy, dz].map(|d| _mm256_and_pd(_mm256_mul_pd(s, d), live))
+}
+
 /// The springs of one call: their slices from `first`, and their parameters.
 struct Span<'a> {
     a: &'a [u32],
@@ -189,32 +230,9 @@ impl<'a> Span<'a> {
                 )
             }
         };
-        // |d| = sqrt((dx² + dy²) + dz²)
-        let n = _mm256_sqrt_pd(_mm256_add_pd(
-            _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
-            _mm256_mul_pd(dz, dz),
-        ));
-        // As in `spring_force`: u = 1/|d|, s = −(k_s(|d| − r) + k_d((w·d)u))u, f = s·d.
-        let u = _mm256_div_pd(_mm256_set1_pd(1.0), n);
-        let wd = _mm256_add_pd(
-            _mm256_add_pd(_mm256_mul_pd(wx, dx), _mm256_mul_pd(wy, dy)),
-            _mm256_mul_pd(wz, dz),
-        );
-        let s = _mm256_mul_pd(
-            _mm256_xor_pd(
-                _mm256_add_pd(
-                    _mm256_mul_pd(ks, _mm256_sub_pd(n, r)),
-                    _mm256_mul_pd(kd, _mm256_mul_pd(wd, u)),
-                ),
-                _mm256_set1_pd(-0.0),
-            ),
-            u,
-        );
-        // Lanes of zero length exert no force.
-        let live = _mm256_cmp_pd::<_CMP_NEQ_UQ>(n, zero);
-        let fx = _mm256_and_pd(_mm256_mul_pd(s, dx), live);
-        let fy = _mm256_and_pd(_mm256_mul_pd(s, dy), live);
-        let fz = _mm256_and_pd(_mm256_mul_pd(s, dz), live);
+        // Every lane is a spring.
+        let every = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+        let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], r, ks, kd, every);
         // Back to rows (x, y, z, z).
         let t0 = _mm256_unpacklo_pd(fx, fy);
         let t1 = _mm256_unpackhi_pd(fx, fy);

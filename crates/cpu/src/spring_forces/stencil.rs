@@ -473,6 +473,7 @@ mod avx {
     use std::arch::x86_64::*;
 
     use super::{GUARD, LANES, PlaneRing, Slab, Sources, Stencil, offset_slots};
+    use crate::spring_forces::avx::forces;
 
     /// Four f64 from `p`.
     ///
@@ -506,9 +507,6 @@ mod avx {
         assert_eq!(stencil.lane_masks.len(), groups * stencil.offsets.len());
         let state = slab.state.as_ptr();
         let ring = slab.ring.as_mut_ptr();
-        let zero = _mm256_setzero_pd();
-        let minus = _mm256_set1_pd(-0.0);
-        let one = _mm256_set1_pd(1.0);
         for (r, off) in stencil.offsets.iter().enumerate() {
             if off.o[2] < min_dk || !plane.starts(r, j) {
                 continue;
@@ -535,33 +533,12 @@ mod avx {
                     let d = |c: usize| _mm256_sub_pd(load(pa[c].add(i)), load(pb[c].add(i)));
                     let (dx, dy, dz) = (d(0), d(1), d(2));
                     let (wx, wy, wz) = (d(3), d(4), d(5));
-                    // |d| = sqrt((dx² + dy²) + dz²)
-                    let n = _mm256_sqrt_pd(_mm256_add_pd(
-                        _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
-                        _mm256_mul_pd(dz, dz),
-                    ));
-                    // u = 1/|d|, s = −(k_s(|d| − r) + k_d((w·d)u))u, f = s·d.
-                    let u = _mm256_div_pd(one, n);
-                    let wd = _mm256_add_pd(
-                        _mm256_add_pd(_mm256_mul_pd(wx, dx), _mm256_mul_pd(wy, dy)),
-                        _mm256_mul_pd(wz, dz),
-                    );
-                    let s = _mm256_mul_pd(
-                        _mm256_xor_pd(
-                            _mm256_add_pd(
-                                _mm256_mul_pd(ks, _mm256_sub_pd(n, rest)),
-                                _mm256_mul_pd(kd, _mm256_mul_pd(wd, u)),
-                            ),
-                            minus,
-                        ),
-                        u,
-                    );
-                    // Lanes without a spring, or of zero length, exert no force (+0).
+                    // Lanes without a spring exert no force.
                     let mask = load(masks.add(i));
-                    let live = _mm256_and_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(n, zero), mask);
-                    _mm256_storeu_pd(dst[0].add(i), _mm256_and_pd(_mm256_mul_pd(s, dx), live));
-                    _mm256_storeu_pd(dst[1].add(i), _mm256_and_pd(_mm256_mul_pd(s, dy), live));
-                    _mm256_storeu_pd(dst[2].add(i), _mm256_and_pd(_mm256_mul_pd(s, dz), live));
+                    let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], rest, ks, kd, mask);
+                    _mm256_storeu_pd(dst[0].add(i), fx);
+                    _mm256_storeu_pd(dst[1].add(i), fy);
+                    _mm256_storeu_pd(dst[2].add(i), fz);
                 }
             }
         }
