@@ -34,18 +34,18 @@ fn springs(c: &mut Criterion) {
     group.sample_size(20);
     for n in [10u32, 22, 46] {
         let (model, state) = moving(n);
-        let kernel = Kernel::new(&model.springs);
-        let mut out = vec![DVec3::ZERO; model.springs.len()];
-        group.throughput(Throughput::Elements(model.springs.len() as u64));
+        let kernel = Kernel::new(model.springs());
+        let mut out = vec![DVec3::ZERO; model.springs().len()];
+        group.throughput(Throughput::Elements(model.springs().len() as u64));
         group.bench_function(BenchmarkId::new("compute", format!("{n}^3")), |b| {
-            b.iter(|| kernel.compute(&model.springs, &state.x, &state.v, &mut out))
+            b.iter(|| kernel.compute(model.springs(), &state.x, &state.v, &mut out))
         });
         let mut sums = vec![DVec3::ZERO; model.len()];
         group.throughput(Throughput::Elements(model.len() as u64));
         group.bench_function(BenchmarkId::new("gather", format!("{n}^3")), |b| {
             b.iter(|| {
                 for (k, s) in sums.chunks_mut(64).enumerate() {
-                    spring_forces::gather_block(&model.adjacency, &out[..], 64 * k, s);
+                    spring_forces::gather_block(model.adjacency(), &out[..], 64 * k, s);
                 }
             })
         });

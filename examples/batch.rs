@@ -69,7 +69,7 @@ fn report(
     }
     for solver in solvers.iter_mut() {
         solver.sync()?;
-        let k = solver.model().springs.stiffness[0];
+        let k = solver.model().springs().stiffness[0];
         let lowest = solver
             .state()?
             .x

@@ -381,7 +381,7 @@ fn time(
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<Measurement, BenchError> {
     let model = solver.model();
-    let (particles, springs) = (model.len() as u64, model.springs.len() as u64);
+    let (particles, springs) = (model.len() as u64, model.spring_count() as u64);
     let step_error = |source| BenchError::Step { n, source };
     let run = |solver: &mut dyn Solver, steps: u64| -> Result<f64, BenchError> {
         let started = Instant::now();

@@ -176,8 +176,8 @@ pub fn run_until(
     if !e0.total().is_finite() {
         return Err(RunError::Overflow(e0));
     }
-    let header = Header::new(solver, frames, scene);
-    sink.header(&header)?;
+    // Dropped once written: its spring arrays are as large as the state.
+    sink.header(&Header::new(solver, frames, scene))?;
 
     let mut summary = Summary {
         frames: 0,

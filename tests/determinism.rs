@@ -72,7 +72,7 @@ fn runs_repeat_bit_for_bit(backend: &Backend) -> Result<(), Failed> {
     let steps = 60;
     for integrator in Integrator::ALL {
         let (model, state) = Model::build(&scene(integrator));
-        ensure(model.len() > 1024 && model.springs.len() > 8192, || {
+        ensure(model.len() > 1024 && model.springs().len() > 8192, || {
             "the cube is too small to split the work".into()
         })?;
         let configurations: Vec<(String, Box<dyn Solver>)> = match backend.kind() {

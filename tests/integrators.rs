@@ -350,7 +350,7 @@ fn internal_springs_conserve_linear_momentum(backend: &Backend) -> Result<(), Fa
                 let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
                 for i in 0..n {
                     let mut top = system.mass_diag[i];
-                    for &e in model.adjacency.of(i) {
+                    for &e in model.adjacency().of(i) {
                         let s = (e >> 1) as usize;
                         top += system.beta[s] + system.gamma[s];
                     }

@@ -128,7 +128,7 @@ fn falling_mesh_body_follows_free_fall_until_contact(backend: &Backend) -> Resul
                 let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
                 for i in 0..n_particles {
                     let mut top = system.mass_diag[i];
-                    for &e in model.adjacency.of(i) {
+                    for &e in model.adjacency().of(i) {
                         let s = (e >> 1) as usize;
                         top += system.beta[s] + system.gamma[s];
                     }

@@ -196,7 +196,7 @@ fn vtk_frames_carry_the_input_mesh() {
     let v = input.vertices.len();
     for (k, file) in files.iter().enumerate() {
         let xml = std::fs::read_to_string(file).unwrap();
-        let cells = model.springs.len() + input.triangles.len();
+        let cells = model.springs().len() + input.triangles.len();
         assert!(
             xml.contains(&format!(
                 "NumberOfPoints=\"{}\" NumberOfCells=\"{cells}\"",
@@ -219,8 +219,8 @@ fn vtk_frames_carry_the_input_mesh() {
             .collect();
         let kind = data_array(&xml, "kind");
         assert_eq!(kind.len(), cells);
-        assert!(kind[model.springs.len()..].iter().all(|&k| k == 1));
-        let faces: Vec<[u32; 3]> = connectivity[2 * model.springs.len()..]
+        assert!(kind[model.springs().len()..].iter().all(|&k| k == 1));
+        let faces: Vec<[u32; 3]> = connectivity[2 * model.springs().len()..]
             .chunks(3)
             .map(|t| [0, 1, 2].map(|c| (t[c] - n as i64) as u32))
             .collect();

@@ -100,7 +100,7 @@ fn implicit_euler_keeps_a_stiff_cube_stable_at_a_frame_step(
     let energies = e(solver.as_mut())?;
     let stats = solver.statistics();
     let st = solver.state().map_err(|e| e.to_string())?;
-    let sp = &model.springs;
+    let sp = model.springs();
     let worst_strain = (0..sp.len())
         .map(|s| {
             let len = st.x[sp.a[s] as usize].distance(st.x[sp.b[s] as usize]);

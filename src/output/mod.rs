@@ -245,6 +245,17 @@ impl Header {
     /// [`WithSceneText`] replaces where settings changed the scene.
     pub fn new(solver: &dyn Solver, frames: u64, scene: Option<&Path>) -> Header {
         let model = solver.model();
+        // Visited rather than taken from `Model::springs`, which would keep the list for the
+        // rest of the run: a cuboid's model holds its springs as a stencil only.
+        let count = model.spring_count();
+        let (mut springs, mut rest) = (Vec::with_capacity(count), Vec::with_capacity(count));
+        let (mut stiffness, mut damping) = (Vec::with_capacity(count), Vec::with_capacity(count));
+        model.for_each_spring(|a, b, r, k, d| {
+            springs.push([a, b]);
+            rest.push(r);
+            stiffness.push(k);
+            damping.push(d);
+        });
         Header {
             softbody_frames: 1,
             particles: model.len(),
@@ -272,10 +283,10 @@ impl Header {
             }),
             scene_text: scene.and_then(|p| std::fs::read_to_string(p).ok()),
             masses: model.mass.clone(),
-            springs: model.springs.pairs(),
-            rest: model.springs.rest.clone(),
-            stiffness: model.springs.stiffness.clone(),
-            damping: model.springs.damping.clone(),
+            springs,
+            rest,
+            stiffness,
+            damping,
             surface: model.surface.clone(),
             embedded: model.embedded.clone(),
         }

@@ -182,9 +182,9 @@ impl BodyContact {
     /// there.
     pub fn prepare(&mut self, model: &Model, state: &State) {
         let c = &model.contact;
-        let pairs = self.broad.pairs(&state.x, &c.radius, |i, j| {
-            c.admits(&model.adjacency, &model.springs, i, j)
-        });
+        let pairs = self
+            .broad
+            .pairs(&state.x, &c.radius, |i, j| model.admits(i, j));
         self.partners.rebuild(model.len(), pairs);
     }
 
@@ -198,9 +198,9 @@ impl BodyContact {
     /// of touching pairs change).
     pub fn respond(&mut self, model: &Model, start: &State, now: &mut State) -> Option<usize> {
         let c = &model.contact;
-        let pairs = self.broad.pairs(&now.x, &c.radius, |i, j| {
-            c.admits(&model.adjacency, &model.springs, i, j)
-        });
+        let pairs = self
+            .broad
+            .pairs(&now.x, &c.radius, |i, j| model.admits(i, j));
         self.pairs.clear();
         self.pairs.extend_from_slice(pairs);
         let (x, v) = (&now.x[..], &now.v[..]);

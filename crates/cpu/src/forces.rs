@@ -27,7 +27,7 @@ pub fn particle_chunk(particles: usize) -> usize {
 pub fn applied_force(model: &Model, per_spring: &[DVec3], v: DVec3, i: usize) -> DVec3 {
     let m = model.mass[i];
     let sim = &model.simulation;
-    m * sim.gravity - sim.drag * m * v + spring_forces::gather(&model.adjacency, per_spring, i)
+    m * sim.gravity - sim.drag * m * v + spring_forces::gather(model.adjacency(), per_spring, i)
 }
 
 /// a(x, v) of particle i at position `x` and velocity `v`, the spring forces already computed
@@ -44,7 +44,7 @@ pub fn acceleration(
     if model.inv_mass[i] == 0.0 {
         return DVec3::ZERO;
     }
-    let springs = spring_forces::gather(&model.adjacency, per_spring, i);
+    let springs = spring_forces::gather(model.adjacency(), per_spring, i);
     acceleration_with(model, surfaces, i, x, v, springs)
 }
 
@@ -106,7 +106,7 @@ pub fn accelerations_with(
     per_spring: &mut [DVec3],
     a: &mut [DVec3],
 ) {
-    kernel.compute(&model.springs, x, v, per_spring);
+    kernel.compute(model.springs(), x, v, per_spring);
     let per_spring = &*per_spring;
     let chunk = particle_chunk(a.len());
     a.par_chunks_mut(chunk).enumerate().for_each(|(c, a)| {

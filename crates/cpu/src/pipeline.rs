@@ -130,7 +130,7 @@ impl Plan {
     pub(crate) fn new(model: &Model) -> Plan {
         let route = if Plan::stencil_applies(model) {
             RouteKind::Stencil
-        } else if forward_starts(model.len(), &model.springs).is_some() {
+        } else if forward_starts(model.len(), model.springs()).is_some() {
             RouteKind::Sweep
         } else {
             RouteKind::Gather
@@ -140,21 +140,20 @@ impl Plan {
 
     /// Whether every body of `model` is a lattice with a stencil.
     fn stencil_applies(model: &Model) -> bool {
-        !model.lattices.is_empty() && model.lattices.len() == model.bodies.len()
+        !model.lattices().is_empty() && model.lattices().len() == model.bodies.len()
     }
 
     /// The plan of `model` for the current rayon pool by `route`; panics if it does not apply.
     pub(crate) fn with_route(model: &Model, route: RouteKind) -> Plan {
         let n = model.len();
         let threads = rayon::current_num_threads();
-        let springs = &model.springs;
         let (bounds, route) = match route {
             RouteKind::Stencil => {
                 assert!(Plan::stencil_applies(model), "a model of cuboids only");
                 // About one slab per thread on the whole, in proportion to each body's
                 // particles; each costs its thread the springs from the two planes below it
                 // again.
-                let stencils: Vec<Stencil> = model.lattices.iter().map(Stencil::new).collect();
+                let stencils: Vec<Stencil> = model.lattices().iter().map(Stencil::new).collect();
                 let mut bounds = vec![0];
                 let mut slabs = Vec::new();
                 for (l, stencil) in stencils.iter().enumerate() {
@@ -174,6 +173,7 @@ impl Plan {
                 (bounds, Route::Stencil { stencils, slabs })
             }
             RouteKind::Sweep => {
+                let springs = model.springs();
                 let a_start = forward_starts(n, springs).expect("a forward model");
                 // One chunk per thread (each boundary costs phase-A work), placed so that the
                 // chunks' phase B take about equal time: a chunk computes the forces of its
@@ -217,7 +217,7 @@ impl Plan {
             RouteKind::Gather => {
                 // Gathers are independent: four chunks per thread balance the load.
                 let k = (4 * threads).min(n / MIN_CHUNK).max(1);
-                let per_spring = vec![DVec3::ZERO; springs.len()];
+                let per_spring = vec![DVec3::ZERO; model.spring_count()];
                 (
                     (0..=k).map(|c| c * n / k).collect(),
                     Route::Gather { per_spring },
@@ -471,7 +471,6 @@ where
     let n = model.len();
     let outputs = outputs.whole();
     assert!(x.len() == n && v.len() == n && O::len(&outputs) == n && plan.fits());
-    let springs = &model.springs;
     let k = plan.bounds.len() - 1;
     let ctx = Chunks {
         bounds: &plan.bounds,
@@ -498,7 +497,7 @@ where
         Route::Gather { per_spring } => {
             // The plain route: every spring, then a gather per block of particles.
             let per_spring = &mut per_spring[..];
-            kernel.compute(springs, x, v, per_spring);
+            kernel.compute(model.springs(), x, v, per_spring);
             let per_spring = &*per_spring;
             let leaf = |c: usize, _: &mut [Sum], mut out: O::Chunk| {
                 let (start, end) = (ctx.bounds[c], ctx.bounds[c + 1]);
@@ -507,7 +506,7 @@ where
                 for b0 in (start..end).step_by(BLOCK) {
                     let b1 = (b0 + BLOCK).min(end);
                     let sums = &mut sums[..b1 - b0];
-                    gather_block(&model.adjacency, per_spring, b0, sums);
+                    gather_block(model.adjacency(), per_spring, b0, sums);
                     for (k, &f) in sums.iter().enumerate() {
                         let i = b0 + k;
                         if !update(i, f, O::item(&mut out, i - start)) && bad.is_none() {
@@ -528,6 +527,7 @@ where
         tail_forces,
         sums,
     } = fw;
+    let springs = model.springs();
     let (a_start, tail, tail_offset, tail_reach) =
         (&a_start[..], &tail[..], &tail_offset[..], &tail_reach[..]);
     assert!(a_start.len() == n + 1 && a_start[n] as usize == springs.len());
@@ -630,7 +630,7 @@ where
 mod tests {
     use std::path::Path;
 
-    use softbody_scene::{Adjacency, Scene};
+    use softbody_scene::Scene;
 
     use super::*;
     use crate::spring_forces::{gather, spring_force};
@@ -661,8 +661,8 @@ mod tests {
             .map(|(i, &p)| p + 0.01 * wobble(i, 1.3, 0.7, 2.1))
             .collect();
         let v: Vec<DVec3> = (0..model.len()).map(|i| wobble(i, 0.9, 0.3, 1.7)).collect();
-        let s = model.springs.len() / 2;
-        x[model.springs.b[s] as usize] = x[model.springs.a[s] as usize];
+        let s = model.springs().len() / 2;
+        x[model.springs().b[s] as usize] = x[model.springs().a[s] as usize];
         (model, x, v)
     }
 
@@ -673,7 +673,7 @@ mod tests {
 
     /// Every spring's force by the scalar definition, `spring_force`.
     fn scalar_forces(model: &Model, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
-        let s = &model.springs;
+        let s = model.springs();
         (0..s.len())
             .map(|k| {
                 let (a, b) = (s.a[k] as usize, s.b[k] as usize);
@@ -695,7 +695,7 @@ mod tests {
     fn reference(model: &Model, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
         let per_spring = scalar_forces(model, x, v);
         (0..model.len())
-            .map(|i| gather(&model.adjacency, &per_spring, i))
+            .map(|i| gather(model.adjacency(), &per_spring, i))
             .collect()
     }
 
@@ -710,7 +710,7 @@ mod tests {
     #[test]
     fn kernels_are_spring_force_bit_for_bit() {
         let (model, x, v) = perturbed();
-        let s = &model.springs;
+        let s = model.springs();
         let expected = scalar_forces(&model, &x, &v);
         assert_eq!(expected[s.len() / 2], DVec3::ZERO);
         assert!(expected.iter().filter(|f| **f != DVec3::ZERO).count() == s.len() - 1);
@@ -744,7 +744,7 @@ mod tests {
             let (mut sums, mut seen) = (vec![DVec3::NAN; n], vec![DVec3::NAN; n]);
             let bad = pass(
                 &mut plan,
-                Kernel::new(&model.springs),
+                Kernel::new(model.springs()),
                 model,
                 x,
                 v,
@@ -769,12 +769,10 @@ mod tests {
         assert_eq!(Plan::new(&forward).route(), RouteKind::Stencil);
         // The same springs with every third one reversed: no longer forward.
         let mut plain = forward.clone();
-        for k in (0..plain.springs.len()).step_by(3) {
-            let s = &mut plain.springs;
+        let s = plain.springs_mut();
+        for k in (0..s.len()).step_by(3) {
             (s.a[k], s.b[k]) = (s.b[k], s.a[k]);
         }
-        plain.adjacency = Adjacency::build(plain.len(), &plain.springs);
-        plain.lattices.clear();
         assert_eq!(Plan::new(&plain).route(), RouteKind::Gather);
         let cases = [
             (&forward, RouteKind::Stencil),
@@ -793,10 +791,12 @@ mod tests {
 
     /// The stencil (its vector and its scalar path) equals the scalar definition on lattices
     /// two and three particles wide along each axis (where bending springs are missing or
-    /// single), on several bodies at once, for 1 to 7 threads.
+    /// single), on several bodies at once, and on a slab of several windows of planes, for 1
+    /// to 7 threads.
     #[test]
     fn the_stencil_is_the_gather_on_thin_and_several_lattices() {
-        let shapes: [&[[u32; 3]]; 5] = [
+        let shapes: [&[[u32; 3]]; 6] = [
+            &[[3, 4, 29]],
             &[[2, 2, 2]],
             &[[3, 2, 5], [2, 3, 4]],
             &[[5, 3, 2], [2, 7, 3], [4, 4, 4]],
@@ -805,7 +805,7 @@ mod tests {
         ];
         for resolutions in shapes {
             let (model, x, v) = perturbed_bodies(resolutions);
-            assert_eq!(model.lattices.len(), resolutions.len());
+            assert_eq!(model.lattices().len(), resolutions.len());
             let expected = bits(&reference(&model, &x, &v));
             for threads in 1..=7 {
                 for scalar in [false, true] {

@@ -202,20 +202,11 @@ impl Solver for CpuSolver {
         }
     }
 
-    /// The state, the model's particle, spring and adjacency arrays, and the integrator's
-    /// scratch (terrain query structures and names excluded).
+    /// The state, the model's arrays ([`Model::memory_bytes`]: springs and adjacency only
+    /// where something built them) and the integrator's scratch (terrain query structures
+    /// and names excluded).
     fn memory_bytes(&self) -> u64 {
-        let m = &self.model;
-        let s = &m.springs;
-        let model = vec_bytes(&m.mass)
-            + vec_bytes(&m.inv_mass)
-            + vec_bytes(&s.a)
-            + vec_bytes(&s.b)
-            + vec_bytes(&s.rest)
-            + vec_bytes(&s.stiffness)
-            + vec_bytes(&s.damping)
-            + vec_bytes(&m.adjacency.offsets)
-            + vec_bytes(&m.adjacency.entries);
+        let model = self.model.memory_bytes();
         let contact = self.body_contact.as_ref().map_or(0, |(c, start)| {
             c.memory_bytes() + vec_bytes(&start.x) + vec_bytes(&start.v)
         });

@@ -41,9 +41,10 @@ fn perturbed_cube() -> (Model, State) {
         state.x[i] += rng.vec(0.03);
         state.v[i] = rng.vec(1.0);
     }
-    for s in 0..model.springs.len() {
-        model.springs.stiffness[s] *= 0.5 + rng.unit();
-        model.springs.damping[s] *= 0.5 + rng.unit();
+    let springs = model.springs_mut();
+    for s in 0..springs.len() {
+        springs.stiffness[s] *= 0.5 + rng.unit();
+        springs.damping[s] *= 0.5 + rng.unit();
     }
     (model, state)
 }
@@ -83,7 +84,7 @@ fn assemble(model: &Model, state: &State) -> Assembled {
         );
     }
     let mut kinds = [0usize; 2]; // [stretched (α > 0), compressed (α = 0)]
-    let sp = &model.springs;
+    let sp = model.springs();
     for s in 0..sp.len() {
         let (a, bb) = (sp.a[s] as usize, sp.b[s] as usize);
         let (ks, kd, r) = (sp.stiffness[s], sp.damping[s], sp.rest[s]);

@@ -108,8 +108,8 @@ fn rest_neighbours(model: &Model) -> Vec<u32> {
     if !needed {
         return Vec::new();
     }
-    let adjacency = &model.adjacency;
-    let springs = &model.springs;
+    let adjacency = model.adjacency();
+    let springs = model.springs();
     let mut words = adjacency.offsets.clone();
     for i in 0..model.len() {
         words.extend(adjacency.of(i).iter().map(|&e| {

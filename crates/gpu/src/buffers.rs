@@ -56,15 +56,15 @@ impl ModelBuffers {
         uniform_alignment: u32,
     ) -> ModelBuffers {
         let n = model.len() as u64;
-        let mut adjacency = model.adjacency.offsets.clone();
-        adjacency.extend_from_slice(&model.adjacency.entries);
+        let mut adjacency = model.adjacency().offsets.clone();
+        adjacency.extend_from_slice(&model.adjacency().entries);
         let mass: Vec<[f32; 2]> = model
             .mass
             .iter()
             .zip(&model.inv_mass)
             .map(|(&m, &w)| [m as f32, w as f32])
             .collect();
-        let springs = SpringGpu::pack(&model.springs);
+        let springs = SpringGpu::pack(model.springs());
         let spring_size = std::mem::size_of::<SpringGpu>();
         let step_stride = u64::from(uniform_alignment).max(std::mem::size_of::<StepIndex>() as u64);
         let mut step_indices = vec![0u8; (STEPS_PER_SUBMISSION * step_stride) as usize];
@@ -112,7 +112,7 @@ impl ModelBuffers {
             particle_partials: builder.storage("particle_partials", particle_groups, 8),
             spring_partials: builder.storage(
                 "spring_partials",
-                (model.springs.len() as u64).div_ceil(WORKGROUP_SIZE),
+                (model.springs().len() as u64).div_ceil(WORKGROUP_SIZE),
                 4,
             ),
         }

@@ -38,7 +38,7 @@ impl Params {
             gravity: sim.gravity.as_vec3().to_array(),
             drag: sim.drag as f32,
             n_particles: model.len() as u32,
-            n_springs: model.springs.len() as u32,
+            n_springs: model.springs().len() as u32,
             n_surfaces,
             dt: sim.dt as f32,
             contact_distance: sim.contact_distance as f32,

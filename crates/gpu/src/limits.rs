@@ -84,7 +84,7 @@ pub(crate) fn check_f32(model: &Model, state: &State) -> Result<(), GpuError> {
     if !divisor(sim.dt) {
         return refuse("dt, in seconds,".to_owned(), sim.dt);
     }
-    let springs = &model.springs;
+    let springs = model.springs();
     for s in 0..springs.len() {
         let (k, d, r) = (springs.stiffness[s], springs.damping[s], springs.rest[s]);
         if !fits(k) || !fits(d) || !divisor(r) {

@@ -186,7 +186,7 @@ impl GpuSolver {
         }
         check_f32(&model, &state)?;
         let n = model.len() as u64;
-        let m = model.springs.len() as u64;
+        let m = model.spring_count() as u64;
         let packed = terrain::pack(&model.terrain);
         check_limits(
             &limits,
@@ -458,7 +458,7 @@ impl GpuSolver {
 /// The storage buffers the scene needs, as [`check_limits`] checks them: the per-particle
 /// arrays, the adjacency, the terrain and the integrator's own.
 fn needs(model: &Model, packed: &terrain::TerrainBuffers) -> Vec<Need> {
-    let (n, m) = (model.len() as u64, model.springs.len() as u64);
+    let (n, m) = (model.len() as u64, model.spring_count() as u64);
     let need = |what, count, stride| Need {
         what,
         count,

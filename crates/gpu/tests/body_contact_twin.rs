@@ -217,9 +217,7 @@ fn borderline(d: f64, r: f64) -> bool {
 fn cpu_pairs(model: &Model, x: &[DVec3]) -> Vec<[u32; 2]> {
     let c = &model.contact;
     BroadPhase::new()
-        .pairs(x, &c.radius, |i, j| {
-            c.admits(&model.adjacency, &model.springs, i, j)
-        })
+        .pairs(x, &c.radius, |i, j| model.admits(i, j))
         .to_vec()
 }
 
@@ -562,11 +560,11 @@ fn one_step_twin(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
             continue;
         }
         let springs: f64 = model
-            .adjacency
+            .adjacency()
             .of(i)
             .iter()
             .map(|&e| {
-                let (s, sp) = ((e >> 1) as usize, &model.springs);
+                let (s, sp) = ((e >> 1) as usize, model.springs());
                 sp.stiffness[s] * (sp.rest[s] + 0.05) + 2.0 * sp.damping[s]
             })
             .sum();

@@ -101,11 +101,11 @@ fn capped() -> GpuOptions {
 /// particle's spring run (so that one particle's gather reads two chunks), and says how.
 fn check_split(g: &GpuSolver, model: &Model) -> Result<(), Failed> {
     let chunks = g.spring_chunks().to_vec();
-    println!("{} springs in chunks {chunks:?}", model.springs.len());
+    println!("{} springs in chunks {chunks:?}", model.springs().len());
     if chunks.len() < 3 {
         return Err(format!("expected 3+ chunks, got {chunks:?}").into());
     }
-    let adj = &model.adjacency;
+    let adj = model.adjacency();
     for &(base, _) in &chunks[1..] {
         let straddles = (0..model.len()).any(|i| {
             let run = &adj.entries[adj.offsets[i] as usize..adj.offsets[i + 1] as usize];
@@ -214,7 +214,7 @@ fn chunked_spring_forces(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let chunked = open(gpu, &model, &state, capped())?
         .debug_spring_forces()
         .map_err(step_error)?;
-    if chunked.len() != model.springs.len() || chunked != whole {
+    if chunked.len() != model.springs().len() || chunked != whole {
         return Err("chunked spring forces differ from the unchunked ones".into());
     }
     Ok(())

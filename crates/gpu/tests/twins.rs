@@ -222,9 +222,9 @@ fn stage_spring_forces(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let state = perturbed(&state, 1, 0.02, 1.0);
     let mut g = open(gpu, &model, &state)?;
     let got = g.debug_spring_forces().map_err(step_error)?;
-    let mut want = vec![DVec3::ZERO; model.springs.len()];
-    spring_forces::compute(&model.springs, &state.x, &state.v, &mut want);
-    let s = &model.springs;
+    let mut want = vec![DVec3::ZERO; model.springs().len()];
+    spring_forces::compute(model.springs(), &state.x, &state.v, &mut want);
+    let s = model.springs();
     let scale = (0..s.len()).map(|k| {
         let (a, b) = (s.a[k] as usize, s.b[k] as usize);
         s.stiffness[k] * (state.x[a].distance(state.x[b]) + s.rest[k])
@@ -251,7 +251,7 @@ fn stage_accelerations(gpu: &Arc<Gpu>, friction_model: &str) -> Result<(), Faile
     let mut g = open(gpu, &model, &state)?;
     let got = g.debug_accelerations().map_err(step_error)?;
     let surfaces: Vec<Surface> = model.terrain.iter().map(Surface::new).collect();
-    let mut per_spring = vec![DVec3::ZERO; model.springs.len()];
+    let mut per_spring = vec![DVec3::ZERO; model.springs().len()];
     let mut want = vec![DVec3::ZERO; model.len()];
     forces::accelerations(
         &model,
@@ -278,7 +278,7 @@ fn stage_accelerations(gpu: &Arc<Gpu>, friction_model: &str) -> Result<(), Faile
     let sim = &model.simulation;
     let scale = (0..model.len()).map(|i| {
         let springs: f64 = model
-            .adjacency
+            .adjacency()
             .of(i)
             .iter()
             .map(|&e| per_spring[(e >> 1) as usize].length())
@@ -371,7 +371,7 @@ fn stage_energies(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let grav_scale: f64 = (0..model.len())
         .map(|i| model.mass[i] * g_len * state.x[i].length())
         .sum();
-    let s = &model.springs;
+    let s = model.springs();
     let elastic_scale: f64 = (0..s.len())
         .map(|k| {
             let d = state.x[s.a[k] as usize].distance(state.x[s.b[k] as usize]);
@@ -413,12 +413,12 @@ fn one_step(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
     // Velocity error: rounding of v plus h times the acceleration error (scale of a: Σ|f|/m).
     let v_scale = (0..model.len()).map(|i| {
         let k: f64 = model
-            .adjacency
+            .adjacency()
             .of(i)
             .iter()
             .map(|&e| {
                 let s = (e >> 1) as usize;
-                let sp = &model.springs;
+                let sp = model.springs();
                 sp.stiffness[s] * (sp.rest[s] + 0.05) + sp.damping[s] * 2.0
             })
             .sum();
@@ -798,7 +798,7 @@ fn same_bits_on_every_grid_width(gpu: &Arc<Gpu>, scene: &Scene, steps: u64) -> R
     println!(
         "{} particles, {} springs; energies {:?}; {} CG iterations in {} solves",
         model.len(),
-        model.springs.len(),
+        model.springs().len(),
         runs[0].1,
         runs[0].2,
         runs[0].3
@@ -860,10 +860,11 @@ bending = { stiffness = 400.0, damping = 0.8 }
         model.mass[i] = f32r(0.05 + 0.05 * (rng.signed() + 1.0));
         model.inv_mass[i] = 1.0 / model.mass[i];
     }
-    for s in 0..model.springs.len() {
-        model.springs.stiffness[s] = f32r(model.springs.stiffness[s] * (1.0 + 0.5 * rng.signed()));
-        model.springs.damping[s] = f32r(model.springs.damping[s] * (1.0 + 0.5 * rng.signed()));
-        model.springs.rest[s] = f32r(model.springs.rest[s]);
+    let springs = model.springs_mut();
+    for s in 0..springs.len() {
+        springs.stiffness[s] = f32r(springs.stiffness[s] * (1.0 + 0.5 * rng.signed()));
+        springs.damping[s] = f32r(springs.damping[s] * (1.0 + 0.5 * rng.signed()));
+        springs.rest[s] = f32r(springs.rest[s]);
     }
     let state = perturbed(&state, 42, 0.03, 1.0);
     (model, state)
@@ -887,12 +888,12 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let per_spring_g = sys.per_spring.clone();
     let mut ap = vec![DVec3::ZERO; n];
     sys.apply(&model, &p, &mut ap);
-    let compressed = (0..model.springs.len())
+    let compressed = (0..model.springs().len())
         .filter(|&s| sys.gamma[s] == 0.0)
         .count();
     println!(
         "{n} particles, {} springs ({compressed} compressed: γ = 0)",
-        model.springs.len()
+        model.springs().len()
     );
     let b_scale = rhs_scale(&model, &state.v, &per_spring_g);
     let (rb, ab) = max_errors(

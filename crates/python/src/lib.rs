@@ -509,14 +509,14 @@ impl Simulation {
     /// The particles each spring joins, [S, 2] uint32.
     #[getter]
     fn springs<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
-        let pairs = self.with(py, |s| s.model().springs.pairs());
+        let pairs = self.with(py, |s| s.model().springs().pairs());
         pairs_array(py, &pairs)
     }
 
     /// Rest lengths, [S] float64, m.
     #[getter]
     fn rest_lengths<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
-        let r = self.with(py, |s| s.model().springs.rest.clone());
+        let r = self.with(py, |s| s.model().springs().rest.clone());
         Array1::from(r).into_pyarray(py).into_any()
     }
 

@@ -325,8 +325,8 @@ impl Renderer {
             surface,
             embedded: model.embedded.clone(),
             surface_color,
-            springs: model.springs.pairs(),
-            rest: model.springs.rest.clone(),
+            springs: model.springs().pairs(),
+            rest: model.springs().rest.clone(),
             dots,
             particles: model.len(),
         })

@@ -16,7 +16,7 @@
 //! "#, "inline.toml".as_ref()).unwrap();
 //! let (model, state) = Model::build(&scene);
 //! assert_eq!(model.len(), 27);
-//! assert_eq!(model.springs.len(), 54);
+//! assert_eq!(model.springs().len(), 54);
 //! assert_eq!(state.x.len(), 27);
 //! ```
 #![warn(missing_docs)]

@@ -5,6 +5,16 @@
 //! contiguous run of the adjacency (compressed sparse rows), so that per-particle force sums are
 //! gathers in a fixed order: the same bits whatever the thread count, and the scheme the GPU
 //! uses too, since WGSL has no float atomics.
+//!
+//! # Lean cuboids
+//!
+//! A cuboid's springs are a stencil ([`Lattice`]): the same offsets and parameters at every
+//! particle. The model keeps only the stencil for them, so that a large cube stepped by a
+//! stencil kernel holds no per-spring array at all (a 300³ cube has 423 M springs: 13.5 GB as
+//! a list, 3.4 GB more as an adjacency). [`Model::springs`] and [`Model::adjacency`] build
+//! the full list and its adjacency on first use and keep them, for the consumers that read
+//! springs by index (the gather and sweep routes, implicit Euler, the GPU, the exports);
+//! [`Model::for_each_spring`] visits every spring in the same order without building anything.
 
 use glam::DVec3;
 
@@ -25,11 +35,45 @@ pub const BYTES_PER_PARTICLE: u64 = 1024;
 /// the implicit solver's Jacobian data.
 pub const BYTES_PER_SPRING: u64 = 144;
 
-/// Estimated bytes a solver needs for a scene of this size (saturating).
+/// Estimated bytes a solver needs for a scene of this size (saturating), springs listed.
 pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
     particles
         .saturating_mul(BYTES_PER_PARTICLE)
         .saturating_add(springs.saturating_mul(BYTES_PER_SPRING))
+}
+
+/// What the CPU solver holds per particle for a model of cuboids only (springs kept as
+/// stencils, no list: see [`Model`]) under the explicit `integrator`, in the limit of large
+/// bodies: 44 B of the model (masses 16, the contact arrays 28) and 48 B per state it keeps
+/// (the state and the passes' second state; midpoint one stage state more, RK4 two). `None` for
+/// implicit Euler, whose system lists the springs. `crates/cpu/tests/lean.rs` holds the solver
+/// to it.
+pub fn lean_bytes_per_particle(integrator: crate::Integrator) -> Option<u64> {
+    use crate::Integrator::*;
+    let states = match integrator {
+        ExplicitEuler | SymplecticEuler => 2,
+        Midpoint => 3,
+        Rk4 => 4,
+        ImplicitEuler => return None,
+    };
+    Some(44 + 48 * states)
+}
+
+/// Estimated bytes a solver needs for `scene` (saturating): [`lean_bytes_per_particle`] for
+/// one cuboid without self-contact under an explicit integrator (the stencil's slabs, a few
+/// planes per thread, covered by a quarter more), else [`estimated_bytes`].
+pub fn estimated_scene_bytes(scene: &Scene) -> u64 {
+    let particles = scene.particle_count();
+    let lean = match scene.bodies.as_slice() {
+        [body] if matches!(body.shape, BodyShape::Cuboid(_)) && !body.self_contact => {
+            lean_bytes_per_particle(scene.simulation.integrator)
+        }
+        _ => None,
+    };
+    match lean {
+        Some(bytes) => particles.saturating_mul(bytes + bytes / 4),
+        None => estimated_bytes(particles, scene.spring_counts().total()),
+    }
 }
 
 /// Memory this process may still allocate, where the platform says, and what limits it: the
@@ -155,6 +199,15 @@ impl Springs {
     pub fn pairs(&self) -> Vec<[u32; 2]> {
         self.a.iter().zip(&self.b).map(|(&a, &b)| [a, b]).collect()
     }
+    fn with_capacity(n: usize) -> Springs {
+        Springs {
+            a: Vec::with_capacity(n),
+            b: Vec::with_capacity(n),
+            rest: Vec::with_capacity(n),
+            stiffness: Vec::with_capacity(n),
+            damping: Vec::with_capacity(n),
+        }
+    }
     fn push(&mut self, a: u32, b: u32, rest: f64, stiffness: f64, damping: f64) {
         self.a.push(a);
         self.b.push(b);
@@ -221,7 +274,7 @@ impl Adjacency {
 /// A cuboid body's springs as a stencil: particle (i, j, k) of the body, global index
 /// `first + i + nx·(j + ny·k)`, is joined to the particle at (i, j, k) + o for every offset o
 /// of `springs` where that lies in the grid, with that offset's parameters. These are the
-/// springs [`Model::springs`] holds for the body, in its order
+/// springs [`Model::springs`] lists for the body, in its order
 /// ([`topology::for_each_cuboid_spring`]): a solver may take them from either.
 ///
 /// (Mesh bodies are lattices too, and their springs follow the same offsets and rest lengths,
@@ -285,6 +338,43 @@ impl Lattice {
     pub fn spring(&self, o: usize) -> Option<&LatticeSpring> {
         self.springs.iter().find(|s| s.offset == o)
     }
+
+    /// Number of springs.
+    pub fn spring_count(&self) -> u64 {
+        (self.springs.iter())
+            .map(|s| topology::offset_spring_count(self.dims, topology::OFFSETS[s.offset].0))
+            .sum()
+    }
+
+    /// Calls `f(a, b, spring)` for each spring starting in the z-planes `planes`, a and b global
+    /// particle indices, in the order of [`Model::springs`].
+    pub fn for_each_spring(
+        &self,
+        planes: std::ops::Range<u32>,
+        mut f: impl FnMut(u32, u32, &LatticeSpring),
+    ) {
+        let mut by_offset = [None; topology::OFFSETS.len()];
+        for s in &self.springs {
+            by_offset[s.offset] = Some(s);
+        }
+        topology::for_each_cuboid_spring_in(self.dims, planes, |a, b, o| {
+            if let Some(s) = by_offset[o] {
+                f(self.first + a, self.first + b, s);
+            }
+        });
+    }
+}
+
+/// A value computed from the rest of its model on first use, then kept. It is no part of the
+/// model's identity: its `Debug` text is the same computed or not (checkpoints fingerprint
+/// the model's `Debug` text), and a clone carries it if computed.
+#[derive(Clone, Default)]
+struct Derived<T>(std::sync::OnceLock<T>);
+
+impl<T> std::fmt::Debug for Derived<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Derived")
+    }
 }
 
 /// Where a body's particles sit in the global arrays.
@@ -316,13 +406,16 @@ pub struct Model {
     pub mass: Vec<f64>,
     /// 1/m_i, and 0 for pinned particles (so they never accelerate).
     pub inv_mass: Vec<f64>,
-    /// All springs.
-    pub springs: Springs,
-    /// Each particle's springs.
-    pub adjacency: Adjacency,
-    /// The springs of the cuboid bodies again, as stencils on their lattices (one per cuboid,
-    /// in body order): what lets a solver find a spring's partner at a constant offset.
-    pub lattices: Vec<Lattice>,
+    /// The springs of the bodies without a lattice (`particles` and mesh bodies), in body
+    /// order; all of them once [`Model::springs_mut`] has turned the lattices into a list.
+    listed: Springs,
+    /// The cuboid bodies' springs, as stencils on their lattices (one per cuboid, in body
+    /// order).
+    lattices: Vec<Lattice>,
+    /// Every spring ([`Model::springs`]), built on first use when there are lattices.
+    all_springs: Derived<Springs>,
+    /// Each particle's springs ([`Model::adjacency`]), built on first use.
+    adjacency: Derived<Adjacency>,
     /// Springs of each family.
     pub spring_counts: SpringCounts,
     /// Bodies in particle order.
@@ -478,27 +571,6 @@ impl Contacts {
         };
         self.self_contact.iter().any(|&s| s) || with_radius.any(|b| b != first)
     }
-
-    /// Whether particles i and j may touch: different bodies, or one body with `self_contact`
-    /// where they are not rest neighbours — on a cuboid's or mesh body's lattice more than
-    /// [`SELF_CONTACT_EXCLUSION`] cells apart along some axis, in a `particles` body not joined
-    /// by a spring.
-    pub fn admits(&self, adjacency: &Adjacency, springs: &Springs, i: usize, j: usize) -> bool {
-        let body = self.body[i];
-        if body != self.body[j] {
-            return true;
-        }
-        if !self.self_contact[body as usize] {
-            return false;
-        }
-        match (self.lattice[i], self.lattice[j]) {
-            (Some(a), Some(b)) => (0..3).any(|k| (a[k] - b[k]).abs() > SELF_CONTACT_EXCLUSION),
-            _ => !adjacency.of(i).iter().any(|&e| {
-                let s = (e >> 1) as usize;
-                springs.a[s] as usize + springs.b[s] as usize - i == j
-            }),
-        }
-    }
 }
 
 /// Power iterations of [`Model::stable_dt_estimate`]: its Rayleigh quotient is within about
@@ -549,11 +621,6 @@ impl Model {
                         topology::cuboid_spacing(c),
                         params,
                     );
-                    topology::for_each_cuboid_spring(c.resolution, |a, b, o| {
-                        if let Some(s) = lattice.spring(o) {
-                            springs.push(first + a, first + b, s.rest, s.stiffness, s.damping);
-                        }
-                    });
                     lattices.push(lattice);
                     state.x.extend(x);
                     surface.extend(
@@ -585,12 +652,17 @@ impl Model {
                     let lattice =
                         Lattice::new(b as u32, first, points, DVec3::splat(v.cell()), params);
                     let particle = v.particle_of();
-                    topology::for_each_lattice_spring(points, Some(v.present()), |a, b, o| {
-                        if let Some(s) = lattice.spring(o) {
-                            let (a, b) = (particle[a as usize], particle[b as usize]);
-                            springs.push(first + a, first + b, s.rest, s.stiffness, s.damping);
-                        }
-                    });
+                    topology::for_each_lattice_spring(
+                        points,
+                        Some(v.present()),
+                        0..points[2],
+                        |a, b, o| {
+                            if let Some(s) = lattice.spring(o) {
+                                let (a, b) = (particle[a as usize], particle[b as usize]);
+                                springs.push(first + a, first + b, s.rest, s.stiffness, s.damping);
+                            }
+                        },
+                    );
                     state.x.extend(x);
                     match m.surface {
                         SurfaceKind::Lattice => surface.extend(
@@ -661,14 +733,14 @@ impl Model {
                 *v = DVec3::ZERO;
             }
         }
-        let adjacency = Adjacency::build(n, &springs);
         let model = Model {
             simulation: scene.simulation,
             mass,
             inv_mass,
-            springs,
-            adjacency,
+            listed: springs,
             lattices,
+            all_springs: Derived::default(),
+            adjacency: Derived::default(),
             spring_counts: scene.spring_counts(),
             bodies,
             surface,
@@ -689,6 +761,129 @@ impl Model {
         self.mass.is_empty()
     }
 
+    /// Every spring, bodies in order: a cuboid's in [`topology::for_each_cuboid_spring`]'s
+    /// order, the others' as built. Built on first use where there are cuboids, then kept
+    /// (see the module doc: a caller that only needs to visit them once wants
+    /// [`Model::for_each_spring`]).
+    pub fn springs(&self) -> &Springs {
+        if self.lattices.is_empty() {
+            return &self.listed;
+        }
+        self.all_springs.0.get_or_init(|| {
+            let mut all = Springs::with_capacity(self.spring_count());
+            self.for_each_spring(|a, b, rest, stiffness, damping| {
+                all.push(a, b, rest, stiffness, damping);
+            });
+            all
+        })
+    }
+
+    /// Each particle's springs in [`Model::springs`]: built on first use, then kept.
+    pub fn adjacency(&self) -> &Adjacency {
+        (self.adjacency.0).get_or_init(|| Adjacency::build(self.len(), self.springs()))
+    }
+
+    /// The springs, for changing their parameters: the cuboids' stencils become a list
+    /// (afterwards [`Model::lattices`] is empty and the solvers take the routes for listed
+    /// springs). The end points may change too; the adjacency is rebuilt on its next use.
+    pub fn springs_mut(&mut self) -> &mut Springs {
+        if !self.lattices.is_empty() {
+            self.springs();
+            self.listed = std::mem::take(&mut self.all_springs)
+                .0
+                .into_inner()
+                .unwrap_or_default();
+            self.lattices.clear();
+        }
+        self.adjacency = Derived::default();
+        &mut self.listed
+    }
+
+    /// The cuboid bodies' springs as stencils on their lattices, one per cuboid in body order:
+    /// what lets a solver find a spring's partner at a constant offset.
+    pub fn lattices(&self) -> &[Lattice] {
+        &self.lattices
+    }
+
+    /// The springs of the bodies without a lattice (`particles` and mesh bodies), in body
+    /// order: with [`Model::lattices`], every spring.
+    pub fn listed_springs(&self) -> &Springs {
+        &self.listed
+    }
+
+    /// Number of springs (without building [`Model::springs`]).
+    pub fn spring_count(&self) -> usize {
+        let lattices: u64 = self.lattices.iter().map(Lattice::spring_count).sum();
+        self.listed.len() + lattices as usize
+    }
+
+    /// Calls `f(a, b, rest, stiffness, damping)` for every spring, in the order of
+    /// [`Model::springs`], without building it.
+    pub fn for_each_spring(&self, mut f: impl FnMut(u32, u32, f64, f64, f64)) {
+        let mut lattices = self.lattices.iter().peekable();
+        let mut listed = 0;
+        for (index, body) in self.bodies.iter().enumerate() {
+            if let Some(lattice) = lattices.next_if(|l| l.body as usize == index) {
+                lattice.for_each_spring(0..lattice.dims[2], |a, b, s| {
+                    f(a, b, s.rest, s.stiffness, s.damping);
+                });
+                continue;
+            }
+            let (l, end) = (&self.listed, body.first + body.count);
+            while listed < l.len() && l.a[listed] < end {
+                let k = listed;
+                f(l.a[k], l.b[k], l.rest[k], l.stiffness[k], l.damping[k]);
+                listed += 1;
+            }
+        }
+    }
+
+    /// Whether particles i and j may touch: different bodies, or one body with `self_contact`
+    /// where they are not rest neighbours — on a cuboid's or mesh body's lattice more than
+    /// [`SELF_CONTACT_EXCLUSION`] cells apart along some axis, in a `particles` body not joined
+    /// by a spring.
+    pub fn admits(&self, i: usize, j: usize) -> bool {
+        let c = &self.contact;
+        let body = c.body[i];
+        if body != c.body[j] {
+            return true;
+        }
+        if !c.self_contact[body as usize] {
+            return false;
+        }
+        match (c.lattice[i], c.lattice[j]) {
+            (Some(a), Some(b)) => (0..3).any(|k| (a[k] - b[k]).abs() > SELF_CONTACT_EXCLUSION),
+            _ => {
+                let springs = self.springs();
+                !self.adjacency().of(i).iter().any(|&e| {
+                    let s = (e >> 1) as usize;
+                    springs.a[s] as usize + springs.b[s] as usize - i == j
+                })
+            }
+        }
+    }
+
+    /// Bytes the model holds on the heap per particle and per spring: masses, the contact
+    /// arrays, the listed springs, and [`Model::springs`] and [`Model::adjacency`] where they
+    /// were built (the surface, embedded meshes and terrain excluded).
+    pub fn memory_bytes(&self) -> u64 {
+        fn bytes<T>(v: &Vec<T>) -> u64 {
+            (v.capacity() * std::mem::size_of::<T>()) as u64
+        }
+        let springs = |s: &Springs| {
+            bytes(&s.a) + bytes(&s.b) + bytes(&s.rest) + bytes(&s.stiffness) + bytes(&s.damping)
+        };
+        let c = &self.contact;
+        bytes(&self.mass)
+            + bytes(&self.inv_mass)
+            + bytes(&c.radius)
+            + bytes(&c.body)
+            + bytes(&c.lattice)
+            + springs(&self.listed)
+            + self.all_springs.0.get().map_or(0, springs)
+            + (self.adjacency.0.get()).map_or(0, |a| bytes(&a.offsets) + bytes(&a.entries))
+    }
+
     /// Estimate of the largest stable step of the explicit integrators: the symplectic-Euler
     /// bound h²λ + 2hc ≤ 4 of the stiffest mode, with λ ≥ ω² and c bounded by Gershgorin's
     /// theorem on M⁻¹K and M⁻¹D (λ_i = 2Σk_s/m_i, c_i = 2Σk_d/m_i over particle i's springs).
@@ -697,16 +892,19 @@ impl Model {
     /// step (their energy grows), and implicit Euler is stable at any step. `None` without
     /// springs.
     pub fn stable_dt(&self) -> Option<f64> {
-        let (mut lambda, mut c) = (0.0f64, 0.0f64);
-        for i in 0..self.len() {
-            let (mut k, mut d) = (0.0, 0.0);
-            for &e in self.adjacency.of(i) {
-                let s = (e >> 1) as usize;
-                k += self.springs.stiffness[s];
-                d += self.springs.damping[s];
+        // Each particle's sums in ascending spring order, as a gather over its adjacency would
+        // add them, without building it.
+        let mut sums = vec![(0.0f64, 0.0f64); self.len()];
+        self.for_each_spring(|a, b, _, k, d| {
+            for p in [a, b] {
+                let sum = &mut sums[p as usize];
+                *sum = (sum.0 + k, sum.1 + d);
             }
-            lambda = lambda.max(2.0 * k / self.mass[i]);
-            c = c.max(2.0 * d / self.mass[i]);
+        });
+        let (mut lambda, mut c) = (0.0f64, 0.0f64);
+        for (&(k, d), &m) in sums.iter().zip(&self.mass) {
+            lambda = lambda.max(2.0 * k / m);
+            c = c.max(2.0 * d / m);
         }
         if lambda == 0.0 {
             return if c > 0.0 { Some(2.0 / c) } else { None };
@@ -725,24 +923,16 @@ impl Model {
     /// few per cent of the step where the jelly cube of `scenes/jelly-on-ground.toml` starts to
     /// diverge, where [`Model::stable_dt`] is four times lower. `None` without springs.
     pub fn stable_dt_estimate(&self, x: &[DVec3]) -> Option<f64> {
-        let s = &self.springs;
-        if s.is_empty() {
+        if self.spring_count() == 0 {
             return None;
         }
         let scale: Vec<f64> = self.inv_mass.iter().map(|w| w.sqrt()).collect();
-        let dirs: Vec<DVec3> = (0..s.len())
-            .map(|k| (x[s.a[k] as usize] - x[s.b[k] as usize]).normalize_or_zero())
-            .collect();
-        // The springs' stretch rate l·(u_a − u_b) of w = M^½u, and the quadratic form of
-        // `coefficients` on it.
-        let stretch = |w: &[DVec3], k: usize| {
-            let (a, b) = (s.a[k] as usize, s.b[k] as usize);
-            dirs[k].dot(w[a] * scale[a] - w[b] * scale[b])
-        };
-        let quadratic = |w: &[DVec3], coefficients: &[f64]| -> f64 {
-            (0..s.len())
-                .map(|k| coefficients[k] * stretch(w, k).powi(2))
-                .sum()
+        // A spring's unit direction l and its stretch rate l·(u_a − u_b) of w = M^½u, worked
+        // out again in every sweep instead of stored: a cuboid's springs are no list.
+        let stretch = |w: &[DVec3], a: u32, b: u32| {
+            let (a, b) = (a as usize, b as usize);
+            let l = (x[a] - x[b]).normalize_or_zero();
+            (l, l.dot(w[a] * scale[a] - w[b] * scale[b]))
         };
         let mut seed = 0x9e37_79b9_7f4a_7c15u64;
         let mut sign = || {
@@ -758,12 +948,12 @@ impl Model {
         let mut next = vec![DVec3::ZERO; w.len()];
         for _ in 0..POWER_ITERATIONS {
             next.fill(DVec3::ZERO);
-            for (k, &l) in dirs.iter().enumerate() {
-                let (a, b) = (s.a[k] as usize, s.b[k] as usize);
-                let f = s.stiffness[k] * stretch(&w, k) * l;
-                next[a] += f * scale[a];
-                next[b] -= f * scale[b];
-            }
+            self.for_each_spring(|a, b, _, stiffness, _| {
+                let (l, rate) = stretch(&w, a, b);
+                let f = stiffness * rate * l;
+                next[a as usize] += f * scale[a as usize];
+                next[b as usize] -= f * scale[b as usize];
+            });
             let norm = next.iter().map(|v| v.length_squared()).sum::<f64>().sqrt();
             if norm == 0.0 {
                 break;
@@ -774,8 +964,14 @@ impl Model {
         if length == 0.0 {
             return self.stable_dt();
         }
-        let lambda = quadratic(&w, &s.stiffness) / length;
-        let c = quadratic(&w, &s.damping) / length;
+        // The quadratic forms of K and D on w.
+        let (mut k, mut d) = (0.0, 0.0);
+        self.for_each_spring(|a, b, _, stiffness, damping| {
+            let rate2 = stretch(&w, a, b).1.powi(2);
+            k += stiffness * rate2;
+            d += damping * rate2;
+        });
+        let (lambda, c) = (k / length, d / length);
         if lambda == 0.0 {
             return if c > 0.0 { Some(2.0 / c) } else { None };
         }

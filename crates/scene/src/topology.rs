@@ -84,12 +84,23 @@ pub fn cuboid_positions(c: &Cuboid) -> Vec<DVec3> {
 /// Calls `f(a, b, o)` for every spring of a full grid of `resolution` particles, in order:
 /// the lattice with every cell present ([`for_each_lattice_spring`]).
 pub fn for_each_cuboid_spring(resolution: [u32; 3], f: impl FnMut(u32, u32, usize)) {
-    for_each_lattice_spring(resolution, None, f);
+    for_each_cuboid_spring_in(resolution, 0..resolution[2], f);
+}
+
+/// [`for_each_cuboid_spring`] for the springs starting in the z-planes `planes` only.
+pub fn for_each_cuboid_spring_in(
+    resolution: [u32; 3],
+    planes: std::ops::Range<u32>,
+    f: impl FnMut(u32, u32, usize),
+) {
+    for_each_lattice_spring(resolution, None, planes, f);
 }
 
 /// Calls `f(a, b, o)` (o the spring's index in [`OFFSETS`]) for every spring of a lattice of `points` particles per axis whose
 /// cells (`points − 1` per axis, x fastest) are present where `cells` says (`None`: all), in
-/// the order of the module doc; `a`, `b` are lattice point indices `i + nx·(j + ny·k)`.
+/// the order of the module doc; `a`, `b` are lattice point indices `i + nx·(j + ny·k)`. Only
+/// the springs starting in the z-planes `planes` are visited: the order is plane after plane,
+/// so disjoint ranges visit disjoint runs of the sequence.
 ///
 /// A spring of the full grid is kept when it lies in the present cells: a structural or shear
 /// spring when some present cell has both ends as corners, a bending spring when both
@@ -99,6 +110,7 @@ pub fn for_each_cuboid_spring(resolution: [u32; 3], f: impl FnMut(u32, u32, usiz
 pub fn for_each_lattice_spring(
     points: [u32; 3],
     cells: Option<&[bool]>,
+    planes: std::ops::Range<u32>,
     mut f: impl FnMut(u32, u32, usize),
 ) {
     let [nx, ny, nz] = points.map(|r| r as i64);
@@ -128,7 +140,7 @@ pub fn for_each_lattice_spring(
                 .any(|&j| z.iter().flatten().any(|&k| present([i, j, k])))
         })
     };
-    for k in 0..nz {
+    for k in i64::from(planes.start)..i64::from(planes.end).min(nz) {
         for j in 0..ny {
             for i in 0..nx {
                 let p = i + nx * (j + ny * k);
@@ -209,14 +221,16 @@ pub fn cuboid_spring_counts(c: &Cuboid) -> SpringCounts {
     }
 }
 
+/// Springs of grid offset `o` on a full grid of `resolution` particles: the points whose
+/// partner p + o lies in the grid (saturating).
+pub fn offset_spring_count(resolution: [u32; 3], o: [i32; 3]) -> u64 {
+    (0..3).fold(1u64, |acc, a| {
+        acc.saturating_mul(u64::from(resolution[a]).saturating_sub(u64::from(o[a].unsigned_abs())))
+    })
+}
+
 /// Springs of each family on a full grid of `resolution` particles (saturating).
 pub fn grid_spring_counts(resolution: [u32; 3]) -> SpringCounts {
-    let n = resolution.map(|r| r as u64);
-    let m = |o: [i32; 3]| -> u64 {
-        (0..3).fold(1u64, |acc, a| {
-            acc.saturating_mul(n[a].saturating_sub(o[a].unsigned_abs() as u64))
-        })
-    };
     let mut counts = SpringCounts::default();
     for (o, kind) in OFFSETS {
         let slot = match kind {
@@ -224,7 +238,7 @@ pub fn grid_spring_counts(resolution: [u32; 3]) -> SpringCounts {
             SpringKind::Shear => &mut counts.shear,
             SpringKind::Bending => &mut counts.bending,
         };
-        *slot = slot.saturating_add(m(o));
+        *slot = slot.saturating_add(offset_spring_count(resolution, o));
     }
     counts
 }

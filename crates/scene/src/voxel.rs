@@ -480,13 +480,16 @@ impl Voxels {
             }
         }
         let mut springs = SpringCounts::default();
-        topology::for_each_lattice_spring(cells.map(|c| c + 1), Some(&present), |_, _, o| {
-            match topology::OFFSETS[o].1 {
+        topology::for_each_lattice_spring(
+            cells.map(|c| c + 1),
+            Some(&present),
+            0..cells[2] + 1,
+            |_, _, o| match topology::OFFSETS[o].1 {
                 SpringKind::Structural => springs.structural += 1,
                 SpringKind::Shear => springs.shear += 1,
                 SpringKind::Bending => springs.bending += 1,
-            }
-        });
+            },
+        );
         Ok(Voxels {
             mesh,
             scale,

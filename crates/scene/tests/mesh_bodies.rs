@@ -174,19 +174,19 @@ fn a_box_mesh_is_the_cuboid_of_its_lattice() {
     assert_eq!(sa.v, sb.v);
     assert_eq!(a.mass, b.mass);
     assert_eq!(a.inv_mass, b.inv_mass);
-    assert_eq!(a.springs.a, b.springs.a);
-    assert_eq!(a.springs.b, b.springs.b);
-    assert_eq!(a.springs.stiffness, b.springs.stiffness);
-    assert_eq!(a.springs.damping, b.springs.damping);
+    assert_eq!(a.springs().a, b.springs().a);
+    assert_eq!(a.springs().b, b.springs().b);
+    assert_eq!(a.springs().stiffness, b.springs().stiffness);
+    assert_eq!(a.springs().damping, b.springs().damping);
     let dr = a
-        .springs
+        .springs()
         .rest
         .iter()
-        .zip(&b.springs.rest)
+        .zip(&b.springs().rest)
         .map(|(p, q)| (p - q).abs())
         .fold(0.0, f64::max);
     assert!(dr <= 1e-12, "{dr:e}");
-    assert_eq!(a.adjacency, b.adjacency);
+    assert_eq!(a.adjacency(), b.adjacency());
     assert_eq!(a.spring_counts, b.spring_counts);
     assert_eq!(a.spring_counts, topology::grid_spring_counts([9, 7, 5]));
     // The contact radius is half the cell, 0.05/2, against half of 0.3/6: equal to 1e-17.
@@ -233,8 +233,8 @@ fn springs_do_not_bridge_a_gap() {
     // 9 × 4 × 4 cells, the middle column of 16 empty: 2 × 5³ particles.
     assert_eq!(model.len(), 250);
     let side = |p: u32| state.x[p as usize].x > 0.0;
-    let crossing = (0..model.springs.len())
-        .filter(|&s| side(model.springs.a[s]) != side(model.springs.b[s]))
+    let crossing = (0..model.springs().len())
+        .filter(|&s| side(model.springs().a[s]) != side(model.springs().b[s]))
         .count();
     assert_eq!(crossing, 0);
     // Each box has the springs of a 5³ cuboid.

@@ -26,7 +26,7 @@ use softbody_terrain::Surface;
 use crate::body_contact::{NoPairs, PairForces, Partners};
 use crate::collision_response::respond_one;
 use crate::forces::acceleration_with;
-use crate::pipeline::{Plan, pass};
+use crate::pipeline::{Plan, RouteKind, pass};
 use crate::spring_forces::Kernel;
 use crate::vec_bytes;
 
@@ -178,9 +178,15 @@ impl Passes {
     /// Sized and planned for `model`, in the current thread pool.
     pub(crate) fn new(model: &Model) -> Passes {
         let n = model.len();
+        let plan = Plan::new(model);
+        // The stencil reads each offset's parameters from the lattice, the others the list.
+        let kernel = match plan.route() {
+            RouteKind::Stencil => Kernel::per_spring(),
+            _ => Kernel::new(model.springs()),
+        };
         Passes {
-            plan: Plan::new(model),
-            kernel: Kernel::new(&model.springs),
+            plan,
+            kernel,
             next_x: vec![DVec3::ZERO; n],
             next_v: vec![DVec3::ZERO; n],
         }

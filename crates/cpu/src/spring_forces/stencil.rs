@@ -23,6 +23,11 @@
 //! below it, so each thread sweeps its own slab of planes upwards and first computes the
 //! springs that reach into its slab from the two planes below (computed again, with the same
 //! bits, by the thread below): the result does not depend on how many slabs there are.
+//!
+//! The copy is a window of [`WINDOW`] planes moving up the slab (and the two above it, which
+//! its springs reach; the next window copies those two again), so that a thread holds a few
+//! planes whatever the body's size: the lean model's bytes per particle stay those of the
+//! state.
 
 use glam::DVec3;
 use softbody_scene::Lattice;
@@ -35,6 +40,8 @@ use super::spring_force;
 const GUARD: usize = 4;
 /// Particles side by side.
 const LANES: usize = 4;
+/// Planes of a slab whose sums one copy of the state serves.
+const WINDOW: usize = 8;
 
 /// The springs of one lattice offset, as the stencil uses them.
 #[derive(Debug, Clone, Copy)]
@@ -185,8 +192,10 @@ pub(crate) struct Slab {
     pub(crate) lattice: usize,
     k0: usize,
     k1: usize,
-    /// First plane copied: k0 − 2 or 0 (the springs from below start there).
+    /// First plane with springs into the slab: k0 − 2 or 0.
     kb: usize,
+    /// First plane of the window copied into `state`.
+    base: usize,
     /// Slots of each of the six state arrays (x, y, z of x; x, y, z of v).
     len: usize,
     state: Vec<f64>,
@@ -202,15 +211,16 @@ impl Slab {
     /// Planes `k0..k1` of `stencil` (the `lattice`-th).
     pub(crate) fn new(stencil: &Stencil, lattice: usize, k0: usize, k1: usize) -> Slab {
         let kb = k0.saturating_sub(2);
-        // The planes above the slab that its springs reach: up to two.
-        let ke = (k1 + 2).min(stencil.planes());
-        let len = GUARD + (ke - kb) * stencil.plane_slots() + GUARD;
+        // The first window is the largest: the planes below, WINDOW planes, two above.
+        let planes = (k0 - kb) + WINDOW.min(k1 - k0) + 2;
+        let len = GUARD + planes * stencil.plane_slots() + GUARD;
         let ring_len = GUARD + stencil.plane_slots() + GUARD;
         Slab {
             lattice,
             k0,
             k1,
             kb,
+            base: kb,
             len,
             state: vec![0.0; 6 * len],
             ring_len,
@@ -233,7 +243,7 @@ impl Slab {
     /// Slot of (i, j, k) in the state arrays.
     #[inline]
     fn slot(&self, stencil: &Stencil, i: usize, j: usize, k: usize) -> usize {
-        GUARD + i + stencil.row * j + stencil.plane_slots() * (k - self.kb)
+        GUARD + i + stencil.row * j + stencil.plane_slots() * (k - self.base)
     }
 
     /// Start of the ring array of offset r, plane k, x component.
@@ -282,24 +292,8 @@ impl Slab {
         v: &[DVec3],
         done: &mut impl FnMut(usize, DVec3),
     ) {
-        let [nx, ny, nz] = stencil.dims;
-        let ke = (self.k1 + 2).min(nz);
-        // The state of planes kb..ke into padded rows.
-        {
-            let mut arrays = split6(&mut self.state, self.len);
-            for k in self.kb..ke {
-                for j in 0..ny {
-                    let p0 = stencil.first + nx * (j + ny * k);
-                    let s0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - self.kb);
-                    let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
-                    let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + nx]);
-                    for i in 0..nx {
-                        (r0[i], r1[i], r2[i]) = (xs[i].x, xs[i].y, xs[i].z);
-                        (r3[i], r4[i], r5[i]) = (vs[i].x, vs[i].y, vs[i].z);
-                    }
-                }
-            }
-        }
+        let [nx, ny, _] = stencil.dims;
+        self.window(stencil, x, v, self.kb, self.k0);
         // The springs from the two planes below that reach into the slab.
         for k in self.kb..self.k0 {
             let plane = self.plane_ring(stencil, k);
@@ -308,6 +302,9 @@ impl Slab {
             }
         }
         for k in self.k0..self.k1 {
+            if k > self.k0 && (k - self.k0).is_multiple_of(WINDOW) {
+                self.window(stencil, x, v, k, k);
+            }
             let plane = self.plane_ring(stencil, k);
             for j in 0..ny {
                 self.compute_row(stencil, &plane, j, k, 0);
@@ -317,6 +314,27 @@ impl Slab {
                 for i in 0..nx {
                     let f = DVec3::new(self.sums[i], self.sums[r + i], self.sums[2 * r + i]);
                     done(p0 + i, f);
+                }
+            }
+        }
+    }
+
+    /// Copies into padded rows the state of planes `base..` up to the two above the window
+    /// of sums that starts at plane `from` (the planes between are those below the slab).
+    fn window(&mut self, stencil: &Stencil, x: &[DVec3], v: &[DVec3], base: usize, from: usize) {
+        let [nx, ny, nz] = stencil.dims;
+        let end = ((from + WINDOW).min(self.k1) + 2).min(nz);
+        self.base = base;
+        let mut arrays = split6(&mut self.state, self.len);
+        for k in base..end {
+            for j in 0..ny {
+                let p0 = stencil.first + nx * (j + ny * k);
+                let s0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - base);
+                let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
+                let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + nx]);
+                for i in 0..nx {
+                    (r0[i], r1[i], r2[i]) = (xs[i].x, xs[i].y, xs[i].z);
+                    (r3[i], r4[i], r5[i]) = (vs[i].x, vs[i].y, vs[i].z);
                 }
             }
         }

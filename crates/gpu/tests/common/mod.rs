@@ -55,7 +55,7 @@ pub fn rhs_scale(
         .map(|i| {
             let m = model.mass[i];
             let springs: f64 = model
-                .adjacency
+                .adjacency()
                 .of(i)
                 .iter()
                 .map(|&e| per_spring[(e >> 1) as usize].length())
@@ -72,11 +72,11 @@ pub fn product_scale(
     sys: &softbody_cpu::integrators::implicit_euler::system::System,
     p: &[glam::DVec3],
 ) -> Vec<f64> {
-    let sp = &model.springs;
+    let sp = model.springs();
     (0..model.len())
         .map(|i| {
             let springs: f64 = model
-                .adjacency
+                .adjacency()
                 .of(i)
                 .iter()
                 .map(|&e| {

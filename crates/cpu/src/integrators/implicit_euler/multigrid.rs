@@ -344,7 +344,7 @@ impl Multigrid {
             .collect::<Option<_>>()?;
         let (parent, mut keys) = aggregate(&keys);
         let m = keys.len();
-        let springs = &model.springs;
+        let springs = model.springs();
         let mut triples: Vec<(u32, u32, u32)> = (0..m as u32).map(|a| (a, a, u32::MAX)).collect();
         triples.reserve(2 * springs.len());
         for s in 0..springs.len() {
@@ -412,7 +412,7 @@ impl Multigrid {
                         s => filtered(s, diag[i]).inverse(),
                     };
             });
-        let springs = &model.springs;
+        let springs = model.springs();
         let (u, beta, gamma) = (&system.u, &system.beta, &system.gamma);
         let block = |s: usize| outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
         let first = &mut self.levels[0];

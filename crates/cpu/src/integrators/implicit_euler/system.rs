@@ -125,7 +125,7 @@ impl PairBlocks {
 impl System {
     /// Sized for `model`.
     pub fn new(model: &Model) -> System {
-        let (n, s) = (model.len(), model.springs.len());
+        let (n, s) = (model.len(), model.springs().len());
         System {
             u: vec![DVec3::ZERO; s],
             beta: vec![0.0; s],
@@ -166,7 +166,7 @@ impl System {
         if let (Some(blocks), Some(partners)) = (self.pairs.as_mut(), partners) {
             blocks.assemble(model, partners, x, v);
         }
-        let springs = &model.springs;
+        let springs = model.springs();
         // Per spring: its force f_s and its stiffness product y_s = K_s (v_a − v_b); store
         // g_s = f_s − h y_s, so that b_i = h (gravity + drag + Σ± g_s) in one gather, since
         // (∂f/∂x v)_i = −Σ± y_s.
@@ -218,11 +218,11 @@ impl System {
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, (b, (md, (diag, inv))))| {
                 let m = model.mass[i];
-                let mut f =
-                    m * sim.gravity - sim.drag * m * v[i] + gather(&model.adjacency, per_spring, i);
+                let mut f = m * sim.gravity - sim.drag * m * v[i]
+                    + gather(model.adjacency(), per_spring, i);
                 *md = m * (1.0 + h * sim.drag);
                 let mut block = DMat3::from_diagonal(DVec3::splat(*md));
-                for &e in model.adjacency.of(i) {
+                for &e in model.adjacency().of(i) {
                     let s = (e >> 1) as usize;
                     block += outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
                 }
@@ -244,7 +244,7 @@ impl System {
         if let Some(pairs) = self.pairs.as_mut() {
             pairs.products(p);
         }
-        let springs = &model.springs;
+        let springs = model.springs();
         let (u, beta, gamma) = (&self.u, &self.beta, &self.gamma);
         assert!(springs.b.len() == springs.len() && u.len() == springs.len());
         assert!(beta.len() == springs.len() && gamma.len() == springs.len());
@@ -272,7 +272,7 @@ impl System {
                 for (k, out) in out.chunks_mut(BLOCK).enumerate() {
                     let first = c * PARTICLE_CHUNK + k * BLOCK;
                     // Σ± z_s per particle, four particles side by side: `gather`'s bits.
-                    gather_block(&model.adjacency, per_spring, first, out);
+                    gather_block(model.adjacency(), per_spring, first, out);
                     for (j, o) in out.iter_mut().enumerate() {
                         let i = first + j;
                         *o = md[i] * p[i] + *o;

@@ -1,0 +1,150 @@
+//! The lean model: a model of cuboids keeps its springs as stencils only, and the explicit
+//! integrators step it, and report its energies, without ever building a spring list. The
+//! result is the list's, bit for bit, and the solver holds what the memory estimate promises.
+
+use glam::DVec3;
+use softbody_cpu::CpuSolver;
+use softbody_scene::model::lean_bytes_per_particle;
+use softbody_scene::{Integrator, Model, Solver, SpringParams, State};
+use softbody_testkit::Rng;
+use softbody_testkit::scenes::*;
+
+const EXPLICIT: [Integrator; 4] = [
+    Integrator::ExplicitEuler,
+    Integrator::SymplecticEuler,
+    Integrator::Midpoint,
+    Integrator::Rk4,
+];
+
+/// A 12×9×`nz` column of 0.1 m cells lying along z, dropped at a slant onto the ground,
+/// pinned at one corner, its positions and velocities disturbed so that every spring is
+/// stretched or compressed.
+fn column(integrator: Integrator, nz: u32) -> (Model, State) {
+    let params = SpringParams {
+        stiffness: 800.0,
+        damping: 0.4,
+    };
+    let size = DVec3::new(1.1, 0.8, 0.1 * f64::from(nz - 1));
+    let c = cuboid(
+        size,
+        [12, 9, nz],
+        DVec3::new(0.0, 0.45, 0.0),
+        0.01 * f64::from(108 * nz),
+        params,
+    );
+    let mut body = cuboid_body(c);
+    body.pinned = vec![0];
+    let (model, mut state) = Model::build(&scene(
+        simulation(integrator, 2e-4),
+        vec![body],
+        vec![plane(
+            DVec3::ZERO,
+            DVec3::new(0.1, 1.0, 0.0).normalize(),
+            0.3,
+            0.4,
+        )],
+    ));
+    let mut rng = Rng::new(11);
+    for i in 1..model.len() {
+        state.x[i] += rng.vec(0.01);
+        state.v[i] = rng.vec(0.5);
+    }
+    (model, state)
+}
+
+fn bits(x: &[DVec3]) -> Vec<[u64; 3]> {
+    x.iter().map(|p| p.to_array().map(f64::to_bits)).collect()
+}
+
+/// The stencil's steps are the listed springs' steps bit for bit (two slabs of 20 planes:
+/// several windows each), with no list built.
+#[test]
+fn a_lean_cube_steps_as_its_spring_list() {
+    for integrator in EXPLICIT {
+        let (lean, state) = column(integrator, 40);
+        let mut listed = lean.clone();
+        listed.springs_mut();
+        assert!(lean.lattices().len() == 1 && listed.lattices().is_empty());
+        assert_eq!(lean.spring_count(), listed.springs().len());
+
+        let mut a = CpuSolver::new(lean, state.clone(), Some(2)).unwrap();
+        let mut b = CpuSolver::new(listed, state, Some(2)).unwrap();
+        a.advance(40).unwrap();
+        b.advance(40).unwrap();
+        let (ea, eb) = (a.energies().unwrap(), b.energies().unwrap());
+        let (sa, sb) = (a.state().unwrap().clone(), b.state().unwrap().clone());
+        assert_eq!(bits(&sa.x), bits(&sb.x), "{integrator:?}: positions");
+        assert_eq!(bits(&sa.v), bits(&sb.v), "{integrator:?}: velocities");
+        // The same terms, summed plane by plane instead of in chunks of the list.
+        assert_eq!(ea.kinetic.to_bits(), eb.kinetic.to_bits());
+        assert!(
+            (ea.elastic - eb.elastic).abs() <= 1e-13 * eb.elastic,
+            "{integrator:?}: elastic {} against {}",
+            ea.elastic,
+            eb.elastic
+        );
+        // The list holds 32 B per spring and its adjacency 8 more: 14 springs per particle.
+        let n = a.model().len() as u64;
+        assert!(
+            b.memory_bytes() > a.memory_bytes() + 400 * n,
+            "{integrator:?}"
+        );
+    }
+}
+
+/// What a lean solver holds grows by at most [`lean_bytes_per_particle`] per particle: the
+/// bytes of two columns, 80 and 160 planes long, differ by that times the particles between
+/// them (the slabs' windows and rings are a few planes each, whatever the length).
+#[test]
+fn a_lean_solver_holds_the_estimate_per_particle() {
+    for integrator in EXPLICIT {
+        let held = |nz| {
+            let (model, state) = column(integrator, nz);
+            let mut solver = CpuSolver::new(model, state, Some(2)).unwrap();
+            solver.advance(2).unwrap();
+            solver.energies().unwrap();
+            (solver.model().len() as f64, solver.memory_bytes() as f64)
+        };
+        let ((n0, b0), (n1, b1)) = (held(80), held(160));
+        let per_particle = (b1 - b0) / (n1 - n0);
+        let bound = lean_bytes_per_particle(integrator).unwrap() as f64;
+        eprintln!("{integrator:?}: {per_particle:.1} B per particle (bound {bound})");
+        assert!(
+            per_particle <= bound,
+            "{integrator:?}: {per_particle} B per particle"
+        );
+    }
+}
+
+/// What the model visits without a list is the list: the same springs in the same order, and
+/// the stable steps computed from them are the same bits.
+#[test]
+fn for_each_spring_is_the_list_in_order() {
+    let (lean, state) = column(Integrator::SymplecticEuler, 10);
+    let mut visited = Vec::new();
+    lean.for_each_spring(|a, b, r, k, d| {
+        visited.push((a, b, r.to_bits(), k.to_bits(), d.to_bits()))
+    });
+    let mut listed = lean.clone();
+    let s = listed.springs_mut().clone();
+    let list: Vec<_> = (0..s.len())
+        .map(|k| {
+            (
+                s.a[k],
+                s.b[k],
+                s.rest[k].to_bits(),
+                s.stiffness[k].to_bits(),
+                s.damping[k].to_bits(),
+            )
+        })
+        .collect();
+    assert_eq!(visited, list);
+    assert_eq!(
+        lean.stable_dt().map(f64::to_bits),
+        listed.stable_dt().map(f64::to_bits)
+    );
+    assert_eq!(
+        lean.stable_dt_estimate(&state.x).map(f64::to_bits),
+        listed.stable_dt_estimate(&state.x).map(f64::to_bits)
+    );
+}
