@@ -51,10 +51,27 @@
 @group(0) @binding(13) var<storage, read_write> sum_x: array<vec4<f32>>;
 @group(0) @binding(14) var<storage, read_write> sum_v: array<vec4<f32>>;
 
-// Spring s's force on its end a at the state (x, v): what spring_forces.wgsl writes.
+// The gathering thread's particle and its state, read once rather than once per spring.
+var<private> own: u32;
+var<private> own_x: vec3<f32>;
+var<private> own_v: vec3<f32>;
+
+// Spring s's force on its end a at the state (x, v): what spring_forces.wgsl writes. Only the
+// other end is read; the ends are put in (a, b) order by selection, not by a branch, which
+// lanes of one SIMD group would take both ways.
 fn gathered(s: u32) -> vec3<f32> {
     let spring = spring_at(s);
-    return spring_force(spring, x[spring.a].xyz, x[spring.b].xyz, v[spring.a].xyz, v[spring.b].xyz);
+    let mine = spring.a == own;
+    let other = select(spring.a, spring.b, mine);
+    let xo = x[other].xyz;
+    let vo = v[other].xyz;
+    return spring_force(
+        spring,
+        select(xo, own_x, mine),
+        select(own_x, xo, mine),
+        select(vo, own_v, mine),
+        select(own_v, vo, mine),
+    );
 }
 
 // a(x, v) of particle i, as forces.wgsl's `accelerations` writes it.
@@ -63,7 +80,10 @@ fn acceleration_of(i: u32) -> vec4<f32> {
     if mw.y == 0.0 {
         return vec4<f32>(0.0);
     }
-    return vec4<f32>(free_acceleration(mw, x[i].xyz, v[i].xyz, gather(i)), 0.0);
+    own = i;
+    own_x = x[i].xyz;
+    own_v = v[i].xyz;
+    return vec4<f32>(free_acceleration(mw, own_x, own_v, gather(i)), 0.0);
 }
 
 // The end of a step: particle i's new state (xn, vn) after the collision response, into
