@@ -557,17 +557,21 @@ impl Solver for GpuSolver {
             if self.in_flight.len() == STATUS_RING {
                 self.settle()?;
             }
-            // The first submission is one step, timed alone; then as many as fit the time, whole
-            // cycles of the fused Euler methods' ping-pong where possible (no copy back).
-            let batch = self.batch.unwrap_or(1).min(steps - done);
+            let remaining = steps - done;
             let cycle = match &self.stepper {
                 Stepper::Fused(fused) => fused.steps_per_cycle(),
                 _ => 1,
             };
-            let batch = if batch > cycle {
-                batch - batch % cycle
-            } else {
-                batch
+            // The first submission is one step, timed alone; then as many as fit the time, in
+            // whole cycles of the fused Euler methods' ping-pong (two steps, even where one
+            // would fill the time) while the steps asked for allow: no copy back but after
+            // the first and an odd last.
+            let batch = match self.batch {
+                None => 1,
+                Some(batch) if remaining >= cycle => {
+                    batch.max(cycle).min(remaining) / cycle * cycle
+                }
+                Some(_) => remaining,
             };
             self.submit_batch(batch)?;
             if self.batch.is_none() {
