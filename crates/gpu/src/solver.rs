@@ -5,9 +5,11 @@
 //! # A step
 //!
 //! Every step is a fixed sequence of dispatches in one compute pass (wgpu orders consecutive
-//! dispatches: each is its own usage scope, so each sees what the previous wrote): the
-//! integrator's ([`crate::integrators`]), then `collision_response` (when there is terrain) and
-//! `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
+//! dispatches: each is its own usage scope, so each sees what the previous wrote). Fused
+//! ([`crate::integrators::fused`], the explicit integrators unless bodies touch): one dispatch
+//! per integrator stage, the last of which also responds to the terrain and checks
+//! finiteness. Otherwise the integrator's ([`crate::integrators`]), then `collision_response`
+//! (when there is terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
 //! is followed by the grid of the end state and the response between bodies, and (with
 //! terrain) by the terrain's record of the next step's start, which that response changed.
@@ -95,6 +97,10 @@ pub struct GpuOptions {
     /// The explicit integrators on the per-spring path even where the fused one applies, to
     /// compare the two.
     pub per_spring: bool,
+    /// At most this many storage buffers per shader stage (instead of the adapter's
+    /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
+    /// explicit integrators fall back to the per-spring path.
+    pub max_storage_buffers: Option<u32>,
 }
 
 /// The GPU backend: the model in device buffers, stepped by compute shaders in f32.
@@ -173,6 +179,10 @@ impl GpuSolver {
         if let Some(cap) = options.max_binding_size {
             // As if the adapter allowed no more: the device itself keeps its limits.
             let limit = &mut limits.max_storage_buffer_binding_size;
+            *limit = (*limit).min(cap);
+        }
+        if let Some(cap) = options.max_storage_buffers {
+            let limit = &mut limits.max_storage_buffers_per_shader_stage;
             *limit = (*limit).min(cap);
         }
         let adapter = gpu.name();

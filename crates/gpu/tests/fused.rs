@@ -11,6 +11,8 @@
 //!   ping-pong and its copy back): the same bits, since each spring force is the same call on
 //!   the same inputs, gathered in the same order.
 //! - Run to run: the same bits.
+//! - An adapter that cannot bind the fused kernels' buffers (WebGPU's minimum of 8 storage
+//!   buffers per stage) takes the per-spring path.
 //! - The design's figures: 1, 2 and 4 dispatches per step, less traffic than the per-spring
 //!   path.
 
@@ -55,6 +57,10 @@ fn main() -> ExitCode {
         ));
     }
     tests.push(("fused_runs_repeat_bit_for_bit".into(), repeatable));
+    tests.push((
+        "an_adapter_at_webgpus_minimum_takes_the_per_spring_path".into(),
+        minimum_adapter,
+    ));
     tests.push(("fused_design_figures".into(), design_figures));
     softbody_testkit::run_gpu("GPU fused step tests", tests)
 }
@@ -226,6 +232,29 @@ fn repeatable(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         let a = batches(&mut open(gpu, &model, &state, false)?, &BATCHES)?;
         let b = batches(&mut open(gpu, &model, &state, false)?, &BATCHES)?;
         ensure(a == b, || format!("{integrator}: two fused runs differ"))?;
+    }
+    Ok(())
+}
+
+/// With 8 storage buffers per stage (the fused kernels bind 11 to 13), every explicit
+/// integrator takes the per-spring path, with the fused path's bits.
+fn minimum_adapter(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    for integrator in EXPLICIT {
+        let (model, state) = cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE);
+        let options = GpuOptions {
+            max_storage_buffers: Some(8),
+            ..GpuOptions::default()
+        };
+        let mut g = GpuSolver::with_options(gpu, model.clone(), state.clone(), options)
+            .map_err(|e| e.to_string())?;
+        let kernel = g.statistics().kernel;
+        ensure(kernel == "per-spring + gather", || {
+            format!("{integrator} at 8 storage buffers: kernel {kernel}")
+        })?;
+        let fused = batches(&mut open(gpu, &model, &state, false)?, &BATCHES[..3])?;
+        ensure(batches(&mut g, &BATCHES[..3])? == fused, || {
+            format!("{integrator}: the fallback differs from the fused run")
+        })?;
     }
     Ok(())
 }
