@@ -14,28 +14,12 @@
 //   non-finite iff bad_position == bad_particle (the CPU says "position" before "velocity").
 //
 // The host resets the status to (NONE, NONE, NONE) before each submission and reads it back
-// after it. Twins: `softbody_gpu::layout::{Status, StepIndex}`.
-
-struct Status {
-    // The first step (1-based, within the submission) with a non-finite value, or NONE.
-    bad_step: atomic<u32>,
-    // The lowest particle with a non-finite x or v at that step, or NONE.
-    bad_particle: atomic<u32>,
-    // The lowest particle with a non-finite x at that step, or NONE.
-    bad_position: atomic<u32>,
-}
-
-struct StepIndex {
-    step: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
+// after it. The record is finite.wgsl's `check_particle`, shared with the fused step
+// (fused_step.wgsl), which checks the state it has just written.
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> status: Status;
-@group(0) @binding(4) var<uniform> step_index: StepIndex;
+// status (binding 3) and step_index (binding 5) are declared by finite.wgsl.
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn check_finite(id: Invocation) {
@@ -43,17 +27,5 @@ fn check_finite(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let step = step_index.step;
-    if atomicLoad(&status.bad_step) < step {
-        return;
-    }
-    let bad_x = !all_finite(x[i].xyz);
-    let bad_v = !all_finite(v[i].xyz);
-    if bad_x || bad_v {
-        atomicMin(&status.bad_step, step);
-        atomicMin(&status.bad_particle, i);
-        if bad_x {
-            atomicMin(&status.bad_position, i);
-        }
-    }
+    check_particle(i, x[i].xyz, v[i].xyz);
 }

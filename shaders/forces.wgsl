@@ -6,7 +6,7 @@
 //
 // one thread per particle. Particle i's spring forces are gathered over its CSR run in ascending
 // spring order (gather.wgsl): the CPU's order, and no float atomics. Pinned particles (1/m = 0)
-// get a = 0.
+// get a = 0. The formula is acceleration.wgsl's, shared with the fused step.
 //
 // `adjacency` holds the offsets (n + 1 words) followed by the entries (2·springs words), and
 // `mass` holds (m, 1/m) per particle: one buffer each instead of two keeps this kernel at 8
@@ -14,15 +14,10 @@
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
-// per_spring (binding 3) and adjacency (binding 4) are declared by gather.wgsl.
+@group(0) @binding(3) var<storage, read> per_spring: array<vec4<f32>>;
+// adjacency (binding 4) is declared by gather.wgsl.
 @group(0) @binding(5) var<storage, read> mass: array<vec2<f32>>;
 @group(0) @binding(6) var<storage, read_write> a: array<vec4<f32>>;
-
-// Gravity, drag, spring force and the forces between particles `pairs` on particle i of mass m
-// and velocity vi.
-fn applied_force(i: u32, m: f32, vi: vec3<f32>, pairs: vec3<f32>) -> vec3<f32> {
-    return m * params.gravity - params.drag * m * vi + (gather(i) + pairs);
-}
 
 // The acceleration of particle i, with the forces between particles `pairs`.
 fn accelerate(i: u32, pairs: vec3<f32>) {
@@ -31,11 +26,7 @@ fn accelerate(i: u32, pairs: vec3<f32>) {
         a[i] = vec4<f32>(0.0);
         return;
     }
-    let xi = x[i].xyz;
-    let vi = v[i].xyz;
-    let f = applied_force(i, mw.x, vi, pairs);
-    let fc = contact_force(params.contact_distance, params.dt, mw.x, xi, vi, f);
-    a[i] = vec4<f32>((f + fc) * mw.y, 0.0);
+    a[i] = vec4<f32>(free_acceleration(mw, x[i].xyz, v[i].xyz, gather(i) + pairs), 0.0);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

@@ -33,7 +33,7 @@
 // diagonally dominated by the mass part for every scene the solver takes.
 //
 // `per_spring` (binding 3, read) and `per_spring_out` (binding 8, read_write) are the same
-// buffer, bound in different dispatches: gather.wgsl declares the first.
+// buffer, bound in different dispatches.
 //
 // The per-spring kernels are dispatched once per spring chunk (common.wgsl, `SpringChunk`), with
 // the chunk's `springs`, `blocks` and `per_spring_out` bound and indexed from 0; the particle
@@ -49,6 +49,7 @@ struct SpringBlock {
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> per_spring: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> mass: array<vec2<f32>>;
 @group(0) @binding(6) var<storage, read> springs: array<Spring>;
 @group(0) @binding(7) var<storage, read_write> blocks: array<SpringBlock>;

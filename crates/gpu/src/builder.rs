@@ -14,7 +14,7 @@ use crate::chunks::Chunking;
 use crate::chunks::SpringChunks;
 use crate::device::Gpu;
 use crate::grid::Grid;
-use crate::kernel::{self, Call, Kernel, Module, Resources, Traffic};
+use crate::kernel::{self, Binding, Call, Kernel, Module, Resources, Traffic};
 use crate::shaders::Stage;
 use crate::terrain::{SurfaceGpu, TerrainBuffers};
 
@@ -186,22 +186,49 @@ impl Builder {
             })
     }
 
-    /// The kernel of `entry` in `stage`'s module (compiled once per stage).
-    pub fn kernel(&self, stage: Stage, entry: &'static str) -> Result<Kernel, GpuError> {
+    /// `stage`'s module, compiled once.
+    fn module(&self, stage: Stage) -> Result<std::cell::Ref<'_, Module>, GpuError> {
         if !self.modules.borrow().contains_key(&stage) {
             let module = Module::new(&self.gpu.device, stage, stage.source_chunked(self.chunking))
                 .map_err(|e| internal(&self.gpu, e))?;
             self.modules.borrow_mut().insert(stage, module);
         }
-        let modules = self.modules.borrow();
+        Ok(std::cell::Ref::map(self.modules.borrow(), |m| &m[&stage]))
+    }
+
+    /// Whether the adapter can bind what `entry` of `stage` binds: [`GpuError::Limit`] if not,
+    /// found by reflection, before anything is allocated for it.
+    pub fn fits(&self, stage: Stage, entry: &'static str) -> Result<(), GpuError> {
+        let (bindings, terrain) = self
+            .module(stage)?
+            .reflect(entry)
+            .map_err(|e| internal(&self.gpu, e))?;
+        self.check_bindings(stage, entry, &bindings, terrain)
+    }
+
+    /// The kernel of `entry` in `stage`'s module (compiled once per stage).
+    pub fn kernel(&self, stage: Stage, entry: &'static str) -> Result<Kernel, GpuError> {
         let kernel = Kernel::new(
             &self.gpu.device,
-            &modules[&stage],
+            &*self.module(stage)?,
             entry,
             &self.terrain_layout,
         )
         .map_err(|e| internal(&self.gpu, e))?;
-        let storage = kernel.storage_buffers(self.terrain_buffers);
+        self.check_bindings(stage, entry, kernel.bindings(), kernel.terrain())?;
+        Ok(kernel)
+    }
+
+    /// [`GpuError::Limit`] if the adapter cannot bind `bindings` (and the terrain's group, if
+    /// `terrain`) for `entry` of `stage`.
+    fn check_bindings(
+        &self,
+        stage: Stage,
+        entry: &'static str,
+        bindings: &[Binding],
+        terrain: bool,
+    ) -> Result<(), GpuError> {
+        let storage = kernel::storage_buffers(bindings, terrain, self.terrain_buffers);
         let allowed = self.limits.max_storage_buffers_per_shader_stage;
         if storage > allowed {
             return Err(GpuError::Limit {
@@ -212,7 +239,7 @@ impl Builder {
                 available: format!("{allowed}"),
             });
         }
-        if let Some(b) = kernel.bindings().last()
+        if let Some(b) = bindings.last()
             && b.binding >= self.limits.max_bindings_per_bind_group
         {
             return Err(GpuError::Limit {
@@ -223,7 +250,7 @@ impl Builder {
                 available: format!("{}", self.limits.max_bindings_per_bind_group),
             });
         }
-        Ok(kernel)
+        Ok(())
     }
 
     /// What the calls made here have dispatched.

@@ -17,6 +17,9 @@ use crate::shaders::Stage;
 
 /// The collision response of the solver's state and its record of the step's start.
 pub(crate) struct CollisionResponse {
+    /// Each particle's start of the step (velocity, band mask), which the fused step's last
+    /// stage also reads and renews.
+    pub start: wgpu::Buffer,
     call: Call,
     band: Call,
     grid: Grid,
@@ -32,6 +35,7 @@ impl CollisionResponse {
             call: s.builder.call(stage, "collision_response", &resources)?,
             band: s.builder.call(stage, "contact_band", &resources)?,
             grid: s.particles,
+            start,
         })
     }
 

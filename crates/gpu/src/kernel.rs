@@ -67,6 +67,21 @@ impl Module {
         });
         Ok(Module { parsed, shader })
     }
+
+    /// The `@group(0)` bindings `entry` uses and whether it reads the terrain ([`reflect`]).
+    pub fn reflect(&self, entry: &str) -> Result<(Vec<Binding>, bool), String> {
+        reflect(&self.parsed, entry)
+    }
+}
+
+/// Storage buffers a kernel with `bindings` binds, the terrain's (`terrain_buffers` of them)
+/// included if it reads the terrain.
+pub(crate) fn storage_buffers(bindings: &[Binding], terrain: bool, terrain_buffers: u32) -> u32 {
+    let own = bindings
+        .iter()
+        .filter(|b| b.access != Access::Uniform)
+        .count() as u32;
+    own + if terrain { terrain_buffers } else { 0 }
 }
 
 /// The bind group layout entries of the terrain's `@group(1)` declarations in `terrain.wgsl`
@@ -240,14 +255,9 @@ impl Kernel {
         &self.bindings
     }
 
-    /// Storage buffers it binds, the terrain's included (`terrain_buffers` of them).
-    pub fn storage_buffers(&self, terrain_buffers: u32) -> u32 {
-        let own = self
-            .bindings
-            .iter()
-            .filter(|b| b.access != Access::Uniform)
-            .count() as u32;
-        own + if self.terrain { terrain_buffers } else { 0 }
+    /// Whether it reads the terrain.
+    pub fn terrain(&self) -> bool {
+        self.terrain
     }
 
     /// A call of the kernel with the buffers of `resources` bound by name (and the terrain
@@ -364,8 +374,9 @@ impl<'a> Resources<'a> {
 /// storage buffer it binds once and writes every read-write one once (a read-write binding
 /// counts twice its size). Gathers that read a value more than once are assumed to hit in
 /// cache, uniforms and the terrain's tables (a few kilobytes) are left out, and an indirect
-/// dispatch counts in full even when its grid is empty. It is the figure to compare designs by
-/// (per-spring buffers against a fused gather, say), on any adapter, a software one included.
+/// dispatch counts in full even when its grid is empty; a buffer copy counts what it reads and
+/// writes, but is no dispatch. It is the figure to compare designs by (per-spring buffers
+/// against a fused gather, say), on any adapter, a software one included.
 #[derive(Debug, Default)]
 pub(crate) struct Traffic {
     dispatches: AtomicU64,
@@ -373,6 +384,11 @@ pub(crate) struct Traffic {
 }
 
 impl Traffic {
+    /// Counts a buffer copy that moves `bytes` (read and written).
+    pub fn copied(&self, bytes: u64) {
+        self.bytes.fetch_add(bytes, Ordering::Relaxed);
+    }
+
     /// (dispatches, bytes) so far.
     pub fn totals(&self) -> (u64, u64) {
         (

@@ -2,20 +2,26 @@
 //!
 //! WGSL has no includes, so each stage's module is the concatenation of the shared pieces it
 //! needs and its own file: `common.wgsl` (parameters, springs, the thread index) always, then
-//! `reduce.wgsl` (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR
-//! gather) for the stages that gather per-spring vectors, `terrain.wgsl` for the stages that
-//! query the terrain, then `contact.wgsl` for `forces.wgsl`, and `neighbours.wgsl` (the hashed
-//! grid of contact between bodies) for the stages that build or search it.
+//! `finite.wgsl` (the instability record) for the stages that check the state, `reduce.wgsl`
+//! (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR gather) for the
+//! stages that gather over the springs, `terrain.wgsl` for the stages that query the terrain,
+//! then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the stages that
+//! compute accelerations, `response.wgsl` (the collision response) for the stages that respond,
+//! and `neighbours.wgsl` (the hashed grid of contact between bodies) for the stages that build
+//! or search it.
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
 //! point's bindings (name, number, access) from the composed module with naga and binds
 //! buffers by name.
 //!
 //! Per-spring arrays may be split into chunks ([`crate::chunks`]): the per-particle gathers
-//! (`forces.wgsl`, `system.wgsl`) then read every chunk, through `per_spring_at` and
-//! `block_at`, which [`Stage::source_chunked`] generates for the chunk count and appends to the
-//! module, declaring the extra chunks as `per_spring_1`, `per_spring_2`, … from
-//! [`PER_SPRING_CHUNK_BINDING`] and `block_1`, … from [`BLOCK_CHUNK_BINDING`].
+//! (`forces.wgsl`, `system.wgsl`, `fused_step.wgsl`) then read every chunk, through
+//! `per_spring_at`, `block_at` and `spring_at`, which [`Stage::source_chunked`] generates for
+//! the chunk count and appends to the module, declaring the extra chunks as `per_spring_1`,
+//! `per_spring_2`, … from [`PER_SPRING_CHUNK_BINDING`], `block_1`, … from
+//! [`BLOCK_CHUNK_BINDING`] and `spring_1`, … from [`SPRING_CHUNK_BINDING`]. For the stages that
+//! gather stored per-spring vectors it also generates `gathered(s)`, the vector `gather.wgsl`
+//! sums (the fused step computes its own).
 
 use crate::chunks::Chunking;
 
@@ -31,6 +37,12 @@ pub const REDUCE: &str = include_str!("../../../shaders/reduce.wgsl");
 pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
 /// `shaders/neighbours.wgsl`.
 pub const NEIGHBOURS: &str = include_str!("../../../shaders/neighbours.wgsl");
+/// `shaders/acceleration.wgsl`.
+pub const ACCELERATION: &str = include_str!("../../../shaders/acceleration.wgsl");
+/// `shaders/response.wgsl`.
+pub const RESPONSE: &str = include_str!("../../../shaders/response.wgsl");
+/// `shaders/finite.wgsl`.
+pub const FINITE: &str = include_str!("../../../shaders/finite.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
@@ -40,8 +52,13 @@ pub const PER_SPRING_CHUNK_BINDING: u32 = 16;
 /// c − 1; chunk 0 is binding 7).
 pub const BLOCK_CHUNK_BINDING: u32 = 32;
 
-/// The accessors `per_spring_at(s)` (and for `system.wgsl` `block_at(s)`) with the extra
-/// chunks' declarations, for `chunking`: a piece of WGSL appended to the gathering stages.
+/// Binding of the spring records' chunk 1 in the fused step's kernels (chunk c at this + c − 1;
+/// chunk 0 is binding 7).
+pub const SPRING_CHUNK_BINDING: u32 = 16;
+
+/// The accessors `per_spring_at(s)` and `gathered(s)` (and for `system.wgsl` `block_at(s)`; for
+/// `fused_step.wgsl` `spring_at(s)` alone) with the extra chunks' declarations, for `chunking`:
+/// a piece of WGSL appended to the gathering stages.
 fn accessors(chunking: Chunking, stage: Stage) -> String {
     let mut out = String::new();
     out.push_str(&format!(
@@ -91,6 +108,10 @@ switch s >> {shift}u {{
 "
         ));
     };
+    if stage == Stage::FusedStep {
+        accessor("spring", "Spring", "springs", SPRING_CHUNK_BINDING);
+        return out;
+    }
     accessor(
         "per_spring",
         "vec4<f32>",
@@ -100,6 +121,12 @@ switch s >> {shift}u {{
     if stage == Stage::System {
         accessor("block", "SpringBlock", "blocks", BLOCK_CHUNK_BINDING);
     }
+    out.push_str(
+        "fn gathered(s: u32) -> vec3<f32> {
+    return per_spring_at(s).xyz;
+}
+",
+    );
     out
 }
 
@@ -138,11 +165,14 @@ pub enum Stage {
     BodyContact,
     /// `pairs_probe.wgsl` (with the grid): the pairs in contact, for the twin tests.
     PairsProbe,
+    /// `fused_step.wgsl` (with terrain and contact): the explicit integrators' stages, one
+    /// dispatch each.
+    FusedStep,
 }
 
 impl Stage {
     /// Every stage.
-    pub const ALL: [Stage; 16] = [
+    pub const ALL: [Stage; 17] = [
         Stage::SpringForces,
         Stage::Forces,
         Stage::ExplicitEuler,
@@ -159,6 +189,7 @@ impl Stage {
         Stage::BroadPhase,
         Stage::BodyContact,
         Stage::PairsProbe,
+        Stage::FusedStep,
     ];
 
     /// The stage's file name under `shaders/`.
@@ -180,6 +211,7 @@ impl Stage {
             Stage::BroadPhase => "broad_phase.wgsl",
             Stage::BodyContact => "body_contact.wgsl",
             Stage::PairsProbe => "pairs_probe.wgsl",
+            Stage::FusedStep => "fused_step.wgsl",
         }
     }
 
@@ -202,6 +234,7 @@ impl Stage {
             Stage::BroadPhase => include_str!("../../../shaders/broad_phase.wgsl"),
             Stage::BodyContact => include_str!("../../../shaders/body_contact.wgsl"),
             Stage::PairsProbe => include_str!("../../../shaders/pairs_probe.wgsl"),
+            Stage::FusedStep => include_str!("../../../shaders/fused_step.wgsl"),
         }
     }
 
@@ -209,7 +242,11 @@ impl Stage {
     pub fn uses_terrain(self) -> bool {
         matches!(
             self,
-            Stage::Forces | Stage::CollisionResponse | Stage::ImplicitEuler | Stage::TerrainProbe
+            Stage::Forces
+                | Stage::CollisionResponse
+                | Stage::ImplicitEuler
+                | Stage::TerrainProbe
+                | Stage::FusedStep
         )
     }
 
@@ -218,7 +255,7 @@ impl Stage {
     /// level of the broad phase's prefix sum, one slot per level.
     pub fn dynamic_uniforms(self) -> &'static [&'static str] {
         match self {
-            Stage::CheckFinite => &["step_index"],
+            Stage::CheckFinite | Stage::FusedStep => &["step_index"],
             Stage::BroadPhase => &["scan_level"],
             _ => &[],
         }
@@ -239,12 +276,30 @@ impl Stage {
 
     /// Whether its module includes `gather.wgsl`.
     fn uses_gather(self) -> bool {
-        matches!(self, Stage::Forces | Stage::System)
+        matches!(self, Stage::Forces | Stage::System | Stage::FusedStep)
+    }
+
+    /// Whether its module includes `contact.wgsl` and `acceleration.wgsl`.
+    fn uses_acceleration(self) -> bool {
+        matches!(self, Stage::Forces | Stage::FusedStep)
+    }
+
+    /// Whether its module includes `response.wgsl`.
+    fn uses_response(self) -> bool {
+        matches!(self, Stage::CollisionResponse | Stage::FusedStep)
+    }
+
+    /// Whether its module includes `finite.wgsl`.
+    fn uses_finite(self) -> bool {
+        matches!(self, Stage::CheckFinite | Stage::FusedStep)
     }
 
     /// The pieces of its module, in order: (file name, source).
     pub fn pieces(self) -> Vec<(&'static str, &'static str)> {
         let mut pieces = vec![("common.wgsl", COMMON)];
+        if self.uses_finite() {
+            pieces.push(("finite.wgsl", FINITE));
+        }
         if self.uses_reduce() {
             pieces.push(("reduce.wgsl", REDUCE));
         }
@@ -254,8 +309,12 @@ impl Stage {
         if self.uses_terrain() {
             pieces.push(("terrain.wgsl", TERRAIN));
         }
-        if self == Stage::Forces {
+        if self.uses_acceleration() {
             pieces.push(("contact.wgsl", CONTACT));
+            pieces.push(("acceleration.wgsl", ACCELERATION));
+        }
+        if self.uses_response() {
+            pieces.push(("response.wgsl", RESPONSE));
         }
         if self.uses_neighbours() {
             pieces.push(("neighbours.wgsl", NEIGHBOURS));

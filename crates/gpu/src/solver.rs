@@ -5,9 +5,11 @@
 //! # A step
 //!
 //! Every step is a fixed sequence of dispatches in one compute pass (wgpu orders consecutive
-//! dispatches: each is its own usage scope, so each sees what the previous wrote): the
-//! integrator's ([`crate::integrators`]), then `collision_response` (when there is terrain) and
-//! `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
+//! dispatches: each is its own usage scope, so each sees what the previous wrote). Fused
+//! ([`crate::integrators::fused`], the explicit integrators unless bodies touch): one dispatch
+//! per integrator stage, the last of which also responds to the terrain and checks
+//! finiteness. Otherwise the integrator's ([`crate::integrators`]), then `collision_response`
+//! (when there is terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
 //! is followed by the grid of the end state and the response between bodies, and (with
 //! terrain) by the terrain's record of the next step's start, which that response changed.
@@ -92,6 +94,13 @@ pub struct GpuOptions {
     /// Storage bindings of at most this many bytes (instead of the adapter's
     /// `max_storage_buffer_binding_size`, if lower): per-spring arrays are split accordingly.
     pub max_binding_size: Option<u64>,
+    /// The explicit integrators on the per-spring path even where the fused one applies, to
+    /// compare the two.
+    pub per_spring: bool,
+    /// At most this many storage buffers per shader stage (instead of the adapter's
+    /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
+    /// explicit integrators fall back to the per-spring path.
+    pub max_storage_buffers: Option<u32>,
 }
 
 /// The GPU backend: the model in device buffers, stepped by compute shaders in f32.
@@ -170,6 +179,10 @@ impl GpuSolver {
         if let Some(cap) = options.max_binding_size {
             // As if the adapter allowed no more: the device itself keeps its limits.
             let limit = &mut limits.max_storage_buffer_binding_size;
+            *limit = (*limit).min(cap);
+        }
+        if let Some(cap) = options.max_storage_buffers {
+            let limit = &mut limits.max_storage_buffers_per_shader_stage;
             *limit = (*limit).min(cap);
         }
         let adapter = gpu.name();
@@ -251,11 +264,17 @@ impl GpuSolver {
                 body_contact: body_contact.as_ref(),
                 ..s
             };
-            let stepper = Stepper::new(s, integrator, n_surfaces > 0)?;
             let collision_response = match (implicit, n_surfaces) {
                 (false, 1..) => Some(CollisionResponse::new(s)?),
                 _ => None,
             };
+            let stepper = Stepper::new(
+                s,
+                integrator,
+                n_surfaces > 0,
+                collision_response.as_ref().map(|c| &c.start),
+                options.per_spring,
+            )?;
             let check = CheckFinite::new(s)?;
             let energy = Energy::new(s, m)?;
             Ok((
@@ -349,6 +368,21 @@ impl GpuSolver {
             bytemuck::bytes_of(&Status::RESET),
         );
         let encoder = match &mut self.stepper {
+            Stepper::Fused(fused) => {
+                let band = self.collision_response.as_ref();
+                let band_stale = std::mem::take(&mut self.band_stale);
+                let mut encoder = self.submitter.encode_pass("steps", |pass| {
+                    if let (Some(c), true) = (band, band_stale) {
+                        c.encode_band(pass);
+                    }
+                    for k in 0..batch {
+                        fused.encode(pass, k);
+                    }
+                });
+                fused.end_batch(&mut encoder, batch);
+                self.timings.add("encode", started.elapsed().as_secs_f64());
+                encoder
+            }
             Stepper::Explicit(stepper) => {
                 let (collision, check) = (&self.collision_response, &self.check);
                 let contact = &self.body_contact;
@@ -533,8 +567,22 @@ impl Solver for GpuSolver {
             if self.in_flight.len() == STATUS_RING {
                 self.settle()?;
             }
-            // The first submission is one step, timed alone; then as many as fit the time.
-            let batch = self.batch.unwrap_or(1).min(steps - done);
+            let remaining = steps - done;
+            let cycle = match &self.stepper {
+                Stepper::Fused(fused) => fused.steps_per_cycle(),
+                _ => 1,
+            };
+            // The first submission is one step, timed alone; then as many as fit the time, in
+            // whole cycles of the fused Euler methods' ping-pong (two steps, even where one
+            // would fill the time) while the steps asked for allow: no copy back but after
+            // the first and an odd last.
+            let batch = match self.batch {
+                None => 1,
+                Some(batch) if remaining >= cycle => {
+                    batch.max(cycle).min(remaining) / cycle * cycle
+                }
+                Some(_) => remaining,
+            };
             self.submit_batch(batch)?;
             if self.batch.is_none() {
                 self.settle()?;
@@ -627,7 +675,7 @@ impl Solver for GpuSolver {
     fn statistics(&self) -> Statistics {
         let implicit = match &self.stepper {
             Stepper::Implicit(im) => im.statistics.clone(),
-            Stepper::Explicit(_) => Statistics::default(),
+            Stepper::Explicit(_) | Stepper::Fused(_) => Statistics::default(),
         };
         let (dispatches, device_bytes) = self.builder.traffic().totals();
         Statistics {
@@ -635,10 +683,12 @@ impl Solver for GpuSolver {
             timings: self.timings.clone(),
             dispatches,
             device_bytes,
-            // The design of `integrators/mod.rs`: per-spring forces in chunks, gathered per
-            // particle through the adjacency.
+            // The designs of `integrators/`: each particle's springs computed by the particle as
+            // it gathers them, one dispatch per stage; or per-spring forces in chunks, gathered
+            // per particle through the adjacency.
             kernel: match self.stepper {
                 Stepper::Implicit(_) => "matrix-free",
+                Stepper::Fused(_) => "fused gather",
                 Stepper::Explicit(_) => "per-spring + gather",
             },
             ..implicit

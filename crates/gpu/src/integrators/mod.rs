@@ -1,19 +1,24 @@
 //! The integrators on the GPU, each a type owning its buffers and kernel calls, one module each
 //! (twins of `softbody_cpu::integrators`); [`Stepper`] holds the one a run uses.
 //!
-//! The explicit family is encoded on the device step after step (many steps per submission):
+//! The explicit family is encoded on the device step after step (many steps per submission),
+//! fused where it can be ([`fused`]: one dispatch per stage, the collision response and the
+//! finiteness check included), otherwise on the per-spring path:
 //!
-//! | integrator | dispatches of a step |
+//! | integrator | dispatches of a step (per-spring path) |
 //! |---|---|
 //! | explicit / symplectic Euler | forces(x, v) → update |
 //! | midpoint | forces(x, v) → `midpoint_stage` → forces(stage) → `midpoint_update` |
 //! | RK4 | forces(x, v) → `rk4_first` → forces(stage) → `rk4_second` → forces(stage) → `rk4_third` → forces(stage) → `rk4_last` |
 //!
 //! where forces(·) is [`Accelerations`] (spring forces, then the gather). The solver adds the
-//! collision response (with terrain) and the instability check. Implicit Euler is driven from
-//! the host, which reads the CG's progress back ([`implicit_euler`]).
+//! collision response (with terrain) and the instability check. The per-spring path serves
+//! models whose bodies touch (their pair forces need the broad phase's grid of each stage's
+//! state) and adapters that cannot bind the fused kernels' buffers. Implicit Euler is driven
+//! from the host, which reads the CG's progress back ([`implicit_euler`]).
 
 pub mod explicit_euler;
+pub mod fused;
 pub mod implicit_euler;
 pub mod midpoint;
 pub mod rk4;
@@ -36,15 +41,34 @@ pub(crate) trait ExplicitStep: Send {
 
 /// The integrator of a run.
 pub(crate) enum Stepper {
-    /// Explicit Euler, symplectic Euler, midpoint or RK4.
+    /// Explicit Euler, symplectic Euler, midpoint or RK4, fused: the collision response and the
+    /// check are its own.
+    Fused(fused::Fused),
+    /// Explicit Euler, symplectic Euler, midpoint or RK4 on the per-spring path.
     Explicit(Box<dyn ExplicitStep>),
     /// Implicit Euler.
     Implicit(Box<implicit_euler::ImplicitEuler>),
 }
 
 impl Stepper {
-    /// `integrator`'s buffers and calls; `terrain` says whether the scene has terrain.
-    pub fn new(s: Setup<'_>, integrator: Integrator, terrain: bool) -> Result<Stepper, GpuError> {
+    /// `integrator`'s buffers and calls; `terrain` says whether the scene has terrain, `start`
+    /// is the collision response's record of each step's start (explicit integrators with
+    /// terrain). The explicit integrators are fused unless `per_spring` asks for the per-spring
+    /// path, bodies touch, or the adapter cannot bind the fused kernels.
+    pub fn new(
+        s: Setup<'_>,
+        integrator: Integrator,
+        terrain: bool,
+        start: Option<&wgpu::Buffer>,
+        per_spring: bool,
+    ) -> Result<Stepper, GpuError> {
+        if integrator != Integrator::ImplicitEuler && s.body_contact.is_none() && !per_spring {
+            match fused::Fused::new(s, integrator, start) {
+                Ok(fused) => return Ok(Stepper::Fused(fused)),
+                Err(GpuError::Limit { .. }) => {}
+                Err(e) => return Err(e),
+            }
+        }
         Ok(match integrator {
             Integrator::ExplicitEuler => Stepper::Explicit(Box::new(explicit_euler::new(s)?)),
             Integrator::SymplecticEuler => Stepper::Explicit(Box::new(symplectic_euler::new(s)?)),
