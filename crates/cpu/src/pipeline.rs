@@ -34,7 +34,7 @@
 //! Each spring is computed once, by the same kernel, from the same inputs, and every sum has
 //! the gather's order, so the result does not depend on the number of chunks or threads.
 //!
-//! Models whose bodies are all lattices (cuboids and mesh bodies) take the stencil route instead
+//! Models whose bodies are all cuboids take the stencil route instead
 //! ([`crate::spring_forces::stencil`]): one slab of planes per chunk, partners at constant
 //! offsets, the sums again in the gather's order. Models that are not forward take the plain
 //! route: every spring force into a buffer, then a gather per particle. All three give the
@@ -70,7 +70,7 @@ pub(crate) struct Plan {
 /// How a pass finds each particle's springs.
 #[derive(Debug)]
 enum Route {
-    /// Every body a lattice: the stencil of each, and chunk c's slab of planes.
+    /// Every body a cuboid: the stencil of each lattice, and chunk c's slab of planes.
     Stencil {
         stencils: Vec<Stencil>,
         slabs: Vec<Mutex<Slab>>,
@@ -101,7 +101,7 @@ impl Clone for Route {
 /// The routes a plan can take ([`Plan::with_route`]), by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RouteKind {
-    /// [`crate::spring_forces::stencil`], for models of lattice bodies only.
+    /// [`crate::spring_forces::stencil`], for models of cuboids only.
     Stencil,
     /// The fused sweep over springs sorted by their first end, for forward models.
     Sweep,
@@ -149,7 +149,7 @@ impl Plan {
         let threads = rayon::current_num_threads();
         let (bounds, route) = match route {
             RouteKind::Stencil => {
-                assert!(Plan::stencil_applies(model), "a model of lattices only");
+                assert!(Plan::stencil_applies(model), "a model of cuboids only");
                 // About one slab per thread on the whole, in proportion to each body's
                 // particles; each costs its thread the springs from the two planes below it
                 // again.
@@ -158,7 +158,7 @@ impl Plan {
                 let mut slabs = Vec::new();
                 for (l, stencil) in stencils.iter().enumerate() {
                     let planes = stencil.planes();
-                    let share = (threads * stencil.particles() + n / 2) / n.max(1);
+                    let share = (threads * planes * stencil.plane_particles() + n / 2) / n.max(1);
                     let count = share.clamp(1, planes);
                     for c in 0..count {
                         let (k0, k1) = (c * planes / count, (c + 1) * planes / count);
@@ -635,34 +635,23 @@ mod tests {
     use super::*;
     use crate::spring_forces::{gather, spring_force};
 
-    /// The springs of every family of the bodies below.
-    const FAMILIES: &str = "structural = { stiffness = 2000.0, damping = 5.0 }\n\
-                            shear = { stiffness = 1500.0, damping = 4.0 }\n\
-                            bending = { stiffness = 700.0, damping = 3.0 }\n";
-
     /// Cuboids of `resolutions` side by side (one body each), with every particle moved and
     /// moving differently, and one spring crushed to zero length.
     fn perturbed_bodies(resolutions: &[[u32; 3]]) -> (Model, Vec<DVec3>, Vec<DVec3>) {
-        let bodies: Vec<String> = (resolutions.iter().enumerate())
-            .map(|(b, [nx, ny, nz])| {
-                format!(
-                    "[[body]]\nname = \"b{b}\"\nkind = \"cuboid\"\ncenter = [{x}, 1.0, 0.0]\n\
-                     size = [1.2, 1.0, 1.6]\nresolution = [{nx}, {ny}, {nz}]\nmass = 2.0\n\
-                     {FAMILIES}",
-                    x = 3.0 * b as f64,
-                )
-            })
-            .collect();
-        perturbed_scene(&bodies.concat(), Path::new("test.toml"))
-    }
-
-    /// The bodies of `text` (a scene file's `[[body]]` tables, read as the file `path`),
-    /// perturbed as [`perturbed_bodies`].
-    fn perturbed_scene(bodies: &str, path: &Path) -> (Model, Vec<DVec3>, Vec<DVec3>) {
-        let text = format!(
-            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-5\nduration = 0.0\n{bodies}"
+        let mut text = String::from(
+            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-5\nduration = 0.0\n",
         );
-        let scene = Scene::from_toml(&text, path).expect("valid scene");
+        for (b, [nx, ny, nz]) in resolutions.iter().enumerate() {
+            text += &format!(
+                "[[body]]\nname = \"b{b}\"\nkind = \"cuboid\"\ncenter = [{x}, 1.0, 0.0]\n\
+                 size = [1.2, 1.0, 1.6]\nresolution = [{nx}, {ny}, {nz}]\nmass = 2.0\n\
+                 structural = {{ stiffness = 2000.0, damping = 5.0 }}\n\
+                 shear = {{ stiffness = 1500.0, damping = 4.0 }}\n\
+                 bending = {{ stiffness = 700.0, damping = 3.0 }}\n",
+                x = 3.0 * b as f64,
+            );
+        }
+        let scene = Scene::from_toml(&text, Path::new("test.toml")).expect("valid scene");
         let (model, state) = Model::build(&scene);
         let wobble = |i: usize, a: f64, b: f64, c: f64| {
             let t = i as f64;
@@ -817,57 +806,15 @@ mod tests {
         for resolutions in shapes {
             let (model, x, v) = perturbed_bodies(resolutions);
             assert_eq!(model.lattices().len(), resolutions.len());
-            stencil_is_the_gather(&model, &x, &v, &format!("{resolutions:?}"));
-        }
-    }
-
-    /// The stencil's sums (vector and scalar paths, 1 to 7 threads) are the gather's bits.
-    fn stencil_is_the_gather(model: &Model, x: &[DVec3], v: &[DVec3], what: &str) {
-        let expected = bits(&reference(model, x, v));
-        for threads in 1..=7 {
-            for scalar in [false, true] {
-                let got = pass_sums(model, x, v, (RouteKind::Stencil, scalar), threads);
-                let what = format!("{what}, scalar {scalar}, {threads} threads");
-                assert_eq!(bits(&got), expected, "{what}");
+            let expected = bits(&reference(&model, &x, &v));
+            for threads in 1..=7 {
+                for scalar in [false, true] {
+                    let route = (RouteKind::Stencil, scalar);
+                    let got = pass_sums(&model, &x, &v, route, threads);
+                    let what = format!("{resolutions:?}, scalar {scalar}, {threads} threads");
+                    assert_eq!(bits(&got), expected, "{what}");
+                }
             }
         }
-    }
-
-    /// Mesh bodies are masked lattices: a torus (a hole through it, springs missing across
-    /// it) and a five-pointed star beside a cuboid take the stencil, which equals the gather.
-    #[test]
-    fn the_stencil_is_the_gather_on_mesh_bodies() {
-        use softbody_scene::TriangleMesh;
-        let dir = std::env::temp_dir().join(format!("softbody-stencil-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let meshes = [
-            ("torus.obj", TriangleMesh::torus(0.5, 0.2, 32, 16)),
-            ("star.obj", TriangleMesh::star_prism(5, 0.5, 0.22, 0.3)),
-        ];
-        for (name, mesh) in &meshes {
-            std::fs::write(dir.join(name), mesh.to_obj("test")).unwrap();
-        }
-        let bodies = format!(
-            "[[body]]\nname = \"torus\"\nkind = \"mesh\"\nfile = \"torus.obj\"\ncell = 0.09\n\
-             center = [0.0, 1.0, 0.0]\nrotation = [20.0, 35.0, -50.0]\nmass = 2.0\n{FAMILIES}\
-             [[body]]\nname = \"box\"\nkind = \"cuboid\"\ncenter = [3.0, 1.0, 0.0]\n\
-             size = [1.0, 1.0, 1.0]\nresolution = [4, 5, 6]\nmass = 1.0\n{FAMILIES}\
-             [[body]]\nname = \"star\"\nkind = \"mesh\"\nfile = \"star.obj\"\nresolution = 11\n\
-             center = [6.0, 1.0, 0.0]\nmass = 1.0\nstructural = {{ stiffness = 900.0 }}\n\
-             bending = {{ stiffness = 300.0, damping = 1.0 }}\n"
-        );
-        let (model, x, v) = perturbed_scene(&bodies, &dir.join("scene.toml"));
-        std::fs::remove_dir_all(&dir).unwrap();
-        assert_eq!(model.lattices().len(), 3);
-        assert!(model.lattices()[0].mask.is_some() && model.lattices()[2].mask.is_some());
-        // Fewer particles than lattice points: the masks matter.
-        let points: u32 = model.lattices()[0].dims.iter().product();
-        assert!(
-            model.bodies[0].count < points * 4 / 5,
-            "{} of {points}",
-            model.bodies[0].count
-        );
-        assert_eq!(Plan::new(&model).route(), RouteKind::Stencil);
-        stencil_is_the_gather(&model, &x, &v, "torus, box, star");
     }
 }

@@ -24,20 +24,14 @@
 //! springs that reach into its slab from the two planes below (computed again, with the same
 //! bits, by the thread below): the result does not depend on how many slabs there are.
 //!
-//! A mesh body's lattice is masked ([`softbody_scene::LatticeMask`]): its rows are the grid's,
-//! with zeros at the points without a particle, each row's lanes take the springs that exist
-//! from the mask's bits (a table per row instead of the cuboid's one for every row), and only
-//! the points with a particle are handed on. A missing spring is a +0 as at the boundary, and
-//! the particles are numbered in point order, so the sums are again the gather's.
-//!
 //! The copy is a window of [`WINDOW`] planes moving up the slab (and the two above it, which
 //! its springs reach; the next window copies those two again), so that a thread holds a few
 //! planes whatever the body's size: the lean model's bytes per particle stay those of the
 //! state.
 
 use glam::DVec3;
+use softbody_scene::Lattice;
 use softbody_scene::topology::OFFSETS;
-use softbody_scene::{Lattice, LatticeMask};
 
 use super::spring_force;
 
@@ -54,8 +48,6 @@ const WINDOW: usize = 8;
 struct Offset {
     /// (di, dj, dk).
     o: [i32; 3],
-    /// Its index in [`OFFSETS`]: its bit in a mask.
-    bit: usize,
     /// Its first plane in the ring (it has dk + 1, plane k at `ring + k % (dk + 1)`).
     ring: usize,
     rest: f64,
@@ -79,12 +71,8 @@ pub(crate) struct Stencil {
     /// backward sums.
     backward: Vec<usize>,
     /// Per offset and group of four slots of a row (offset after offset): the lanes where a
-    /// spring of that offset starts (all ones) or none does (zero), whatever the row (a masked
-    /// lattice has a table per row instead, [`Slab::row_masks`]).
+    /// spring of that offset starts (all ones) or none does (zero), whatever the row.
     lane_masks: Vec<[u64; LANES]>,
-    /// A mesh body's points and springs, and the first particle of each plane (within the
-    /// body; `nz + 1` of them).
-    mask: Option<(LatticeMask, Vec<usize>)>,
     avx2: bool,
 }
 
@@ -102,7 +90,6 @@ impl Stencil {
                 planes += o[2] as usize + 1;
                 Offset {
                     o,
-                    bit: s.offset,
                     ring,
                     rest: s.rest,
                     ks: s.stiffness,
@@ -128,19 +115,6 @@ impl Stencil {
                 }));
             }
         }
-        let mask = lattice.mask.as_ref().map(|m| {
-            let plane = nx * dims[1];
-            let mut first = 0;
-            let mut plane_first = Vec::with_capacity(dims[2] + 1);
-            for k in 0..=dims[2] {
-                plane_first.push(first);
-                if k < dims[2] {
-                    let points = &m.particle_of[k * plane..(k + 1) * plane];
-                    first += points.iter().filter(|&&p| p != LatticeMask::NONE).count();
-                }
-            }
-            (m.clone(), plane_first)
-        });
         Stencil {
             first: lattice.first as usize,
             dims,
@@ -148,7 +122,6 @@ impl Stencil {
             offsets,
             backward,
             lane_masks,
-            mask,
             avx2: super::avx2(),
         }
     }
@@ -164,14 +137,9 @@ impl Stencil {
         self.offsets.iter().map(|o| o.o[2] as usize + 1).sum()
     }
 
-    /// Points of one plane.
-    fn plane_points(&self) -> usize {
+    /// Particles of one plane.
+    pub(crate) fn plane_particles(&self) -> usize {
         self.dims[0] * self.dims[1]
-    }
-
-    /// Particles of the body.
-    pub(crate) fn particles(&self) -> usize {
-        self.plane_start(self.dims[2]) - self.first
     }
 
     /// Planes (k).
@@ -181,24 +149,7 @@ impl Stencil {
 
     /// Global index of the first particle of plane k.
     pub(crate) fn plane_start(&self, k: usize) -> usize {
-        self.first
-            + match &self.mask {
-                None => k * self.plane_points(),
-                Some((_, plane_first)) => plane_first[k],
-            }
-    }
-
-    /// The particle at point (i, j, k), if any (global index).
-    #[inline]
-    fn particle(&self, i: usize, j: usize, k: usize) -> Option<usize> {
-        let point = i + self.dims[0] * (j + self.dims[1] * k);
-        match &self.mask {
-            None => Some(self.first + point),
-            Some((m, _)) => {
-                let p = m.particle_of[point];
-                (p != LatticeMask::NONE).then(|| self.first + p as usize)
-            }
-        }
+        self.first + k * self.plane_particles()
     }
 
     /// Slots of one padded plane.
@@ -254,9 +205,6 @@ pub(crate) struct Slab {
     ring: Vec<f64>,
     /// A row's sums, per component.
     sums: Vec<f64>,
-    /// A masked lattice's lane masks of the row being computed, laid out as
-    /// [`Stencil::lane_masks`].
-    row_masks: Vec<[u64; LANES]>,
 }
 
 impl Slab {
@@ -278,20 +226,13 @@ impl Slab {
             ring_len,
             ring: vec![0.0; stencil.ring_planes() * 3 * ring_len],
             sums: vec![0.0; 3 * stencil.row],
-            row_masks: match stencil.mask {
-                None => Vec::new(),
-                Some(_) => vec![[0; LANES]; stencil.lane_masks.len()],
-            },
         }
     }
 
     /// Bytes held on the heap.
     pub(crate) fn memory_bytes(&self) -> u64 {
         use crate::vec_bytes;
-        vec_bytes(&self.state)
-            + vec_bytes(&self.ring)
-            + vec_bytes(&self.sums)
-            + vec_bytes(&self.row_masks)
+        vec_bytes(&self.state) + vec_bytes(&self.ring) + vec_bytes(&self.sums)
     }
 
     /// Global index of the slab's first particle and one past its last.
@@ -368,12 +309,11 @@ impl Slab {
             for j in 0..ny {
                 self.compute_row(stencil, &plane, j, k, 0);
                 self.sum_row(stencil, &plane, j);
+                let p0 = stencil.first + nx * (j + ny * k);
                 let r = stencil.row;
                 for i in 0..nx {
-                    if let Some(p) = stencil.particle(i, j, k) {
-                        let f = DVec3::new(self.sums[i], self.sums[r + i], self.sums[2 * r + i]);
-                        done(p, f);
-                    }
+                    let f = DVec3::new(self.sums[i], self.sums[r + i], self.sums[2 * r + i]);
+                    done(p0 + i, f);
                 }
             }
         }
@@ -388,23 +328,13 @@ impl Slab {
         let mut arrays = split6(&mut self.state, self.len);
         for k in base..end {
             for j in 0..ny {
+                let p0 = stencil.first + nx * (j + ny * k);
                 let s0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - base);
+                let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
                 let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + nx]);
-                if stencil.mask.is_none() {
-                    let p0 = stencil.first + nx * (j + ny * k);
-                    let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
-                    for i in 0..nx {
-                        (r0[i], r1[i], r2[i]) = (xs[i].x, xs[i].y, xs[i].z);
-                        (r3[i], r4[i], r5[i]) = (vs[i].x, vs[i].y, vs[i].z);
-                    }
-                    continue;
-                }
                 for i in 0..nx {
-                    let (xi, vi) = stencil
-                        .particle(i, j, k)
-                        .map_or((DVec3::ZERO, DVec3::ZERO), |p| (x[p], v[p]));
-                    (r0[i], r1[i], r2[i]) = (xi.x, xi.y, xi.z);
-                    (r3[i], r4[i], r5[i]) = (vi.x, vi.y, vi.z);
+                    (r0[i], r1[i], r2[i]) = (xs[i].x, xs[i].y, xs[i].z);
+                    (r3[i], r4[i], r5[i]) = (vs[i].x, vs[i].y, vs[i].z);
                 }
             }
         }
@@ -420,9 +350,6 @@ impl Slab {
         k: usize,
         min_dk: i32,
     ) {
-        if let Some((mask, _)) = &stencil.mask {
-            self.fill_row_masks(stencil, mask, j, k);
-        }
         #[cfg(target_arch = "x86_64")]
         if stencil.avx2 {
             // SAFETY: AVX2 was detected at run time.
@@ -438,7 +365,7 @@ impl Slab {
             let delta = offset_slots(stencil, off.o);
             let out = plane.own[r] + stencil.row * j;
             for g in 0..groups {
-                let mask = self.lane_masks(stencil)[r * groups + g];
+                let mask = stencil.lane_masks[r * groups + g];
                 for (l, &lane) in mask.iter().enumerate() {
                     let a = a0 + LANES * g + l;
                     let b = a.wrapping_add_signed(delta);
@@ -457,32 +384,6 @@ impl Slab {
                         self.ring[s + c * self.ring_len] = value;
                     }
                 }
-            }
-        }
-    }
-
-    /// The lane masks of the row being computed: the cuboid's table for every row, or a masked
-    /// lattice's of this row.
-    fn lane_masks<'a>(&'a self, stencil: &'a Stencil) -> &'a [[u64; LANES]] {
-        match stencil.mask {
-            None => &stencil.lane_masks,
-            Some(_) => &self.row_masks,
-        }
-    }
-
-    /// A masked lattice's lane masks of row (j, k): all ones where the point's spring of the
-    /// offset exists.
-    fn fill_row_masks(&mut self, stencil: &Stencil, mask: &LatticeMask, j: usize, k: usize) {
-        let nx = stencil.dims[0];
-        let bits = &mask.springs[nx * (j + stencil.dims[1] * k)..][..nx];
-        let groups = stencil.row / LANES;
-        for (r, off) in stencil.offsets.iter().enumerate() {
-            for g in 0..groups {
-                self.row_masks[r * groups + g] = std::array::from_fn(|l| {
-                    let i = LANES * g + l;
-                    let on = i < nx && bits[i] >> off.bit & 1 == 1;
-                    if on { u64::MAX } else { 0 }
-                });
             }
         }
     }
@@ -621,9 +522,7 @@ mod avx {
         // buffer (b's row is in the grid: `PlaneRing::starts`), and b's lanes are at most two slots
         // before its row's start (GUARD) or after a's lanes (the padding).
         assert!(a0 >= GUARD && a0 + stencil.row <= len);
-        let lane_masks = slab.lane_masks(stencil);
-        assert_eq!(lane_masks.len(), groups * stencil.offsets.len());
-        let lane_masks = lane_masks.as_ptr();
+        assert_eq!(stencil.lane_masks.len(), groups * stencil.offsets.len());
         let state = slab.state.as_ptr();
         let ring = slab.ring.as_mut_ptr();
         for (r, off) in stencil.offsets.iter().enumerate() {
@@ -646,7 +545,7 @@ mod avx {
                 let pa: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + a0));
                 let pb: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + b0));
                 let dst = [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)];
-                let masks = lane_masks.add(r * groups).cast::<f64>();
+                let masks = stencil.lane_masks.as_ptr().add(r * groups).cast::<f64>();
                 for g in 0..groups {
                     let i = LANES * g;
                     let d = |c: usize| _mm256_sub_pd(load(pa[c].add(i)), load(pb[c].add(i)));
