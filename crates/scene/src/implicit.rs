@@ -76,7 +76,11 @@ impl std::str::FromStr for Preconditioner {
             .into_iter()
             .find(|p| p.name() == s)
             .ok_or_else(|| {
-                format!("unknown preconditioner `{s}`; expected one of multigrid, block-jacobi")
+                let names: Vec<&str> = Preconditioner::ALL.iter().map(|p| p.name()).collect();
+                format!(
+                    "unknown preconditioner `{s}`; expected one of {}",
+                    names.join(", ")
+                )
             })
     }
 }
