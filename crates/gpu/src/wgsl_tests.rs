@@ -52,7 +52,8 @@ fn names(stage: Stage, chunking: Chunking, entry: &str) -> (Vec<String>, bool) {
 
 /// Every entry point of every stage reflects (the host dispatches its workgroup size) and binds
 /// at most 8 storage buffers with the terrain's: WebGPU's guaranteed minimum per stage. The
-/// fused step's kernels bind up to 13 (16, GL llvmpipe's limit, with four spring chunks); an
+/// fused step's kernels bind up to 13 (16, GL llvmpipe's limit, with four spring chunks), its
+/// stencil variant's up to 14 (the lattices' two tables instead of the springs and adjacency); an
 /// adapter with fewer takes the per-spring path (`integrators::Stepper::new`).
 #[test]
 fn every_entry_point_reflects_within_webgpu_limits() {
