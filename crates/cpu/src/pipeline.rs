@@ -138,9 +138,14 @@ impl Plan {
         Plan::with_route(model, route)
     }
 
-    /// Whether every body of `model` is a lattice with a stencil.
+    /// Whether every body of `model` is a full lattice (a cuboid). A mesh body's masked
+    /// lattice would make the stencil work at its empty points too: the sweep is faster
+    /// there (ARCHITECTURE.md, issue 12).
     fn stencil_applies(model: &Model) -> bool {
-        !model.lattices().is_empty() && model.lattices().len() == model.bodies.len()
+        let lattices = model.lattices();
+        !lattices.is_empty()
+            && lattices.len() == model.bodies.len()
+            && lattices.iter().all(|l| l.mask.is_none())
     }
 
     /// The plan of `model` for the current rayon pool by `route`; panics if it does not apply.

@@ -4,7 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use softbody_scene::implicit::Constraint;
-use softbody_scene::{FrictionModel, Model, Springs};
+use softbody_scene::{FrictionModel, Lattice, LatticeMask, Model, Springs, topology};
 
 /// The run's constants: twin of `Params` in `shaders/common.wgsl` (`@group(0) @binding(0)` of
 /// every kernel). WGSL aligns `vec3<f32>` to 16 bytes and rounds a uniform struct to 16, hence
@@ -38,7 +38,7 @@ impl Params {
             gravity: sim.gravity.as_vec3().to_array(),
             drag: sim.drag as f32,
             n_particles: model.len() as u32,
-            n_springs: model.springs().len() as u32,
+            n_springs: model.spring_count() as u32,
             n_surfaces,
             dt: sim.dt as f32,
             contact_distance: sim.contact_distance as f32,
@@ -75,6 +75,109 @@ impl SpringGpu {
                 damping: springs.damping[s] as f32,
             })
             .collect()
+    }
+}
+
+/// The springs of one lattice offset of a body: twin of `LatticeOffset` in
+/// `shaders/stencil.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct LatticeOffsetGpu {
+    /// (di, dj, dk): the spring starting at point p ends at p + d.
+    pub d: [i32; 3],
+    /// Rest length r, m.
+    pub rest: f32,
+    /// k_s, N/m.
+    pub stiffness: f32,
+    /// k_d, N·s/m.
+    pub damping: f32,
+    /// Its index in [`topology::OFFSETS`].
+    pub bit: u32,
+    /// Padding to WGSL's 32-byte stride.
+    pub _pad: u32,
+}
+
+/// One lattice body: twin of `LatticeBody` in `shaders/stencil.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct LatticeBodyGpu {
+    /// Its first particle.
+    pub first: u32,
+    /// Its particles.
+    pub count: u32,
+    /// Points per axis.
+    pub nx: u32,
+    /// Points per axis.
+    pub ny: u32,
+    /// Points per axis.
+    pub nz: u32,
+    /// Offsets with springs.
+    pub n_offsets: u32,
+    /// A mesh body's first word in the points buffer; `u32::MAX` for a cuboid.
+    pub points: u32,
+    /// Padding to the offsets' 16-byte alignment.
+    pub _pad: u32,
+    /// The offsets with springs, in [`topology::OFFSETS`] order.
+    pub offsets: [LatticeOffsetGpu; 16],
+    /// Indices into `offsets` by descending linear offset.
+    pub backward: [u32; 16],
+}
+
+impl LatticeBodyGpu {
+    /// The lattices of a model whose bodies are all lattices, in f32 (the spring records'
+    /// rounding, [`SpringGpu::pack`]), and the words of its mesh bodies' masks: for each, the
+    /// point of each particle, then per point its particle (`LatticeMask::NONE` where none) and
+    /// its spring bits.
+    pub fn pack(lattices: &[Lattice]) -> (Vec<LatticeBodyGpu>, Vec<u32>) {
+        let mut points = Vec::new();
+        let bodies = lattices
+            .iter()
+            .map(|lattice| {
+                let [nx, ny, nz] = lattice.dims;
+                let mut body = LatticeBodyGpu {
+                    first: lattice.first,
+                    count: nx * ny * nz,
+                    nx,
+                    ny,
+                    nz,
+                    n_offsets: lattice.springs.len() as u32,
+                    points: u32::MAX,
+                    ..LatticeBodyGpu::default()
+                };
+                for (slot, s) in body.offsets.iter_mut().zip(&lattice.springs) {
+                    *slot = LatticeOffsetGpu {
+                        d: topology::OFFSETS[s.offset].0,
+                        rest: s.rest as f32,
+                        stiffness: s.stiffness as f32,
+                        damping: s.damping as f32,
+                        bit: s.offset as u32,
+                        _pad: 0,
+                    };
+                }
+                let linear = |d: [i32; 3]| {
+                    i64::from(d[0])
+                        + i64::from(nx) * (i64::from(d[1]) + i64::from(ny) * i64::from(d[2]))
+                };
+                let mut backward: Vec<u32> = (0..body.n_offsets).collect();
+                backward.sort_by_key(|&r| std::cmp::Reverse(linear(body.offsets[r as usize].d)));
+                body.backward[..backward.len()].copy_from_slice(&backward);
+                if let Some(mask) = &lattice.mask {
+                    body.points = points.len() as u32;
+                    let kept = mask.particle_of.iter().enumerate();
+                    let of_particle: Vec<u32> = kept
+                        .filter(|&(_, &q)| q != LatticeMask::NONE)
+                        .map(|(point, _)| point as u32)
+                        .collect();
+                    body.count = of_particle.len() as u32;
+                    points.extend(of_particle);
+                    for (&particle, &bits) in mask.particle_of.iter().zip(&mask.springs) {
+                        points.extend([particle, u32::from(bits)]);
+                    }
+                }
+                body
+            })
+            .collect();
+        (bodies, points)
     }
 }
 

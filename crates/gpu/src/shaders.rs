@@ -4,7 +4,9 @@
 //! needs and its own file: `common.wgsl` (parameters, springs, the thread index) always, then
 //! `finite.wgsl` (the instability record) for the stages that check the state, `reduce.wgsl`
 //! (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR gather) for the
-//! stages that gather over the springs, `terrain.wgsl` for the stages that query the terrain,
+//! stages that gather over the springs (and `fused_gather.wgsl`, the spring records the fused step
+//! reads, or `stencil.wgsl`, the lattices it reads instead, for the fused step's two variants),
+//! `terrain.wgsl` for the stages that query the terrain,
 //! then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the stages that
 //! compute accelerations, `response.wgsl` (the collision response) for the stages that respond,
 //! and `neighbours.wgsl` (the hashed grid of contact between bodies) for the stages that build
@@ -43,6 +45,10 @@ pub const ACCELERATION: &str = include_str!("../../../shaders/acceleration.wgsl"
 pub const RESPONSE: &str = include_str!("../../../shaders/response.wgsl");
 /// `shaders/finite.wgsl`.
 pub const FINITE: &str = include_str!("../../../shaders/finite.wgsl");
+/// `shaders/fused_gather.wgsl`.
+pub const FUSED_GATHER: &str = include_str!("../../../shaders/fused_gather.wgsl");
+/// `shaders/stencil.wgsl`.
+pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
@@ -166,13 +172,16 @@ pub enum Stage {
     /// `pairs_probe.wgsl` (with the grid): the pairs in contact, for the twin tests.
     PairsProbe,
     /// `fused_step.wgsl` (with terrain and contact): the explicit integrators' stages, one
-    /// dispatch each.
+    /// dispatch each, gathering through the CSR adjacency and the spring records.
     FusedStep,
+    /// `fused_step.wgsl` with `stencil.wgsl`: [`Stage::FusedStep`]'s kernels for models whose
+    /// bodies are all lattices, their springs found on the lattices.
+    FusedStencil,
 }
 
 impl Stage {
     /// Every stage.
-    pub const ALL: [Stage; 17] = [
+    pub const ALL: [Stage; 18] = [
         Stage::SpringForces,
         Stage::Forces,
         Stage::ExplicitEuler,
@@ -190,6 +199,7 @@ impl Stage {
         Stage::BodyContact,
         Stage::PairsProbe,
         Stage::FusedStep,
+        Stage::FusedStencil,
     ];
 
     /// The stage's file name under `shaders/`.
@@ -211,7 +221,7 @@ impl Stage {
             Stage::BroadPhase => "broad_phase.wgsl",
             Stage::BodyContact => "body_contact.wgsl",
             Stage::PairsProbe => "pairs_probe.wgsl",
-            Stage::FusedStep => "fused_step.wgsl",
+            Stage::FusedStep | Stage::FusedStencil => "fused_step.wgsl",
         }
     }
 
@@ -234,7 +244,9 @@ impl Stage {
             Stage::BroadPhase => include_str!("../../../shaders/broad_phase.wgsl"),
             Stage::BodyContact => include_str!("../../../shaders/body_contact.wgsl"),
             Stage::PairsProbe => include_str!("../../../shaders/pairs_probe.wgsl"),
-            Stage::FusedStep => include_str!("../../../shaders/fused_step.wgsl"),
+            Stage::FusedStep | Stage::FusedStencil => {
+                include_str!("../../../shaders/fused_step.wgsl")
+            }
         }
     }
 
@@ -247,6 +259,7 @@ impl Stage {
                 | Stage::ImplicitEuler
                 | Stage::TerrainProbe
                 | Stage::FusedStep
+                | Stage::FusedStencil
         )
     }
 
@@ -255,7 +268,7 @@ impl Stage {
     /// level of the broad phase's prefix sum, one slot per level.
     pub fn dynamic_uniforms(self) -> &'static [&'static str] {
         match self {
-            Stage::CheckFinite | Stage::FusedStep => &["step_index"],
+            Stage::CheckFinite | Stage::FusedStep | Stage::FusedStencil => &["step_index"],
             Stage::BroadPhase => &["scan_level"],
             _ => &[],
         }
@@ -281,17 +294,23 @@ impl Stage {
 
     /// Whether its module includes `contact.wgsl` and `acceleration.wgsl`.
     fn uses_acceleration(self) -> bool {
-        matches!(self, Stage::Forces | Stage::FusedStep)
+        matches!(self, Stage::Forces | Stage::FusedStep | Stage::FusedStencil)
     }
 
     /// Whether its module includes `response.wgsl`.
     fn uses_response(self) -> bool {
-        matches!(self, Stage::CollisionResponse | Stage::FusedStep)
+        matches!(
+            self,
+            Stage::CollisionResponse | Stage::FusedStep | Stage::FusedStencil
+        )
     }
 
     /// Whether its module includes `finite.wgsl`.
     fn uses_finite(self) -> bool {
-        matches!(self, Stage::CheckFinite | Stage::FusedStep)
+        matches!(
+            self,
+            Stage::CheckFinite | Stage::FusedStep | Stage::FusedStencil
+        )
     }
 
     /// The pieces of its module, in order: (file name, source).
@@ -305,6 +324,11 @@ impl Stage {
         }
         if self.uses_gather() {
             pieces.push(("gather.wgsl", GATHER));
+        }
+        match self {
+            Stage::FusedStep => pieces.push(("fused_gather.wgsl", FUSED_GATHER)),
+            Stage::FusedStencil => pieces.push(("stencil.wgsl", STENCIL)),
+            _ => {}
         }
         if self.uses_terrain() {
             pieces.push(("terrain.wgsl", TERRAIN));

@@ -101,6 +101,9 @@ pub struct GpuOptions {
     /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
     /// explicit integrators fall back to the per-spring path.
     pub max_storage_buffers: Option<u32>,
+    /// The fused step through the spring records and the CSR adjacency even where every body
+    /// is a lattice (which takes the stencil), to compare the two.
+    pub gather: bool,
 }
 
 /// The GPU backend: the model in device buffers, stepped by compute shaders in f32.
@@ -274,6 +277,8 @@ impl GpuSolver {
                 n_surfaces > 0,
                 collision_response.as_ref().map(|c| &c.start),
                 options.per_spring,
+                (!options.gather && model.lattices().len() == model.bodies.len())
+                    .then(|| model.lattices()),
             )?;
             let check = CheckFinite::new(s)?;
             let energy = Energy::new(s, m)?;
@@ -684,11 +689,12 @@ impl Solver for GpuSolver {
             dispatches,
             device_bytes,
             // The designs of `integrators/`: each particle's springs computed by the particle as
-            // it gathers them, one dispatch per stage; or per-spring forces in chunks, gathered
-            // per particle through the adjacency.
-            kernel: match self.stepper {
+            // it gathers them, one dispatch per stage (found on the lattices or through the
+            // adjacency); or per-spring forces in chunks, gathered per particle through the
+            // adjacency.
+            kernel: match &self.stepper {
                 Stepper::Implicit(_) => "matrix-free",
-                Stepper::Fused(_) => "fused gather",
+                Stepper::Fused(fused) => fused.kernel(),
                 Stepper::Explicit(_) => "per-spring + gather",
             },
             ..implicit

@@ -8,8 +8,9 @@ use naga::valid::{Capabilities, ValidationFlags, Validator};
 use crate::chunks::{Chunking, MAX_SPRING_CHUNKS};
 use crate::kernel::{Access, Parsed, reflect};
 use crate::layout::{
-    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, ContactParams, ContactParticleGpu, Params,
-    ScanLevel, SpringBlockGpu, SpringChunk, SpringGpu, Status, StepIndex, dispatch_slot,
+    CG_DISPATCH_WORDS, CandidateGpu, CgScalars, ContactParams, ContactParticleGpu, LatticeBodyGpu,
+    LatticeOffsetGpu, Params, ScanLevel, SpringBlockGpu, SpringChunk, SpringGpu, Status, StepIndex,
+    dispatch_slot,
 };
 use crate::shaders::Stage;
 use crate::terrain::SurfaceGpu;
@@ -51,7 +52,8 @@ fn names(stage: Stage, chunking: Chunking, entry: &str) -> (Vec<String>, bool) {
 
 /// Every entry point of every stage reflects (the host dispatches its workgroup size) and binds
 /// at most 8 storage buffers with the terrain's: WebGPU's guaranteed minimum per stage. The
-/// fused step's kernels bind up to 13 (16, GL llvmpipe's limit, with four spring chunks); an
+/// fused step's kernels bind up to 13 (16, GL llvmpipe's limit, with four spring chunks), its
+/// stencil variant's up to 14 (the lattices' two tables instead of the springs and adjacency); an
 /// adapter with fewer takes the per-spring path (`integrators::Stepper::new`).
 #[test]
 fn every_entry_point_reflects_within_webgpu_limits() {
@@ -66,7 +68,11 @@ fn every_entry_point_reflects_within_webgpu_limits() {
                 .filter(|b| b.access != Access::Uniform)
                 .count()
                 + if terrain { 2 } else { 0 };
-            let allowed = if stage == Stage::FusedStep { 13 } else { 8 };
+            let allowed = match stage {
+                Stage::FusedStep => 13,
+                Stage::FusedStencil => 14,
+                _ => 8,
+            };
             assert!(
                 storage <= allowed,
                 "{entry} binds {storage} storage buffers"
@@ -83,7 +89,7 @@ fn every_entry_point_reflects_within_webgpu_limits() {
             kernels += 1;
         }
     }
-    assert_eq!(kernels, 55);
+    assert_eq!(kernels, 63);
 }
 
 /// Reflection reads what an entry point uses through the functions it calls, with the access
@@ -264,6 +270,55 @@ fn spring_layout_matches() {
             ("damping", offset_of!(SpringGpu, damping)),
         ],
     );
+}
+
+#[test]
+fn lattice_layouts_match() {
+    check_layout(
+        Stage::FusedStencil,
+        "LatticeOffset",
+        size_of::<LatticeOffsetGpu>(),
+        &[
+            ("d", offset_of!(LatticeOffsetGpu, d)),
+            ("rest", offset_of!(LatticeOffsetGpu, rest)),
+            ("stiffness", offset_of!(LatticeOffsetGpu, stiffness)),
+            ("damping", offset_of!(LatticeOffsetGpu, damping)),
+            ("bit", offset_of!(LatticeOffsetGpu, bit)),
+            ("_pad", offset_of!(LatticeOffsetGpu, _pad)),
+        ],
+    );
+    check_layout(
+        Stage::FusedStencil,
+        "LatticeBody",
+        size_of::<LatticeBodyGpu>(),
+        &[
+            ("first", offset_of!(LatticeBodyGpu, first)),
+            ("count", offset_of!(LatticeBodyGpu, count)),
+            ("nx", offset_of!(LatticeBodyGpu, nx)),
+            ("ny", offset_of!(LatticeBodyGpu, ny)),
+            ("nz", offset_of!(LatticeBodyGpu, nz)),
+            ("n_offsets", offset_of!(LatticeBodyGpu, n_offsets)),
+            ("points", offset_of!(LatticeBodyGpu, points)),
+            ("_pad", offset_of!(LatticeBodyGpu, _pad)),
+            ("offsets", offset_of!(LatticeBodyGpu, offsets)),
+            ("backward", offset_of!(LatticeBodyGpu, backward)),
+        ],
+    );
+}
+
+/// The stencil's kernels read the lattices in place of the spring records and the adjacency.
+#[test]
+fn the_stencil_reads_no_spring_record() {
+    let (stencil, terrain) = names(Stage::FusedStencil, Chunking::ONE, "symplectic_euler");
+    assert!(terrain);
+    for name in ["lattice_bodies", "lattice_points", "x", "v", "mass"] {
+        assert!(stencil.iter().any(|n| n == name), "{name} in {stencil:?}");
+    }
+    for name in ["springs", "adjacency", "per_spring"] {
+        assert!(!stencil.iter().any(|n| n == name), "{name} in {stencil:?}");
+    }
+    let (gather, _) = names(Stage::FusedStep, Chunking::ONE, "symplectic_euler");
+    assert!(gather.iter().any(|n| n == "springs") && gather.iter().any(|n| n == "adjacency"));
 }
 
 #[test]

@@ -6,15 +6,20 @@
 //! - Against the CPU, every explicit integrator, on a slope (contact and friction from the
 //!   first step) with pinned particles: within the twin tests' bounds for smooth contact
 //!   (`twins.rs`: 1e-5 m per particle, 5e-4 of the peak speed).
-//! - Against the per-spring path on the GPU (`GpuOptions::per_spring`), with restitution and
-//!   pinned particles, over submissions of odd and even step counts (the Euler methods'
-//!   ping-pong and its copy back): the same bits, since each spring force is the same call on
-//!   the same inputs, gathered in the same order.
+//! - Against the per-spring path on the GPU (`GpuOptions::per_spring`), the gather through the
+//!   adjacency (`GpuOptions::gather`), with restitution and pinned particles, over submissions
+//!   of odd and even step counts (the Euler methods' ping-pong and its copy back): the same
+//!   bits, since each spring force is the same call on the same inputs, gathered in the same
+//!   order.
+//! - The stencil (every body a lattice: the default for these scenes) against the gather: the
+//!   same bits, states and energies, for cuboids of several shapes (2- and 3-wide axes, where
+//!   offsets share a linear offset), several bodies, a mesh body (masked lattice), pinned
+//!   particles and terrain contact.
 //! - Run to run: the same bits.
 //! - An adapter that cannot bind the fused kernels' buffers (WebGPU's minimum of 8 storage
 //!   buffers per stage) takes the per-spring path.
 //! - The design's figures: 1, 2 and 4 dispatches per step, less traffic than the per-spring
-//!   path.
+//!   path, and the stencil less than the gather.
 
 mod common;
 
@@ -48,13 +53,22 @@ fn main() -> ExitCode {
         |gpu| against_per_spring(gpu, Integrator::Midpoint),
         |gpu| against_per_spring(gpu, Integrator::Rk4),
     ];
-    for ((integrator, cpu), per_spring) in EXPLICIT.iter().zip(cpu).zip(per_spring) {
+    let stencil: [GpuTest; 4] = [
+        |gpu| stencil_against_gather(gpu, Integrator::ExplicitEuler),
+        |gpu| stencil_against_gather(gpu, Integrator::SymplecticEuler),
+        |gpu| stencil_against_gather(gpu, Integrator::Midpoint),
+        |gpu| stencil_against_gather(gpu, Integrator::Rk4),
+    ];
+    for (((integrator, cpu), per_spring), stencil) in
+        EXPLICIT.iter().zip(cpu).zip(per_spring).zip(stencil)
+    {
         let name = integrator.to_string().replace('-', "_");
-        tests.push((format!("fused_{name}_matches_the_cpu"), cpu));
+        tests.push((format!("fused_stencil_{name}_matches_the_cpu"), cpu));
         tests.push((
-            format!("fused_{name}_equals_the_per_spring_path"),
+            format!("fused_gather_{name}_equals_the_per_spring_path"),
             per_spring,
         ));
+        tests.push((format!("fused_stencil_{name}_equals_the_gather"), stencil));
     }
     tests.push(("fused_runs_repeat_bit_for_bit".into(), repeatable));
     tests.push((
@@ -100,22 +114,107 @@ bending = {{ stiffness = 200.0, damping = 0.5 }}
     Model::build(&scene)
 }
 
-fn open(
-    gpu: &Arc<Gpu>,
-    model: &Model,
-    state: &State,
-    per_spring: bool,
-) -> Result<GpuSolver, Failed> {
+/// Three bodies of contrasting shapes, apart (no contact radius: they never touch), each with
+/// its own spring parameters, tilted onto the bouncy plane, a particle of each pinned: 2×3×5
+/// (an axis 2 wide: the bending offset (2, 0, 0) has no spring, and shares its linear offset
+/// with (0, 1, 0)), 3×2×4 (3 wide: (2, 0, 0) and (−1, 1, 0) share theirs) and 5×4×3.
+fn bodies(integrator: Integrator) -> (Model, State) {
+    let body = |name: &str, resolution: [u32; 3], x: f64, k: f64, pinned: u32| {
+        format!(
+            r#"
+[[body]]
+name = "{name}"
+kind = "cuboid"
+size = [0.1, 0.15, 0.2]
+resolution = {resolution:?}
+center = [{x}, 0.12, 0.0]
+rotation = [20.0, 10.0, 25.0]
+velocity = [0.2, -1.0, 0.1]
+mass = 0.5
+pinned = [{pinned}]
+contact_radius = 0.0
+structural = {{ stiffness = {k}, damping = 0.8 }}
+shear = {{ stiffness = {}, damping = 0.5 }}
+bending = {{ stiffness = {}, damping = 0.3 }}
+"#,
+            0.8 * k,
+            0.5 * k
+        )
+    };
+    let text = format!(
+        r#"
+[simulation]
+integrator = "{integrator}"
+dt = 2.5e-4
+duration = 0.1
+frame_rate = 20.0
+gravity = [0.0, -9.81, 0.0]
+drag = 0.1
+{}{}{}{BOUNCY_PLANE}"#,
+        body("a", [2, 3, 5], -0.5, 300.0, 0),
+        body("b", [3, 2, 4], 0.0, 500.0, 23),
+        body("c", [5, 4, 3], 0.5, 400.0, 7),
+    );
+    let scene = Scene::from_toml(&text, "test.toml".as_ref()).expect("test scene is valid");
+    Model::build(&scene)
+}
+
+/// The torus of `scenes/torus-on-stairs.toml` as a mesh body (a masked lattice: a hole, and
+/// points without a particle), tilted onto the bouncy plane, two particles pinned.
+fn torus(integrator: Integrator) -> (Model, State) {
+    let text = format!(
+        r#"
+[simulation]
+integrator = "{integrator}"
+dt = 2.5e-4
+duration = 0.1
+frame_rate = 20.0
+gravity = [0.0, -9.81, 0.0]
+drag = 0.1
+
+[[body]]
+name = "torus"
+kind = "mesh"
+file = "torus.obj"
+cell = 0.07
+center = [0.0, 0.12, 0.0]
+rotation = [30.0, 0.0, 10.0]
+velocity = [0.5, -1.0, 0.0]
+density = 300.0
+pinned = [0, 40]
+structural = {{ stiffness = 600.0, damping = 2.0 }}
+shear = {{ stiffness = 500.0, damping = 2.0 }}
+bending = {{ stiffness = 300.0, damping = 1.0 }}
+{BOUNCY_PLANE}"#
+    );
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/test.toml");
+    let scene = Scene::from_toml(&text, path.as_ref()).expect("test scene is valid");
+    Model::build(&scene)
+}
+
+/// How the explicit integrators find their springs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Path {
+    /// Spring forces per spring, then the gather.
+    PerSpring,
+    /// Fused, through the spring records and the adjacency.
+    Gather,
+    /// Fused, on the lattices.
+    Stencil,
+}
+
+fn open(gpu: &Arc<Gpu>, model: &Model, state: &State, path: Path) -> Result<GpuSolver, Failed> {
     let options = GpuOptions {
-        per_spring,
+        per_spring: path == Path::PerSpring,
+        gather: path == Path::Gather,
         ..GpuOptions::default()
     };
     let g = GpuSolver::with_options(gpu, model.clone(), state.clone(), options)
         .map_err(|e| e.to_string())?;
-    let want = if per_spring {
-        "per-spring + gather"
-    } else {
-        "fused gather"
+    let want = match path {
+        Path::PerSpring => "per-spring + gather",
+        Path::Gather => "fused gather",
+        Path::Stencil => "fused stencil",
     };
     let kernel = g.statistics().kernel;
     ensure(kernel == want, || format!("kernel {kernel}, want {want}"))?;
@@ -136,7 +235,7 @@ fn differences(a: &State, b: &State) -> (f64, f64) {
 /// 0.25 s (1,000 steps) on the slope against the CPU (one thread), compared at every frame.
 fn against_cpu(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
     let (model, state) = cube(integrator, 2.5e-4, 0.25, SLOPE);
-    let mut g = open(gpu, &model, &state, false)?;
+    let mut g = open(gpu, &model, &state, Path::Stencil)?;
     let mut cpu =
         CpuSolver::new(model.clone(), state.clone(), Some(1)).map_err(|e| e.to_string())?;
     let pinned: Vec<usize> = (0..model.len())
@@ -201,36 +300,72 @@ fn batches(g: &mut GpuSolver, batches: &[u64]) -> Result<Vec<(State, Energies)>,
 /// splits them).
 const BATCHES: [u64; 4] = [1, 2, 7, 300];
 
-/// The fused path against the per-spring path: the same bits after every batch.
-fn against_per_spring(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
-    let (model, state) = cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE);
-    let fused = batches(&mut open(gpu, &model, &state, false)?, &BATCHES)?;
-    let per_spring = batches(&mut open(gpu, &model, &state, true)?, &BATCHES)?;
-    let (last, _) = fused.last().expect("batches");
-    let (dx, _) = differences(last, &state);
+/// Runs `model` by paths `a` and `b`: the same bits, states and energies, after every batch;
+/// and the bodies moved.
+fn same_bits(
+    gpu: &Arc<Gpu>,
+    (model, state): &(Model, State),
+    a: Path,
+    b: Path,
+) -> Result<(), Failed> {
+    let integrator = model.simulation.integrator;
+    let first = batches(&mut open(gpu, model, state, a)?, &BATCHES)?;
+    let second = batches(&mut open(gpu, model, state, b)?, &BATCHES)?;
+    let (last, _) = first.last().expect("batches");
+    let (dx, _) = differences(last, state);
     println!(
-        "{integrator}: {} steps, particles moved up to {dx:.3} m",
+        "{integrator}, {} particles, {:?} and {:?}: {} steps, particles moved up to {dx:.3} m",
+        model.len(),
+        a,
+        b,
         BATCHES.iter().sum::<u64>()
     );
-    for (k, (f, p)) in fused.iter().zip(&per_spring).enumerate() {
+    for (k, (f, p)) in first.iter().zip(&second).enumerate() {
         let (x, v) = differences(&f.0, &p.0);
         ensure(f == p, || {
             format!(
-                "{integrator}: after batch {k} the fused run differs from the per-spring run \
+                "{integrator}: after batch {k} the {a:?} run differs from the {b:?} run \
                  (|Δx| {x:e}, |Δv| {v:e}; energies {:?} and {:?})",
                 f.1, p.1
             )
         })?;
     }
-    ensure(dx > 0.01, || "the cube did not move".into())
+    ensure(dx > 0.01, || "the bodies did not move".into())
+}
+
+/// The fused gather against the per-spring path: the same bits after every batch.
+fn against_per_spring(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
+    let model = cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE);
+    same_bits(gpu, &model, Path::Gather, Path::PerSpring)
+}
+
+/// The stencil against the fused gather: the same bits after every batch, for the cube, three
+/// cuboids of other shapes, and a mesh body.
+fn stencil_against_gather(gpu: &Arc<Gpu>, integrator: Integrator) -> Result<(), Failed> {
+    let (model, state) = bodies(integrator);
+    let pinned = (0..model.len()).filter(|&i| model.inv_mass[i] == 0.0);
+    ensure(model.bodies.len() == 3 && pinned.count() == 3, || {
+        "three bodies, a particle of each pinned".into()
+    })?;
+    let torus = torus(integrator);
+    let masked = torus.0.lattices().iter().any(|l| l.mask.is_some());
+    ensure(masked, || "the torus is a masked lattice".into())?;
+    for model in [
+        cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE),
+        (model, state),
+        torus,
+    ] {
+        same_bits(gpu, &model, Path::Stencil, Path::Gather)?;
+    }
+    Ok(())
 }
 
 /// Each explicit integrator twice: the same bits.
 fn repeatable(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     for integrator in EXPLICIT {
         let (model, state) = cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE);
-        let a = batches(&mut open(gpu, &model, &state, false)?, &BATCHES)?;
-        let b = batches(&mut open(gpu, &model, &state, false)?, &BATCHES)?;
+        let a = batches(&mut open(gpu, &model, &state, Path::Stencil)?, &BATCHES)?;
+        let b = batches(&mut open(gpu, &model, &state, Path::Stencil)?, &BATCHES)?;
         ensure(a == b, || format!("{integrator}: two fused runs differ"))?;
     }
     Ok(())
@@ -251,7 +386,10 @@ fn minimum_adapter(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         ensure(kernel == "per-spring + gather", || {
             format!("{integrator} at 8 storage buffers: kernel {kernel}")
         })?;
-        let fused = batches(&mut open(gpu, &model, &state, false)?, &BATCHES[..3])?;
+        let fused = batches(
+            &mut open(gpu, &model, &state, Path::Stencil)?,
+            &BATCHES[..3],
+        )?;
         ensure(batches(&mut g, &BATCHES[..3])? == fused, || {
             format!("{integrator}: the fallback differs from the fused run")
         })?;
@@ -259,14 +397,14 @@ fn minimum_adapter(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     Ok(())
 }
 
-/// Dispatches and bytes per step of each explicit integrator, fused and per-spring, over 20
-/// steps after the first (which also computes the response's band masks once).
+/// Dispatches and bytes per step of each explicit integrator, stencil, gather and per-spring,
+/// over 20 steps after the first (which also computes the response's band masks once).
 fn design_figures(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     for (integrator, stages) in EXPLICIT.into_iter().zip([1, 1, 2, 4]) {
         let (model, state) = cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE);
         let mut figures = Vec::new();
-        for per_spring in [false, true] {
-            let mut g = open(gpu, &model, &state, per_spring)?;
+        for path in [Path::Stencil, Path::Gather, Path::PerSpring] {
+            let mut g = open(gpu, &model, &state, path)?;
             g.advance(1).and_then(|()| g.sync()).map_err(step_error)?;
             let before = g.statistics();
             g.advance(20).and_then(|()| g.sync()).map_err(step_error)?;
@@ -276,15 +414,25 @@ fn design_figures(gpu: &Arc<Gpu>) -> Result<(), Failed> {
                 (after.device_bytes - before.device_bytes) as f64 / 20.0 / model.len() as f64;
             figures.push((dispatches, bytes));
         }
-        let [(fused, fused_bytes), (per_spring, per_spring_bytes)] = figures[..] else {
-            unreachable!("two paths")
+        let [
+            (stencil, stencil_bytes),
+            (fused, fused_bytes),
+            (per_spring, per_spring_bytes),
+        ] = figures[..]
+        else {
+            unreachable!("three paths")
         };
         println!(
-            "{integrator}: fused {fused} dispatches, {fused_bytes:.0} B per particle-step; \
-             per-spring {per_spring} dispatches, {per_spring_bytes:.0} B"
+            "{integrator}: stencil {stencil} dispatches, {stencil_bytes:.0} B per \
+             particle-step; fused gather {fused}, {fused_bytes:.0} B; per-spring {per_spring}, \
+             {per_spring_bytes:.0} B"
         );
         ensure(
-            fused == f64::from(stages) && per_spring > fused && per_spring_bytes > fused_bytes,
+            stencil == f64::from(stages)
+                && fused == stencil
+                && per_spring > fused
+                && per_spring_bytes > fused_bytes
+                && fused_bytes > stencil_bytes,
             || format!("{integrator}: {figures:?}"),
         )?;
     }

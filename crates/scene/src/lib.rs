@@ -40,7 +40,9 @@ pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
 pub use format::FrictionModel;
 pub use format::SurfaceKind;
 pub use implicit::Preconditioner;
-pub use model::{Adjacency, BodyRange, Contacts, Lattice, LatticeSpring, Model, Springs, State};
+pub use model::{
+    Adjacency, BodyRange, Contacts, Lattice, LatticeMask, LatticeSpring, Model, Springs, State,
+};
 pub use scene::{
     Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, MeshBody, MeshMass,
     ParticleSet, Scene, Simulation, SpringCounts, SpringParams, Terrain, TerrainShape,

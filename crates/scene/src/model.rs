@@ -8,8 +8,9 @@
 //!
 //! # Lean cuboids
 //!
-//! A cuboid's springs are a stencil ([`Lattice`]): the same offsets and parameters at every
-//! particle. The model keeps only the stencil for them, so that a large cube stepped by a
+//! A lattice body's springs are a stencil ([`Lattice`]): the same offsets and parameters at
+//! every particle (a mesh body's masked to its kept cells). The model keeps only the stencil
+//! for them, so that a large cube stepped by a
 //! stencil kernel holds no per-spring array at all (a 300³ cube has 423 M springs: 13.5 GB as
 //! a list, 3.4 GB more as an adjacency). [`Model::springs`] and [`Model::adjacency`] build
 //! the full list and its adjacency on first use and keep them, for the consumers that read
@@ -271,26 +272,42 @@ impl Adjacency {
     }
 }
 
-/// A cuboid body's springs as a stencil: particle (i, j, k) of the body, global index
+/// A lattice body's springs as a stencil. A cuboid's particle (i, j, k), global index
 /// `first + i + nx·(j + ny·k)`, is joined to the particle at (i, j, k) + o for every offset o
-/// of `springs` where that lies in the grid, with that offset's parameters. These are the
-/// springs [`Model::springs`] lists for the body, in its order
-/// ([`topology::for_each_cuboid_spring`]): a solver may take them from either.
-///
-/// (Mesh bodies are lattices too, and their springs follow the same offsets and rest lengths,
-/// but their particles are the kept lattice points only, so a partner is no constant index
-/// offset away: they have no `Lattice` here.)
+/// of `springs` where that lies in the grid, with that offset's parameters. A mesh body's
+/// lattice is masked: only the kept points are particles, and only the springs its kept cells
+/// hold exist ([`LatticeMask`]). These are the springs [`Model::springs`] lists for the body,
+/// in its order ([`topology::for_each_lattice_spring`]): a solver may take them from either.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Lattice {
     /// The body (an index into [`Model::bodies`]).
     pub body: u32,
     /// Its first particle.
     pub first: u32,
-    /// Particles per axis (nx, ny, nz).
+    /// Lattice points per axis (nx, ny, nz).
     pub dims: [u32; 3],
     /// The offsets with springs, in [`topology::OFFSETS`] order (families the body leaves out
     /// have none).
     pub springs: Vec<LatticeSpring>,
+    /// Which points are particles and which springs exist, for a mesh body; `None` for a
+    /// cuboid (every point, every spring whose partner lies in the grid).
+    pub mask: Option<LatticeMask>,
+}
+
+/// The particles and springs of a masked lattice, per lattice point `i + nx·(j + ny·k)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LatticeMask {
+    /// The particle (within the body) at each point, [`LatticeMask::NONE`] where there is none;
+    /// ascending over the points that have one.
+    pub particle_of: Vec<u32>,
+    /// Bit o set where a spring of offset o ([`topology::OFFSETS`], one of `springs`) starts
+    /// at the point.
+    pub springs: Vec<u16>,
+}
+
+impl LatticeMask {
+    /// `particle_of` of a point without a particle.
+    pub const NONE: u32 = u32::MAX;
 }
 
 /// The springs of one lattice offset.
@@ -331,7 +348,26 @@ impl Lattice {
             first,
             dims,
             springs,
+            mask: None,
         }
+    }
+
+    /// The lattice of a mesh body: `new`'s, masked to the points with a particle
+    /// (`particle_of`) and the springs of the cells `present`.
+    fn masked(mut self, particle_of: &[u32], present: &[bool]) -> Lattice {
+        let mut springs = vec![0u16; particle_of.len()];
+        let kept = self
+            .springs
+            .iter()
+            .fold(0u16, |bits, s| bits | 1 << s.offset);
+        topology::for_each_lattice_spring(self.dims, Some(present), 0..self.dims[2], |a, _, o| {
+            springs[a as usize] |= (1 << o) & kept;
+        });
+        self.mask = Some(LatticeMask {
+            particle_of: particle_of.to_vec(),
+            springs,
+        });
+        self
     }
 
     /// The springs of offset `o` (an index into [`topology::OFFSETS`]), if the body has them.
@@ -341,9 +377,12 @@ impl Lattice {
 
     /// Number of springs.
     pub fn spring_count(&self) -> u64 {
-        (self.springs.iter())
-            .map(|s| topology::offset_spring_count(self.dims, topology::OFFSETS[s.offset].0))
-            .sum()
+        match &self.mask {
+            None => (self.springs.iter())
+                .map(|s| topology::offset_spring_count(self.dims, topology::OFFSETS[s.offset].0))
+                .sum(),
+            Some(mask) => mask.springs.iter().map(|b| u64::from(b.count_ones())).sum(),
+        }
     }
 
     /// Calls `f(a, b, spring)` for each spring starting in the z-planes `planes`, a and b global
@@ -357,11 +396,28 @@ impl Lattice {
         for s in &self.springs {
             by_offset[s.offset] = Some(s);
         }
-        topology::for_each_cuboid_spring_in(self.dims, planes, |a, b, o| {
-            if let Some(s) = by_offset[o] {
-                f(self.first + a, self.first + b, s);
+        let Some(mask) = &self.mask else {
+            topology::for_each_cuboid_spring_in(self.dims, planes, |a, b, o| {
+                if let Some(s) = by_offset[o] {
+                    f(self.first + a, self.first + b, s);
+                }
+            });
+            return;
+        };
+        let [nx, ny, nz] = self.dims.map(|d| d as usize);
+        let plane = nx * ny;
+        let points = planes.start as usize * plane..(planes.end as usize).min(nz) * plane;
+        for (p, &bits) in mask.springs[points.clone()].iter().enumerate() {
+            let p = points.start + p;
+            for (o, s) in by_offset.iter().enumerate() {
+                if let Some(s) = s.filter(|_| bits >> o & 1 == 1) {
+                    let [di, dj, dk] = topology::OFFSETS[o].0.map(|d| d as isize);
+                    let q = p.wrapping_add_signed(di + nx as isize * (dj + ny as isize * dk));
+                    let (a, b) = (mask.particle_of[p], mask.particle_of[q]);
+                    f(self.first + a, self.first + b, s);
+                }
             }
-        });
+        }
     }
 }
 
@@ -409,8 +465,8 @@ pub struct Model {
     /// The springs of the bodies without a lattice (`particles` and mesh bodies), in body
     /// order; all of them once [`Model::springs_mut`] has turned the lattices into a list.
     listed: Springs,
-    /// The cuboid bodies' springs, as stencils on their lattices (one per cuboid, in body
-    /// order).
+    /// The lattice bodies' springs (cuboids and mesh bodies), as stencils on their lattices
+    /// (one per body, in body order).
     lattices: Vec<Lattice>,
     /// Every spring ([`Model::springs`]), built on first use when there are lattices.
     all_springs: Derived<Springs>,
@@ -651,18 +707,7 @@ impl Model {
                     let points = v.lattice_points();
                     let lattice =
                         Lattice::new(b as u32, first, points, DVec3::splat(v.cell()), params);
-                    let particle = v.particle_of();
-                    topology::for_each_lattice_spring(
-                        points,
-                        Some(v.present()),
-                        0..points[2],
-                        |a, b, o| {
-                            if let Some(s) = lattice.spring(o) {
-                                let (a, b) = (particle[a as usize], particle[b as usize]);
-                                springs.push(first + a, first + b, s.rest, s.stiffness, s.damping);
-                            }
-                        },
-                    );
+                    lattices.push(lattice.masked(v.particle_of(), v.present()));
                     state.x.extend(x);
                     match m.surface {
                         SurfaceKind::Lattice => surface.extend(
@@ -761,8 +806,8 @@ impl Model {
         self.mass.is_empty()
     }
 
-    /// Every spring, bodies in order: a cuboid's in [`topology::for_each_cuboid_spring`]'s
-    /// order, the others' as built. Built on first use where there are cuboids, then kept
+    /// Every spring, bodies in order: a lattice body's in [`topology::for_each_lattice_spring`]'s
+    /// order, a `particles` body's as given. Built on first use where there are lattices, then kept
     /// (see the module doc: a caller that only needs to visit them once wants
     /// [`Model::for_each_spring`]).
     pub fn springs(&self) -> &Springs {
@@ -783,7 +828,7 @@ impl Model {
         (self.adjacency.0).get_or_init(|| Adjacency::build(self.len(), self.springs()))
     }
 
-    /// The springs, for changing their parameters: the cuboids' stencils become a list
+    /// The springs, for changing their parameters: the lattices' stencils become a list
     /// (afterwards [`Model::lattices`] is empty and the solvers take the routes for listed
     /// springs). The end points may change too; the adjacency is rebuilt on its next use.
     pub fn springs_mut(&mut self) -> &mut Springs {
@@ -799,7 +844,8 @@ impl Model {
         &mut self.listed
     }
 
-    /// The cuboid bodies' springs as stencils on their lattices, one per cuboid in body order:
+    /// The lattice bodies' springs (cuboids and mesh bodies) as stencils on their lattices, one
+    /// per such body in body order:
     /// what lets a solver find a spring's partner at a constant offset.
     pub fn lattices(&self) -> &[Lattice] {
         &self.lattices

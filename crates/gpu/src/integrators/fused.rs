@@ -18,14 +18,20 @@
 //! batches even where it can, [`Fused::steps_per_cycle`]). Midpoint and RK4 end their steps in
 //! place: their last stage reads the neighbours from a stage state and writes only its own
 //! particle of (x, v).
+//!
+//! Where every body is a lattice (cuboids and mesh bodies), the kernels find their springs on the
+//! lattices (`Stage::FusedStencil`, `shaders/stencil.wgsl`): per body a table of its offsets'
+//! parameters and their two orders, per mesh body its mask, and no spring record or adjacency
+//! read — the same sums bit for bit ("fused stencil"; otherwise "fused gather").
 
 use std::sync::Arc;
 
-use softbody_scene::Integrator;
+use softbody_scene::{Integrator, Lattice};
 
 use crate::builder::Setup;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources, Traffic};
+use crate::layout::LatticeBodyGpu;
 use crate::shaders::Stage;
 use crate::{GpuError, STEPS_PER_SUBMISSION, VEC4};
 
@@ -47,6 +53,8 @@ pub(crate) struct Fused {
     grid: Grid,
     /// Bytes between the step index slots.
     stride: u64,
+    /// Whether the springs are found on the lattices.
+    stencil: bool,
 }
 
 impl Fused {
@@ -62,17 +70,23 @@ impl Fused {
     }
 
     /// `integrator` fused, with the collision response's record of each step's start in
-    /// `start` (None without terrain). Fails with [`GpuError::Limit`] before allocating
-    /// anything where the adapter cannot bind its kernels' buffers: the per-spring path then
-    /// serves.
+    /// `start` (None without terrain), gathering by the stencil of `lattices` (every body's,
+    /// in body order) if given, through the spring records otherwise. Fails with
+    /// [`GpuError::Limit`] before allocating anything where the adapter cannot bind its
+    /// kernels' buffers: the per-spring path then serves.
     pub fn new(
         s: Setup<'_>,
         integrator: Integrator,
         start: Option<&wgpu::Buffer>,
+        lattices: Option<&[Lattice]>,
     ) -> Result<Fused, GpuError> {
+        let stage = match lattices {
+            Some(_) => Stage::FusedStencil,
+            None => Stage::FusedStep,
+        };
         let entries = Fused::entries(integrator);
         for entry in entries {
-            s.builder.fits(Stage::FusedStep, entry)?;
+            s.builder.fits(stage, entry)?;
         }
         let b = s.buffers;
         let pair = |label: &str| {
@@ -90,10 +104,25 @@ impl Fused {
                 &placeholder
             }
         };
-        let resources = b
-            .resources()
-            .chunks("springs", "spring", &b.springs)
-            .buffer("start", start);
+        let stencil = lattices.map(|lattices| {
+            let (bodies, points) = LatticeBodyGpu::pack(lattices);
+            (
+                s.builder.storage_init(
+                    "lattice_bodies",
+                    bytemuck::cast_slice(&bodies),
+                    std::mem::size_of::<LatticeBodyGpu>(),
+                ),
+                s.builder
+                    .storage_init("lattice_points", bytemuck::cast_slice(&points), 4),
+            )
+        });
+        let mut resources = b.resources().buffer("start", start);
+        resources = match &stencil {
+            Some((bodies, points)) => resources
+                .buffer("lattice_bodies", bodies)
+                .buffer("lattice_points", points),
+            None => resources.chunks("springs", "spring", &b.springs),
+        };
         let call = |r: &Resources<'_>, entry, from: Pair<'_>, to: Pair<'_>| {
             let r = r
                 .clone()
@@ -101,7 +130,7 @@ impl Fused {
                 .buffer("v", from.1)
                 .buffer("x_next", to.0)
                 .buffer("v_next", to.1);
-            s.builder.call(Stage::FusedStep, entry, &r)
+            s.builder.call(stage, entry, &r)
         };
         let y = (&b.x, &b.v);
         let mut other = None;
@@ -151,7 +180,17 @@ impl Fused {
             traffic: Arc::clone(s.builder.traffic()),
             grid: s.particles,
             stride: b.step_stride,
+            stencil: lattices.is_some(),
         })
+    }
+
+    /// The design, for `Statistics::kernel`.
+    pub fn kernel(&self) -> &'static str {
+        if self.stencil {
+            "fused stencil"
+        } else {
+            "fused gather"
+        }
     }
 
     /// Steps after which the state is back in the solver's (x, v) without a copy.

@@ -24,7 +24,7 @@ pub mod midpoint;
 pub mod rk4;
 pub mod symplectic_euler;
 
-use softbody_scene::Integrator;
+use softbody_scene::{Integrator, Lattice};
 
 use crate::GpuError;
 use crate::builder::Setup;
@@ -54,16 +54,18 @@ impl Stepper {
     /// `integrator`'s buffers and calls; `terrain` says whether the scene has terrain, `start`
     /// is the collision response's record of each step's start (explicit integrators with
     /// terrain). The explicit integrators are fused unless `per_spring` asks for the per-spring
-    /// path, bodies touch, or the adapter cannot bind the fused kernels.
+    /// path, bodies touch, or the adapter cannot bind the fused kernels; fused, they find their
+    /// springs on `lattices` where given (every body's).
     pub fn new(
         s: Setup<'_>,
         integrator: Integrator,
         terrain: bool,
         start: Option<&wgpu::Buffer>,
         per_spring: bool,
+        lattices: Option<&[Lattice]>,
     ) -> Result<Stepper, GpuError> {
         if integrator != Integrator::ImplicitEuler && s.body_contact.is_none() && !per_spring {
-            match fused::Fused::new(s, integrator, start) {
+            match fused::Fused::new(s, integrator, start, lattices) {
                 Ok(fused) => return Ok(Stepper::Fused(fused)),
                 Err(GpuError::Limit { .. }) => {}
                 Err(e) => return Err(e),
