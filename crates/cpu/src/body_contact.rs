@@ -1,5 +1,5 @@
 //! Contact between particles of bodies: pairs (i, j) of different bodies, or of one body with
-//! `self_contact` beyond its rest neighbourhood ([`softbody_scene::Contacts::admits`]), closer
+//! `self_contact` beyond its rest neighbourhood ([`softbody_scene::Model::admits`]), closer
 //! than the sum of their radii, d = |x_i − x_j| < R = r_i + r_j.
 //!
 //! Within the step, each pair that was in contact at its start pushes apart with a penalty

@@ -47,10 +47,7 @@ use softbody_scene::State;
 pub use rayon::ThreadPoolBuildError;
 pub use solver::CpuSolver;
 
-/// Bytes a vector holds on the heap.
-pub(crate) fn vec_bytes<T>(v: &Vec<T>) -> u64 {
-    (v.capacity() * std::mem::size_of::<T>()) as u64
-}
+pub(crate) use softbody_scene::model::vec_bytes;
 
 /// The first particle with a non-finite position or velocity, and which it is.
 pub fn first_non_finite(state: &State) -> Option<(usize, &'static str)> {

@@ -433,6 +433,11 @@ impl<T> std::fmt::Debug for Derived<T> {
     }
 }
 
+/// Bytes a vector holds on the heap.
+pub fn vec_bytes<T>(v: &Vec<T>) -> u64 {
+    (v.capacity() * std::mem::size_of::<T>()) as u64
+}
+
 /// Where a body's particles sit in the global arrays.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BodyRange {
@@ -913,21 +918,22 @@ impl Model {
     /// arrays, the listed springs, and [`Model::springs`] and [`Model::adjacency`] where they
     /// were built (the surface, embedded meshes and terrain excluded).
     pub fn memory_bytes(&self) -> u64 {
-        fn bytes<T>(v: &Vec<T>) -> u64 {
-            (v.capacity() * std::mem::size_of::<T>()) as u64
-        }
         let springs = |s: &Springs| {
-            bytes(&s.a) + bytes(&s.b) + bytes(&s.rest) + bytes(&s.stiffness) + bytes(&s.damping)
+            vec_bytes(&s.a)
+                + vec_bytes(&s.b)
+                + vec_bytes(&s.rest)
+                + vec_bytes(&s.stiffness)
+                + vec_bytes(&s.damping)
         };
         let c = &self.contact;
-        bytes(&self.mass)
-            + bytes(&self.inv_mass)
-            + bytes(&c.radius)
-            + bytes(&c.body)
-            + bytes(&c.lattice)
+        vec_bytes(&self.mass)
+            + vec_bytes(&self.inv_mass)
+            + vec_bytes(&c.radius)
+            + vec_bytes(&c.body)
+            + vec_bytes(&c.lattice)
             + springs(&self.listed)
             + self.all_springs.0.get().map_or(0, springs)
-            + (self.adjacency.0.get()).map_or(0, |a| bytes(&a.offsets) + bytes(&a.entries))
+            + (self.adjacency.0.get()).map_or(0, |a| vec_bytes(&a.offsets) + vec_bytes(&a.entries))
     }
 
     /// Estimate of the largest stable step of the explicit integrators: the symplectic-Euler
