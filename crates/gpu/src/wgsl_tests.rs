@@ -108,7 +108,7 @@ fn reflection_reads_each_kernels_own_bindings() {
         )
     );
     assert_eq!(
-        names(Stage::Cg, one, "cg_alpha"),
+        names(Stage::Cg, one, "cg_beta"),
         (
             ["partials", "scalars", "dispatch"]
                 .map(String::from)

@@ -98,7 +98,7 @@ pub(crate) struct Buffers {
     /// Spring blocks, one buffer per spring chunk.
     pub blocks: Vec<wgpu::Buffer>,
     pub candidates: wgpu::Buffer,
-    /// Per-workgroup partial sums of the CG's dot products.
+    /// Per-workgroup partial sums of the CG's dot products, in two halves (`cg.wgsl`).
     pub partials: wgpu::Buffer,
     pub scalars: wgpu::Buffer,
     pub dispatch: wgpu::Buffer,
@@ -148,7 +148,7 @@ impl Buffers {
                 s.n,
                 std::mem::size_of::<CandidateGpu>() as u64,
             ),
-            partials: builder.storage("cg partials", s.particles.groups(), 8),
+            partials: builder.storage("cg partials", 2 * s.particles.groups(), 8),
             scalars: builder.init("cg scalars", bytemuck::bytes_of(&settings), storage),
             dispatch: builder.init(
                 "cg dispatch",
