@@ -326,6 +326,12 @@ impl ImplicitEuler {
         self.system.encode_apply(pass, Vector::Dv, None);
     }
 
+    /// `iterations` CG iterations alone (for the test of the dispatches an iteration takes).
+    #[cfg(feature = "debug")]
+    pub fn encode_iterations(&self, pass: &mut wgpu::ComputePass<'_>, iterations: u32) {
+        self.cg.encode_iterations(pass, &self.system, iterations);
+    }
+
     /// Submits `encoder` (after resetting the active set's `changed` word) and runs CG batches
     /// until the solve it begins is done; counts the solve and returns its last progress.
     pub fn solve(
