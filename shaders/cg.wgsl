@@ -15,23 +15,29 @@
 //   then per iteration, while not done:
 //   apply(c) → q = A c
 //   cg_curvature: q = S q;  partials of cᵀq
-//   cg_alpha:     α = δ / cᵀq  (stop if cᵀq is not positive and finite: round-off)
-//   cg_advance:   Δv += α c, r −= α q;  partials of rᵀP⁻¹r
+//   cg_advance:   α = δ / cᵀq  (stop if cᵀq is not positive and finite: round-off);
+//                 Δv += α c, r −= α q;  partials of rᵀP⁻¹r
 //   cg_beta:      δ' = Σ; stop on non-finite or round-off growth (δ' > 1e6·smallest: δ = smallest);
 //                 β = δ'/δ, δ = δ'; iterations + 1; done = !(δ > target) or the cap
 //   cg_direction: c = S(P⁻¹ r + β c)
 //
 // — the CPU's loop, operation for operation, in f32. Dot products are deterministic two-pass
-// sums: each workgroup writes its tree sum (reduce.wgsl) to `partials`, and the one-workgroup
-// scalar kernels (cg_begin, cg_alpha, cg_beta) add the partials in order (`sum_in_order`), on
-// the device: no read-back per iteration, no float atomics.
+// sums: each workgroup writes its tree sum (reduce.wgsl) to `partials`, and the partials are added
+// in order (`sum_in_order`), on the device: no read-back per iteration, no float atomics. The
+// one-workgroup kernels cg_begin and cg_beta add them once; cg_advance's workgroups each add cᵀq's
+// themselves (the same code on the same input: the same α everywhere, bit for bit what a
+// one-workgroup cg_alpha computed), which saves a dispatch per iteration. So cᵀq's partials
+// have a half of `partials` of their own (`CURVATURE`): cg_advance reads them while it writes
+// rᵀP⁻¹r's.
 //
 // The scalars live in `scalars` (twin: `softbody_gpu::layout::CgScalars`). The iteration's
 // vector kernels are dispatched indirectly from `dispatch`, whose argument slots the scalar
-// kernels rewrite: the full grids while the solve runs, zero workgroups once it is done, so
+// kernels (cg_begin, cg_beta) rewrite: the full grids while the solve runs, zero workgroups once it is done, so
 // that the host can encode a batch of iterations per submission and the surplus costs only
 // empty dispatches. The scalar kernels themselves are dispatched directly (they write the
-// arguments) and return at once once the solve has stopped. The "finished" slots are the
+// arguments) and return at once once the solve has stopped. cg_advance, dispatched indirectly,
+// cannot write the arguments: when it finds cᵀq unusable it only sets `done`, and cg_beta,
+// next, empties the slots. The "finished" slots are the
 // reverse (zero while running, full once done): the active-set update after a solve
 // (implicit_euler.wgsl) is encoded behind each batch and runs once, at the end.
 
@@ -105,11 +111,19 @@ fn vec4_of(p: vec3<f32>) -> vec4<f32> {
     return vec4<f32>(p, 0.0);
 }
 
-// Writes the tree sum of this workgroup's terms to its partial slot.
-fn write_partial(id: Invocation, term: vec2<f32>) {
+// Where a half of `partials` starts: δ's sums (and the start's) at 0, cᵀq's after them.
+const DELTA: u32 = 0u;
+const CURVATURE: u32 = 1u;
+
+fn half(which: u32) -> u32 {
+    return which * scalars.n_partials;
+}
+
+// Writes the tree sum of this workgroup's terms to its partial slot in half `which`.
+fn write_partial(id: Invocation, term: vec2<f32>, which: u32) {
     let sum = workgroup_sum(id.local, term);
     if id.local == 0u {
-        partials[workgroup_of(id)] = sum;
+        partials[half(which) + workgroup_of(id)] = sum;
     }
 }
 
@@ -125,12 +139,13 @@ fn stopped(local: u32) -> bool {
     return workgroupUniformLoad(&solve_done) != 0u;
 }
 
-// The sum of the partials, in order: thread t adds partials t, t + 256, … in turn, then the
-// tree adds the 256 running sums. Run by one workgroup; every thread gets the total.
-fn sum_in_order(local: u32) -> vec2<f32> {
+// The sum of the partials of half `which`, in order: thread t adds partials t, t + 256, … in
+// turn, then the tree adds the 256 running sums. Every thread of the workgroup gets the total.
+fn sum_in_order(local: u32, which: u32) -> vec2<f32> {
     var acc = vec2<f32>(0.0);
+    let start = half(which);
     for (var k = local; k < scalars.n_partials; k += WORKGROUP_SIZE) {
-        acc += partials[k];
+        acc += partials[start + k];
     }
     return workgroup_sum(local, acc);
 }
@@ -176,12 +191,12 @@ fn cg_residual(id: Invocation) {
         c[i] = vec4_of(ci);
         term = vec2<f32>(dot(sb, free_part(i, precondition(i, sb))), dot(ri, ci));
     }
-    write_partial(id, term);
+    write_partial(id, term, DELTA);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cg_begin(id: Invocation) {
-    let sums = sum_in_order(id.local);
+    let sums = sum_in_order(id.local, DELTA);
     if id.local != 0u {
         return;
     }
@@ -209,46 +224,45 @@ fn cg_curvature(id: Invocation) {
         q[i] = vec4_of(qi);
         term = vec2<f32>(dot(c[i].xyz, qi), 0.0);
     }
-    write_partial(id, term);
-}
-
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn cg_alpha(id: Invocation) {
-    if stopped(id.local) {
-        return;
-    }
-    let cq = sum_in_order(id.local).x;
-    if id.local != 0u {
-        return;
-    }
-    // Only reachable through round-off once the residual is at machine precision.
-    if !(cq > 0.0 && all_finite(vec3<f32>(cq))) {
-        finish(true);
-        return;
-    }
-    scalars.alpha = scalars.delta / cq;
+    write_partial(id, term, CURVATURE);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cg_advance(id: Invocation) {
+    let cq = sum_in_order(id.local, CURVATURE).x;
+    // Not usable only through round-off once the residual is at machine precision: then the
+    // solve stops with Δv and r as the last iteration left them, as the CPU's does (the partial
+    // written is never read).
+    let usable = cq > 0.0 && all_finite(vec3<f32>(cq));
+    let alpha = scalars.delta / cq;
+    if id.local == 0u && workgroup_of(id) == 0u {
+        if usable {
+            scalars.alpha = alpha;
+        } else {
+            scalars.done = 1u;
+        }
+    }
     let i = thread_of(id);
     var term = vec2<f32>(0.0);
-    if i < params.n_particles {
-        let alpha = scalars.alpha;
+    if usable && i < params.n_particles {
         dv[i] = vec4_of(dv[i].xyz + alpha * c[i].xyz);
         let ri = r[i].xyz - alpha * q[i].xyz;
         r[i] = vec4_of(ri);
         term = vec2<f32>(dot(ri, precondition(i, ri)), 0.0);
     }
-    write_partial(id, term);
+    write_partial(id, term, DELTA);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cg_beta(id: Invocation) {
     if stopped(id.local) {
+        // cg_advance may have stopped the solve in this iteration: it cannot empty the slots.
+        if id.local == 0u {
+            set_dispatch(true);
+        }
         return;
     }
-    let delta_new = sum_in_order(id.local).x;
+    let delta_new = sum_in_order(id.local, DELTA).x;
     if id.local != 0u {
         return;
     }

@@ -282,6 +282,25 @@ impl GpuSolver {
         Ok((to_dvec3(&bytes), progress.scalars))
     }
 
+    /// The dispatches `iterations` CG iterations of implicit Euler encode (encoded after a
+    /// solve's round, so that they run on a started solve).
+    pub fn debug_cg_iteration_dispatches(&mut self, iterations: u32) -> Result<u64, StepError> {
+        let (im, submitter, contact) = self.implicit()?;
+        let encoder = submitter.encode_pass("cg round", |pass| {
+            im.encode_assemble(pass, contact);
+            im.encode_round(pass, true);
+        });
+        submitter.submit_and_read(encoder, &[])?;
+        let round = self.builder.traffic().totals().0;
+        let (im, submitter, _) = self.implicit()?;
+        let encoder = submitter.encode_pass("cg iterations", |pass| {
+            im.encode_iterations(pass, iterations)
+        });
+        submitter.submit_and_read(encoder, &[])?;
+        submitter.healthy()?;
+        Ok(self.builder.traffic().totals().0 - round)
+    }
+
     /// Destroys the device, as a driver reset would lose it: for the failure tests. Every
     /// solver on the same context fails from then on.
     pub fn debug_destroy_device(&self) {

@@ -138,11 +138,31 @@ pub fn choose(
         })
 }
 
+/// The instance's settings from the environment (`WGPU_BACKEND`, `WGPU_VALIDATION_INDIRECT_CALL`,
+/// …), with wgpu's validation of indirect dispatches off by default where no D3D12 adapter can be
+/// chosen.
+///
+/// That validation runs a compute pass of wgpu's own before every indirect dispatch, in release
+/// builds too, and implicit Euler's CG (the only indirect dispatches here) issues four per
+/// iteration. It is safe without: the arguments are only ever zero or the particle and spring
+/// grids the host wrote into `CgScalars` when it built the solver (`cg.wgsl`, `set_slot`), grids it
+/// also dispatches directly, which wgpu validates against `max_compute_workgroups_per_dimension`.
+/// D3D12 keeps it: without it `@builtin(num_workgroups)`, from which every kernel computes its
+/// thread index, reads 0 in an indirect dispatch there.
+fn instance_descriptor() -> wgpu::InstanceDescriptor {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    if !desc.backends.with_env().contains(wgpu::Backends::DX12) {
+        desc.flags
+            .remove(wgpu::InstanceFlags::VALIDATION_INDIRECT_CALL);
+    }
+    desc.with_env()
+}
+
 impl Gpu {
     /// Finds an adapter that runs compute shaders ([`choose`]) and opens its device: a context
     /// that many solvers may share ([`GpuSolver::on`](crate::GpuSolver::on)).
     pub fn open() -> Result<Arc<Gpu>, GpuError> {
-        let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        let desc = instance_descriptor();
         let tried = desc.backends & wgpu::Instance::enabled_backend_features();
         let tried_names = backends_list(tried);
         if tried.is_empty() {

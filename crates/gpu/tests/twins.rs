@@ -113,6 +113,10 @@ fn main() -> ExitCode {
         ("a_scene_without_bodies_runs", no_bodies),
         ("implicit_system_twin", implicit_system_twin),
         ("implicit_cg_twin", implicit_cg_twin),
+        (
+            "implicit_cg_iterations_take_six_dispatches",
+            implicit_cg_dispatches,
+        ),
         ("run_implicit_euler_plane", |gpu| run_implicit(gpu, PLANE)),
         ("run_implicit_euler_slope", |gpu| run_implicit(gpu, SLOPE)),
         (
@@ -964,6 +968,20 @@ fn true_residual(
 /// GL): 10 iterations (the CPU: 10 at 1e-5, 15 at 1e-8), residual 5.3e-6 (true 5.3e-6), Δv
 /// within 7.8e-6 of max|Δv|, prescribed parts exact. Prints the iterations of both (the CPU also at the GPU's
 /// tolerance).
+/// A CG iteration on a model of one spring chunk without contact between bodies is six
+/// dispatches: the product's two (springs, particles), cg_curvature, cg_advance (which computes
+/// α itself), cg_beta (the one-workgroup kernel that writes the next grids) and cg_direction.
+/// It took seven while α had a one-workgroup kernel of its own.
+fn implicit_cg_dispatches(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    let (model, state) = implicit_cube();
+    let mut g = open(gpu, &model, &state)?;
+    let one = g.debug_cg_iteration_dispatches(1).map_err(step_error)?;
+    let ten = g.debug_cg_iteration_dispatches(10).map_err(step_error)?;
+    ensure(one == 6 && ten == 60, || {
+        format!("{one} dispatches for one CG iteration, {ten} for ten")
+    })
+}
+
 fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Scratch};
     use softbody_cpu::integrators::implicit_euler::system::System;

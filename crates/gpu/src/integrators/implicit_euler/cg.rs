@@ -3,11 +3,12 @@
 //! operation in f32, its scalars on the device.
 //!
 //! A solve starts with a round (`cg_start`: the warm start; A Δv; `cg_residual`; `cg_begin`),
-//! then runs batches of iterations (A c → `cg_curvature` → `cg_alpha` → `cg_advance` →
-//! `cg_beta` → `cg_direction`). The vector kernels of an iteration are dispatched indirectly
-//! from the argument slots the one-workgroup scalar kernels rewrite: full grids while the solve
-//! runs, empty ones once it is done, so a batch of iterations is one submission whatever the
-//! solve needs.
+//! then runs batches of iterations (A c → `cg_curvature` → `cg_advance` → `cg_beta` →
+//! `cg_direction`; `cg_advance`'s workgroups each compute α from the partial sums of cᵀq, which
+//! spares a one-workgroup kernel per iteration). The vector kernels of an iteration are
+//! dispatched indirectly from the argument slots the one-workgroup scalar kernels rewrite: full
+//! grids while the solve runs, empty ones once it is done, so a batch of iterations is one
+//! submission whatever the solve needs.
 
 use super::system::{System, Vector};
 use super::{Buffers, SLOTS_RUNNING};
@@ -23,7 +24,6 @@ pub(crate) struct Cg {
     residual: Call,
     begin: Call,
     curvature: Call,
-    alpha: Call,
     advance: Call,
     beta: Call,
     direction: Call,
@@ -44,7 +44,6 @@ impl Cg {
             residual: call("cg_residual")?,
             begin: call("cg_begin")?,
             curvature: call("cg_curvature")?,
-            alpha: call("cg_alpha")?,
             advance: call("cg_advance")?,
             beta: call("cg_beta")?,
             direction: call("cg_direction")?,
@@ -72,9 +71,8 @@ impl Cg {
         for _ in 0..iterations {
             system.encode_apply(pass, Vector::C, Some(SLOTS_RUNNING));
             self.curvature.run_indirect(pass, &self.dispatch, particles);
-            // Direct: they write the indirect arguments (and return at once when done).
-            self.alpha.run(pass, ONE);
             self.advance.run_indirect(pass, &self.dispatch, particles);
+            // Direct: it writes the indirect arguments (and returns at once when done).
             self.beta.run(pass, ONE);
             self.direction.run_indirect(pass, &self.dispatch, particles);
         }

@@ -98,7 +98,7 @@ pub(crate) struct Buffers {
     /// Spring blocks, one buffer per spring chunk.
     pub blocks: Vec<wgpu::Buffer>,
     pub candidates: wgpu::Buffer,
-    /// Per-workgroup partial sums of the CG's dot products.
+    /// Per-workgroup partial sums of the CG's dot products, in two halves (`cg.wgsl`).
     pub partials: wgpu::Buffer,
     pub scalars: wgpu::Buffer,
     pub dispatch: wgpu::Buffer,
@@ -148,7 +148,7 @@ impl Buffers {
                 s.n,
                 std::mem::size_of::<CandidateGpu>() as u64,
             ),
-            partials: builder.storage("cg partials", s.particles.groups(), 8),
+            partials: builder.storage("cg partials", 2 * s.particles.groups(), 8),
             scalars: builder.init("cg scalars", bytemuck::bytes_of(&settings), storage),
             dispatch: builder.init(
                 "cg dispatch",
@@ -324,6 +324,12 @@ impl ImplicitEuler {
     #[cfg(feature = "debug")]
     pub fn encode_apply_dv(&self, pass: &mut wgpu::ComputePass<'_>) {
         self.system.encode_apply(pass, Vector::Dv, None);
+    }
+
+    /// `iterations` CG iterations alone (for the test of the dispatches an iteration takes).
+    #[cfg(feature = "debug")]
+    pub fn encode_iterations(&self, pass: &mut wgpu::ComputePass<'_>, iterations: u32) {
+        self.cg.encode_iterations(pass, &self.system, iterations);
     }
 
     /// Submits `encoder` (after resetting the active set's `changed` word) and runs CG batches
