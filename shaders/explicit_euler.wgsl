@@ -15,8 +15,8 @@ fn explicit_euler(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let h = params.dt;
     let vi = v[i];
-    x[i] = x[i] + h * vi;
-    v[i] = vi + h * a[i];
+    let y = advance(Y(x[i], vi), vi, a[i], params.dt);
+    x[i] = y.x;
+    v[i] = y.v;
 }

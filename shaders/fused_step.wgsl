@@ -16,8 +16,8 @@
 //    by its lattice's stencil (stencil.wgsl, `Stage::FusedStencil`) with the same terms in the
 //    same order;
 // 2. a = (m g − drag·m·v + Σ + contact(f)) / m (acceleration.wgsl; a = 0 when pinned);
-// 3. the stage's update (below, the equations of the integrator's WGSL file), into `x_next`,
-//    `v_next`;
+// 3. the stage's update (below; its equations are updates.wgsl's, which the per-spring path's
+//    kernels call too), into `x_next`, `v_next`;
 // 4. after a step's last stage: the collision response with terrain (response.wgsl, pinned
 //    particles left alone) and the finiteness record of step `step_index` (finite.wgsl).
 //
@@ -93,9 +93,8 @@ fn symplectic_euler(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let h = params.dt;
-    let vn = v[i] + h * acceleration_of(i);
-    finish(i, x[i] + h * vn, vn);
+    let y = symplectic(Y(x[i], v[i]), acceleration_of(i), params.dt);
+    finish(i, y.x, y.v);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -104,9 +103,9 @@ fn explicit_euler(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let h = params.dt;
     let vi = v[i];
-    finish(i, x[i] + h * vi, vi + h * acceleration_of(i));
+    let y = advance(Y(x[i], vi), vi, acceleration_of(i), params.dt);
+    finish(i, y.x, y.v);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -115,10 +114,10 @@ fn midpoint_stage(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let half_h = 0.5 * params.dt;
     let vi = v[i];
-    x_next[i] = x[i] + half_h * vi;
-    v_next[i] = vi + half_h * acceleration_of(i);
+    let stage = advance(Y(x[i], vi), vi, acceleration_of(i), 0.5 * params.dt);
+    x_next[i] = stage.x;
+    v_next[i] = stage.v;
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -127,8 +126,8 @@ fn midpoint_update(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let h = params.dt;
-    finish(i, x_next[i] + h * v[i], v_next[i] + h * acceleration_of(i));
+    let y = advance(Y(x_next[i], v_next[i]), v[i], acceleration_of(i), params.dt);
+    finish(i, y.x, y.v);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -137,23 +136,25 @@ fn rk4_first(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let half_h = 0.5 * params.dt;
     let vi = v[i];
     let ai = acceleration_of(i);
     sum_x[i] = vi;
     sum_v[i] = ai;
-    x_next[i] = x[i] + half_h * vi;
-    v_next[i] = vi + half_h * ai;
+    let stage = advance(Y(x[i], vi), vi, ai, 0.5 * params.dt);
+    x_next[i] = stage.x;
+    v_next[i] = stage.v;
 }
 
 // k2 and k3: add 2·(v_s, a) to the sums and move to the stage y + next·(v_s, a).
 fn rk4_middle(i: u32, next: f32) {
     let vs = v[i];
     let ai = acceleration_of(i);
-    sum_x[i] = sum_x[i] + 2.0 * vs;
-    sum_v[i] = sum_v[i] + 2.0 * ai;
-    x_next[i] = base_x[i] + next * vs;
-    v_next[i] = base_v[i] + next * ai;
+    let sum = rk4_accumulate(Y(sum_x[i], sum_v[i]), vs, ai);
+    sum_x[i] = sum.x;
+    sum_v[i] = sum.v;
+    let stage = advance(Y(base_x[i], base_v[i]), vs, ai, next);
+    x_next[i] = stage.x;
+    v_next[i] = stage.v;
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -180,8 +181,7 @@ fn rk4_last(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let sixth_h = params.dt / 6.0;
-    let sx = sum_x[i] + v[i];
-    let sv = sum_v[i] + acceleration_of(i);
-    finish(i, x_next[i] + sixth_h * sx, v_next[i] + sixth_h * sv);
+    let y = Y(x_next[i], v_next[i]);
+    let z = rk4_finish(y, Y(sum_x[i], sum_v[i]), v[i], acceleration_of(i), params.dt);
+    finish(i, z.x, z.v);
 }

@@ -19,10 +19,10 @@ fn midpoint_stage(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let half_h = 0.5 * params.dt;
     let vi = v[i];
-    stage_x[i] = x[i] + half_h * vi;
-    stage_v[i] = vi + half_h * a[i];
+    let stage = advance(Y(x[i], vi), vi, a[i], 0.5 * params.dt);
+    stage_x[i] = stage.x;
+    stage_v[i] = stage.v;
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -31,7 +31,7 @@ fn midpoint_update(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let h = params.dt;
-    x[i] = x[i] + h * stage_v[i];
-    v[i] = v[i] + h * a[i];
+    let y = advance(Y(x[i], v[i]), stage_v[i], a[i], params.dt);
+    x[i] = y.x;
+    v[i] = y.v;
 }

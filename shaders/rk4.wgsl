@@ -30,23 +30,25 @@ fn rk4_first(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let half_h = 0.5 * params.dt;
     let vi = v[i];
     let ai = a[i];
     sum_x[i] = vi;
     sum_v[i] = ai;
-    stage_x[i] = x[i] + half_h * vi;
-    stage_v[i] = vi + half_h * ai;
+    let stage = advance(Y(x[i], vi), vi, ai, 0.5 * params.dt);
+    stage_x[i] = stage.x;
+    stage_v[i] = stage.v;
 }
 
 // k2 and k3: add 2·(v_s, a) to the sums and move the stage to y + next·(v_s, a).
 fn rk4_middle(i: u32, next: f32) {
     let vs = stage_v[i];
     let ai = a[i];
-    sum_x[i] = sum_x[i] + 2.0 * vs;
-    sum_v[i] = sum_v[i] + 2.0 * ai;
-    stage_x[i] = x[i] + next * vs;
-    stage_v[i] = v[i] + next * ai;
+    let sum = rk4_accumulate(Y(sum_x[i], sum_v[i]), vs, ai);
+    sum_x[i] = sum.x;
+    sum_v[i] = sum.v;
+    let stage = advance(Y(x[i], v[i]), vs, ai, next);
+    stage_x[i] = stage.x;
+    stage_v[i] = stage.v;
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -73,9 +75,7 @@ fn rk4_last(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let sixth_h = params.dt / 6.0;
-    let sx = sum_x[i] + stage_v[i];
-    let sv = sum_v[i] + a[i];
-    x[i] = x[i] + sixth_h * sx;
-    v[i] = v[i] + sixth_h * sv;
+    let y = rk4_finish(Y(x[i], v[i]), Y(sum_x[i], sum_v[i]), stage_v[i], a[i], params.dt);
+    x[i] = y.x;
+    v[i] = y.v;
 }

@@ -15,8 +15,7 @@ fn symplectic_euler(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let h = params.dt;
-    let vi = v[i] + h * a[i];
-    v[i] = vi;
-    x[i] = x[i] + h * vi;
+    let y = symplectic(Y(x[i], v[i]), a[i], params.dt);
+    x[i] = y.x;
+    v[i] = y.v;
 }

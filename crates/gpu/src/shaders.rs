@@ -49,6 +49,8 @@ pub const FINITE: &str = include_str!("../../../shaders/finite.wgsl");
 pub const FUSED_GATHER: &str = include_str!("../../../shaders/fused_gather.wgsl");
 /// `shaders/stencil.wgsl`.
 pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
+/// `shaders/updates.wgsl`.
+pub const UPDATES: &str = include_str!("../../../shaders/updates.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
@@ -313,6 +315,20 @@ impl Stage {
         )
     }
 
+    /// Whether its module includes `updates.wgsl`: the explicit integrators' kernels, on both
+    /// paths.
+    fn uses_updates(self) -> bool {
+        matches!(
+            self,
+            Stage::ExplicitEuler
+                | Stage::SymplecticEuler
+                | Stage::Midpoint
+                | Stage::Rk4
+                | Stage::FusedStep
+                | Stage::FusedStencil
+        )
+    }
+
     /// The pieces of its module, in order: (file name, source).
     pub fn pieces(self) -> Vec<(&'static str, &'static str)> {
         let mut pieces = vec![("common.wgsl", COMMON)];
@@ -342,6 +358,9 @@ impl Stage {
         }
         if self.uses_neighbours() {
             pieces.push(("neighbours.wgsl", NEIGHBOURS));
+        }
+        if self.uses_updates() {
+            pieces.push(("updates.wgsl", UPDATES));
         }
         pieces.push((self.file(), self.own_source()));
         pieces
