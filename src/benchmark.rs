@@ -176,8 +176,8 @@ pub struct Options {
     pub integrator: Integrator,
     /// CPU threads (all cores when `None`); the GPU ignores it.
     pub threads: Option<usize>,
-    /// Timed steps; `None` picks about [`TARGET_PARTICLE_STEPS`] particle-steps, capped at
-    /// [`MAX_SECONDS`] of stepping.
+    /// Timed steps; `None` picks about [`TARGET_PARTICLE_STEPS`] particle-steps, or
+    /// [`MIN_SECONDS`] of stepping where that is more, capped at [`MAX_SECONDS`].
     pub steps: Option<u64>,
     /// Spring stiffness k_s, N/m.
     pub stiffness: f64,
@@ -207,6 +207,10 @@ impl Default for Options {
 
 /// Particle-steps a size is timed for by default (as the peer script's step counts).
 pub const TARGET_PARTICLE_STEPS: f64 = 1e7;
+/// Shortest the timed stepping of one size runs by default, seconds: a fast GPU does the
+/// target's particle-steps of a large cube in a few milliseconds, too short to time against
+/// the launch and the final synchronisation.
+pub const MIN_SECONDS: f64 = 1.0;
 /// Longest the timed stepping of one size runs by default, seconds.
 pub const MAX_SECONDS: f64 = 20.0;
 /// Fewest timed steps by default.
@@ -347,8 +351,8 @@ pub enum BenchError {
 
 /// Builds the n³ benchmark cube for `options`, warms the solver up (one step, then about a
 /// quarter of a second of steps, which also estimates the time per step), times
-/// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps, at most
-/// [`MAX_SECONDS`]) with nothing else in the loop, and checks that the final state is finite.
+/// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps and at
+/// least [`MIN_SECONDS`], at most [`MAX_SECONDS`]) with nothing else in the loop, and checks that the final state is finite.
 /// Timings end when the solver has computed every step ([`Solver::sync`]: on the GPU, when
 /// the queue is done).
 /// `progress` hears (timed steps done, timed steps in all) about a hundred times.
@@ -393,8 +397,10 @@ fn time(
     let pilot = ((PILOT_SECONDS / first.max(1e-9)) as u64).clamp(1, 10_000);
     let per_step = run(solver, pilot)? / pilot as f64;
     let steps = options.steps.unwrap_or_else(|| {
-        let target = (TARGET_PARTICLE_STEPS / particles as f64).ceil() as u64;
-        let cap = (MAX_SECONDS / per_step.max(1e-12)) as u64;
+        let per_step = per_step.max(1e-12);
+        let target = ((TARGET_PARTICLE_STEPS / particles as f64).ceil() as u64)
+            .max((MIN_SECONDS / per_step).ceil() as u64);
+        let cap = (MAX_SECONDS / per_step) as u64;
         target.min(cap).max(MIN_STEPS)
     });
     let before = solver.statistics();

@@ -24,7 +24,8 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', default_value = "10,22,46,100",
           value_parser = clap::value_parser!(u32).range(2..=1000))]
     sizes: Vec<u32>,
-    /// Timed steps per size (default: about 1e7 particle-steps, at most about 20 s per size).
+    /// Timed steps per size (default: about 1e7 particle-steps and at least 1 s, at most about
+    /// 20 s per size).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     steps: Option<u64>,
     /// CPU threads (default: all cores).
