@@ -217,6 +217,10 @@ pub const MAX_SECONDS: f64 = 20.0;
 pub const MIN_STEPS: u64 = 3;
 /// The warm-up after the first step runs for about this long, seconds (at least one step).
 const PILOT_SECONDS: f64 = 0.25;
+/// The longest pilot run, steps.
+const MAX_PILOT: u64 = 100_000;
+/// Shortest batch of timed steps between two progress reports, seconds.
+const PROGRESS_SECONDS: f64 = 0.1;
 
 /// What one size measured.
 #[derive(Debug, Clone, PartialEq)]
@@ -349,10 +353,11 @@ pub enum BenchError {
     },
 }
 
-/// Builds the n³ benchmark cube for `options`, warms the solver up (one step, then about a
-/// quarter of a second of steps, which also estimates the time per step), times
+/// Builds the n³ benchmark cube for `options`, warms the solver up (one step, then runs of
+/// steps growing to about a quarter of a second, which estimate the time per step), times
 /// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps and at
-/// least [`MIN_SECONDS`], at most [`MAX_SECONDS`]) with nothing else in the loop, and checks that the final state is finite.
+/// least [`MIN_SECONDS`], at most [`MAX_SECONDS`]) with nothing else in the loop, and checks
+/// that the final state is finite.
 /// Timings end when the solver has computed every step ([`Solver::sync`]: on the GPU, when
 /// the queue is done).
 /// `progress` hears (timed steps done, timed steps in all) about a hundred times.
@@ -393,9 +398,20 @@ fn time(
         solver.sync().map_err(step_error)?;
         Ok(started.elapsed().as_secs_f64())
     };
-    let first = run(solver, 1)?;
-    let pilot = ((PILOT_SECONDS / first.max(1e-9)) as u64).clamp(1, 10_000);
-    let per_step = run(solver, pilot)? / pilot as f64;
+    // The first step pays for what happens once (pipelines, first touches of memory); the
+    // pilots then grow until one lasts half of PILOT_SECONDS, so that the time per step is
+    // not the first step's, and a GPU has left its idle clocks by the timed steps.
+    let mut pilot = ((PILOT_SECONDS / run(solver, 1)?.max(1e-9)) as u64).clamp(1, MAX_PILOT);
+    let mut warmup_steps = 1;
+    let per_step = loop {
+        let seconds = run(solver, pilot)?;
+        warmup_steps += pilot;
+        let per_step = seconds / pilot as f64;
+        if seconds >= 0.5 * PILOT_SECONDS || pilot == MAX_PILOT || warmup_steps > 4 * MAX_PILOT {
+            break per_step;
+        }
+        pilot = ((PILOT_SECONDS / per_step.max(1e-12)) as u64).clamp(pilot + 1, MAX_PILOT);
+    };
     let steps = options.steps.unwrap_or_else(|| {
         let per_step = per_step.max(1e-12);
         let target = ((TARGET_PARTICLE_STEPS / particles as f64).ceil() as u64)
@@ -404,9 +420,11 @@ fn time(
         target.min(cap).max(MIN_STEPS)
     });
     let before = solver.statistics();
-    // In about a hundred batches, for the progress report: a batch is at least one step, so the
-    // report costs nothing next to it. (The GPU queues them; the state read waits for all.)
-    let batch = steps.div_ceil(100);
+    // In about a hundred batches at most, for the progress report, and of PROGRESS_SECONDS at
+    // least: each `advance` ends the GPU's submission, which must not be a few steps long.
+    let batch = steps
+        .div_ceil(100)
+        .max((PROGRESS_SECONDS / per_step.max(1e-12)) as u64);
     let started = Instant::now();
     let mut done = 0;
     while done < steps {
@@ -429,7 +447,7 @@ fn time(
         particles,
         springs,
         dt,
-        warmup_steps: 1 + pilot,
+        warmup_steps,
         steps,
         seconds,
         bytes_per_particle: solver.memory_bytes() as f64 / particles as f64,
