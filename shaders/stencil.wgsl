@@ -26,7 +26,9 @@ struct LatticeOffset {
     damping: f32,
     // Its index in topology::OFFSETS: its bit in a masked lattice's points.
     bit: u32,
-    _pad: u32,
+    // Its step in point index, di + nx (dj + ny dk): the spring starting at point p ends at
+    // point p + linear (u32 addition, wrapping).
+    linear: i32,
 }
 
 // A lattice body (twin: `layout::LatticeBodyGpu`), one per body in particle order.
@@ -72,42 +74,34 @@ fn lattice_body_of(i: u32) -> u32 {
     return lo;
 }
 
-// The springs of lattice `body`, as the thread of one particle sees them.
-struct Stencil {
-    body: u32,
-    // The lattice's points per axis.
-    dims: vec3<i32>,
-    // The particle's point.
-    p: vec3<i32>,
+// Whether point q lies in a grid of `dims` points per axis.
+fn in_grid(q: vec3<i32>, dims: vec3<i32>) -> bool {
+    return all(q >= vec3<i32>(0)) && all(q < dims);
 }
 
-fn point_index(s: Stencil, q: vec3<i32>) -> u32 {
-    return u32(q.x + s.dims.x * (q.y + s.dims.y * q.z));
+// The point `offset` leads to from point `point` (or, with `sign` −1, comes from).
+fn step_point(point: u32, offset: LatticeOffset, sign: i32) -> u32 {
+    return point + bitcast<u32>(sign * offset.linear);
 }
 
-// The global particle at point q, which lies in the grid.
-fn particle_at(s: Stencil, q: vec3<i32>) -> u32 {
-    let body = &lattice_bodies[s.body];
-    let point = point_index(s, q);
-    if (*body).points == NONE {
-        return (*body).first + point;
-    }
-    return (*body).first + lattice_points[(*body).points + (*body).count + 2u * point];
-}
-
-// Whether the spring of `offset` starting at point a exists: a and a + d in the grid, and for a
-// mesh body, the spring kept at a.
-fn starts_at(s: Stencil, offset: LatticeOffset, a: vec3<i32>) -> bool {
-    let b = a + offset.d;
-    if any(a < vec3<i32>(0)) || any(a >= s.dims) || any(b < vec3<i32>(0)) || any(b >= s.dims) {
-        return false;
-    }
-    let body = &lattice_bodies[s.body];
+// For the spring of `offset` starting at point a (a and its end in the grid) of lattice body
+// b: whether it exists, and its particle at point q (a or its end). A cuboid keeps every
+// spring, and its particle is its point; a mesh body's mask says both.
+fn kept(b: u32, offset: LatticeOffset, a: u32) -> bool {
+    let body = &lattice_bodies[b];
     if (*body).points == NONE {
         return true;
     }
-    let bits = lattice_points[(*body).points + (*body).count + 2u * point_index(s, a) + 1u];
+    let bits = lattice_points[(*body).points + (*body).count + 2u * a + 1u];
     return ((bits >> offset.bit) & 1u) == 1u;
+}
+
+fn particle_of_point(b: u32, q: u32) -> u32 {
+    let body = &lattice_bodies[b];
+    if (*body).points == NONE {
+        return (*body).first + q;
+    }
+    return (*body).first + lattice_points[(*body).points + (*body).count + 2u * q];
 }
 
 // The spring of `offset` from particle a to particle b, as spring_force takes it.
@@ -116,7 +110,9 @@ fn lattice_spring(offset: LatticeOffset, a: u32, b: u32) -> Spring {
 }
 
 // Σ of particle i's spring forces at the state (x, v), own_x and own_v being its own: the
-// CSR gather's sum (above).
+// CSR gather's sum (above). Point p is in the grid, so a spring ending (starting) at p exists
+// where its other end p − d (p + d) is in the grid and the mask, if any, keeps it: one bounds
+// test per offset, and the other end's point is p's index ∓ the offset's linear step.
 fn gather(i: u32) -> vec3<f32> {
     let b = lattice_body_of(i);
     let body = &lattice_bodies[b];
@@ -131,21 +127,20 @@ fn gather(i: u32) -> vec3<f32> {
         i32((point % plane) / (*body).nx),
         i32(point / plane),
     );
-    let s = Stencil(b, dims, p);
     let n = (*body).n_offsets;
     var sum = vec3<f32>(0.0);
     for (var r = 0u; r < n; r++) {
         let offset = (*body).offsets[(*body).backward[r]];
-        let q = p - offset.d;
-        if starts_at(s, offset, q) {
-            let a = particle_at(s, q);
+        let q = step_point(point, offset, -1);
+        if in_grid(p - offset.d, dims) && kept(b, offset, q) {
+            let a = particle_of_point(b, q);
             sum -= spring_force(lattice_spring(offset, a, i), x[a].xyz, own_x, v[a].xyz, own_v);
         }
     }
     for (var r = 0u; r < n; r++) {
         let offset = (*body).offsets[r];
-        if starts_at(s, offset, p) {
-            let o = particle_at(s, p + offset.d);
+        if in_grid(p + offset.d, dims) && kept(b, offset, point) {
+            let o = particle_of_point(b, step_point(point, offset, 1));
             sum += spring_force(lattice_spring(offset, i, o), own_x, x[o].xyz, own_v, v[o].xyz);
         }
     }

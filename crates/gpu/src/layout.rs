@@ -93,8 +93,9 @@ pub struct LatticeOffsetGpu {
     pub damping: f32,
     /// Its index in [`topology::OFFSETS`].
     pub bit: u32,
-    /// Padding to WGSL's 32-byte stride.
-    pub _pad: u32,
+    /// Its step in point index, di + nx (dj + ny dk), wrapped to 32 bits: the spring starting
+    /// at point p ends at point p + linear (mod 2³², as the shader adds).
+    pub linear: i32,
 }
 
 /// One lattice body: twin of `LatticeBody` in `shaders/stencil.wgsl`.
@@ -144,20 +145,22 @@ impl LatticeBodyGpu {
                     points: u32::MAX,
                     ..LatticeBodyGpu::default()
                 };
-                for (slot, s) in body.offsets.iter_mut().zip(&lattice.springs) {
-                    *slot = LatticeOffsetGpu {
-                        d: topology::OFFSETS[s.offset].0,
-                        rest: s.rest as f32,
-                        stiffness: s.stiffness as f32,
-                        damping: s.damping as f32,
-                        bit: s.offset as u32,
-                        _pad: 0,
-                    };
-                }
                 let linear = |d: [i32; 3]| {
                     i64::from(d[0])
                         + i64::from(nx) * (i64::from(d[1]) + i64::from(ny) * i64::from(d[2]))
                 };
+                for (slot, s) in body.offsets.iter_mut().zip(&lattice.springs) {
+                    let d = topology::OFFSETS[s.offset].0;
+                    *slot = LatticeOffsetGpu {
+                        d,
+                        rest: s.rest as f32,
+                        stiffness: s.stiffness as f32,
+                        damping: s.damping as f32,
+                        bit: s.offset as u32,
+                        // Wrapping, as the shader's u32 addition does.
+                        linear: linear(d) as i32,
+                    };
+                }
                 let mut backward: Vec<u32> = (0..body.n_offsets).collect();
                 backward.sort_by_key(|&r| std::cmp::Reverse(linear(body.offsets[r as usize].d)));
                 body.backward[..backward.len()].copy_from_slice(&backward);

@@ -284,7 +284,7 @@ fn lattice_layouts_match() {
             ("stiffness", offset_of!(LatticeOffsetGpu, stiffness)),
             ("damping", offset_of!(LatticeOffsetGpu, damping)),
             ("bit", offset_of!(LatticeOffsetGpu, bit)),
-            ("_pad", offset_of!(LatticeOffsetGpu, _pad)),
+            ("linear", offset_of!(LatticeOffsetGpu, linear)),
         ],
     );
     check_layout(
