@@ -10,6 +10,9 @@
 # repository) with its device changed to cuda:0, timed over PEER_PSTEPS particle-steps per repeat
 # (the script's own step counts are sized for a CPU: 10 steps of 100³ would time the launch).
 # Warp releases before `@wp.kernel(module=...)` existed run the copy with that argument dropped.
+# WARP_LAUNCH=plain (default) has step() call wp.launch for its two kernels; =recorded keeps the
+# script's recorded launches (`record_cmd=True`), which Warp 1.5.0 on CUDA failed with an
+# illegal memory access at 100³ (at 46³ both gave the same rate).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-python3}
@@ -22,6 +25,22 @@ copy=$(mktemp --suffix=.py)
 trap 'rm -f "$copy"' EXIT
 sed 's/^\( *dev = \)"cpu"$/\1"cuda:0"/' "$PEER_SCRIPT" > "$copy"
 grep -q 'dev = "cuda:0"' "$copy" || { echo "peers-gpu: no 'dev = \"cpu\"' line in $PEER_SCRIPT" >&2; exit 2; }
+if [ "${WARP_LAUNCH:-plain}" = plain ]; then
+  python3 - "$copy" <<'PY'
+import sys
+path = sys.argv[1]
+text = open(path).read()
+recorded = "        cmd_s.launch()\n        cmd_i.launch()\n"
+plain = (
+    "        wp.launch(springs_k, dim=S, inputs=[x, v, sa, sb, rest, scal(KS), scal(KD), f], device=dev)\n"
+    "        wp.launch(integrate_k, dim=N, inputs=[x, v, f, scal(float(n ** 3)), vec(0.0, GY, 0.0),\n"
+    "                  scal(DT), scal(RESTITUTION), int(bool(explicit))], device=dev)\n"
+)
+if recorded not in text:
+    sys.exit(f"peers-gpu: no recorded launches in step() of {path}")
+open(path, "w").write(text.replace(recorded, plain))
+PY
+fi
 if ! "$PY" -c 'import inspect, warp; raise SystemExit("module" not in inspect.signature(warp.kernel).parameters)'; then
   sed -i 's/, module="unique")/)/' "$copy"
 fi
