@@ -1,9 +1,7 @@
 // stencil.wgsl ↔ crates/cpu/src/spring_forces/stencil.rs: the fused step's springs for models
-// whose bodies are all lattices (cuboids, mesh bodies), found as constant offsets on the body's
-// lattice; prepended to fused_step.wgsl in place of gather.wgsl and fused_gather.wgsl by
-// crates/gpu/src/shaders.rs (`Stage::FusedStencil`). No spring record and no adjacency is read:
-// a spring's parameters are its offset's, one table per body (`lattice_bodies`), and its
-// partner is the point p ± d.
+// whose bodies are all lattices (cuboids, mesh bodies), found on the body's lattice by
+// lattice.wgsl; prepended to fused_step.wgsl in place of gather.wgsl and fused_gather.wgsl by
+// crates/gpu/src/shaders.rs (`Stage::FusedStencil`). No spring record and no adjacency is read.
 //
 // gather(i) has gather.wgsl's result bit for bit. The CSR run of particle i at point p is, in
 // ascending spring order, the springs ending at p (first end p − d, which ascends as the linear
@@ -14,124 +12,12 @@
 // never both end at one point (its partner would be one point at two places), so their
 // relative order in `backward` does not matter.
 
-// The springs of one lattice offset of a body (twin: `layout::LatticeOffsetGpu`).
-struct LatticeOffset {
-    // (di, dj, dk): the spring starting at point p ends at p + d.
-    d: vec3<i32>,
-    // Rest length r, m.
-    rest: f32,
-    // k_s, N/m.
-    stiffness: f32,
-    // k_d, N·s/m.
-    damping: f32,
-    // Its index in topology::OFFSETS: its bit in a masked lattice's points.
-    bit: u32,
-    _pad: u32,
-}
-
-// A lattice body (twin: `layout::LatticeBodyGpu`), one per body in particle order.
-struct LatticeBody {
-    // Its first particle and particle count.
-    first: u32,
-    count: u32,
-    // Points per axis.
-    nx: u32,
-    ny: u32,
-    nz: u32,
-    // Offsets with springs: `offsets[..n_offsets]`.
-    n_offsets: u32,
-    // A mesh body's words in `lattice_points`, NONE for a cuboid (every point a particle,
-    // particle = point, every spring whose end lies in the grid).
-    points: u32,
-    _pad: u32,
-    // In topology::OFFSETS order: the order of the springs starting at a point.
-    offsets: array<LatticeOffset, 16>,
-    // Indices into `offsets` by descending linear offset: the order of the springs ending at a
-    // point.
-    backward: array<u32, 16>,
-}
-
-@group(0) @binding(15) var<storage, read> lattice_bodies: array<LatticeBody>;
-// The masked lattices of mesh bodies, from their `points` word: the point of each of the
-// body's particles (`count` words), then per point its particle within the body (NONE where
-// there is none) and the bits of the offsets whose springs start there (two words).
-@group(0) @binding(16) var<storage, read> lattice_points: array<u32>;
-
-// The body holding particle i: the last whose first particle is at most i.
-fn lattice_body_of(i: u32) -> u32 {
-    var lo = 0u;
-    var hi = arrayLength(&lattice_bodies);
-    while hi - lo > 1u {
-        let mid = (lo + hi) / 2u;
-        if lattice_bodies[mid].first <= i {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    return lo;
-}
-
-// The springs of lattice `body`, as the thread of one particle sees them.
-struct Stencil {
-    body: u32,
-    // The lattice's points per axis.
-    dims: vec3<i32>,
-    // The particle's point.
-    p: vec3<i32>,
-}
-
-fn point_index(s: Stencil, q: vec3<i32>) -> u32 {
-    return u32(q.x + s.dims.x * (q.y + s.dims.y * q.z));
-}
-
-// The global particle at point q, which lies in the grid.
-fn particle_at(s: Stencil, q: vec3<i32>) -> u32 {
-    let body = &lattice_bodies[s.body];
-    let point = point_index(s, q);
-    if (*body).points == NONE {
-        return (*body).first + point;
-    }
-    return (*body).first + lattice_points[(*body).points + (*body).count + 2u * point];
-}
-
-// Whether the spring of `offset` starting at point a exists: a and a + d in the grid, and for a
-// mesh body, the spring kept at a.
-fn starts_at(s: Stencil, offset: LatticeOffset, a: vec3<i32>) -> bool {
-    let b = a + offset.d;
-    if any(a < vec3<i32>(0)) || any(a >= s.dims) || any(b < vec3<i32>(0)) || any(b >= s.dims) {
-        return false;
-    }
-    let body = &lattice_bodies[s.body];
-    if (*body).points == NONE {
-        return true;
-    }
-    let bits = lattice_points[(*body).points + (*body).count + 2u * point_index(s, a) + 1u];
-    return ((bits >> offset.bit) & 1u) == 1u;
-}
-
-// The spring of `offset` from particle a to particle b, as spring_force takes it.
-fn lattice_spring(offset: LatticeOffset, a: u32, b: u32) -> Spring {
-    return Spring(a, b, offset.rest, offset.stiffness, offset.damping);
-}
-
 // Σ of particle i's spring forces at the state (x, v), own_x and own_v being its own: the
 // CSR gather's sum (above).
 fn gather(i: u32) -> vec3<f32> {
-    let b = lattice_body_of(i);
-    let body = &lattice_bodies[b];
-    let dims = vec3<i32>(i32((*body).nx), i32((*body).ny), i32((*body).nz));
-    var point = i - (*body).first;
-    if (*body).points != NONE {
-        point = lattice_points[(*body).points + point];
-    }
-    let plane = (*body).nx * (*body).ny;
-    let p = vec3<i32>(
-        i32(point % (*body).nx),
-        i32((point % plane) / (*body).nx),
-        i32(point / plane),
-    );
-    let s = Stencil(b, dims, p);
+    let s = stencil_of(i);
+    let p = s.p;
+    let body = &lattice_bodies[s.body];
     let n = (*body).n_offsets;
     var sum = vec3<f32>(0.0);
     for (var r = 0u; r < n; r++) {
