@@ -40,6 +40,10 @@ fn main() -> ExitCode {
             chunked_two_dimensional,
         ),
         ("a_binding_too_small_is_refused_with_the_figures", too_small),
+        (
+            "the_stencil_runs_a_cube_whose_adjacency_exceeds_a_binding",
+            stencil_past_the_adjacency,
+        ),
     ];
     softbody_testkit::run_gpu("GPU chunk tests", tests.iter().copied())
 }
@@ -262,4 +266,35 @@ fn too_small(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         }
     }
     Ok(())
+}
+
+/// The 300³ cube on a 2 GiB binding in miniature: with 16 KiB bindings the 8×8×8 cube's
+/// per-particle arrays fit (8 KiB of positions) but its adjacency (51 KB) does not. The spring
+/// list is refused naming the adjacency; the stencil route, which holds none, runs, with the
+/// bits of the uncapped run.
+fn stencil_past_the_adjacency(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    let (model, state) = cube(Integrator::SymplecticEuler, 2e-4, BOUNCY_PLANE);
+    let cap = GpuOptions {
+        max_binding_size: Some(16 * 1024),
+        ..GpuOptions::default()
+    };
+    let listed = GpuOptions {
+        gather: true,
+        ..cap
+    };
+    let e = match GpuSolver::with_options(gpu, model.clone(), state.clone(), listed) {
+        Ok(_) => return Err("the spring list was accepted past a binding".into()),
+        Err(e) => e.to_string(),
+    };
+    println!("{e}");
+    if !e.contains("the adjacency buffer") || !e.contains("allows 16384 bytes") {
+        return Err(format!("the refusal does not name the adjacency: {e}").into());
+    }
+    let mut g = open(gpu, &model, &state, cap)?;
+    if g.statistics().kernel != "fused stencil" {
+        return Err(format!("capped: kernel {}", g.statistics().kernel).into());
+    }
+    let capped = run(&mut g, 150)?;
+    let whole = run(&mut open(gpu, &model, &state, GpuOptions::default())?, 150)?;
+    same_bits("the capped stencil", &whole, &capped)
 }
