@@ -5,7 +5,9 @@
 //! kernel; 8.4 M particles per 128 MiB of `vec4`, 4.2 M for implicit Euler's preconditioner,
 //! 2.8 M for its 48-byte contact records) and the CSR adjacency (n + 1 + 2m words: 16.7 M
 //! springs per 128 MiB). The per-spring arrays are chunked ([`crate::chunks`]) up to what one
-//! kernel may bind.
+//! kernel may bind. On the stencil route ([`crate::integrators::Route`]) there is neither an
+//! adjacency nor a per-spring array: the solver checks the lattice tables in their place and
+//! chunks no springs.
 
 use softbody_scene::{Model, State};
 

@@ -8,7 +8,8 @@
 //! dispatches: each is its own usage scope, so each sees what the previous wrote). Fused
 //! ([`crate::integrators::fused`], the explicit integrators unless bodies touch): one dispatch
 //! per integrator stage, the last of which also responds to the terrain and checks
-//! finiteness. Otherwise the integrator's ([`crate::integrators`]), then `collision_response`
+//! finiteness; where every body is a lattice, on the stencil route, decided before the upload
+//! ([`crate::integrators::Route`]), with no spring list on the host or the device. Otherwise the integrator's ([`crate::integrators`]), then `collision_response`
 //! (when there is terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
 //! is followed by the grid of the end state and the response between bodies, and (with
@@ -101,8 +102,9 @@ pub struct GpuOptions {
     /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
     /// explicit integrators fall back to the per-spring path.
     pub max_storage_buffers: Option<u32>,
-    /// The fused step through the spring records and the CSR adjacency even where every body
-    /// is a lattice (which takes the stencil), to compare the two.
+    /// The fused step through the spring records and the CSR adjacency (the spring list
+    /// uploaded) even where every body is a lattice (which takes the stencil route, without
+    /// the list), to compare the two.
     pub gather: bool,
 }
 
