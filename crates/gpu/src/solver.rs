@@ -9,8 +9,9 @@
 //! ([`crate::integrators::fused`], the explicit integrators unless bodies touch): one dispatch
 //! per integrator stage, the last of which also responds to the terrain and checks
 //! finiteness; where every body is a lattice, on the stencil route, decided before the upload
-//! ([`crate::integrators::Route`]), with no spring list on the host or the device. Otherwise the integrator's ([`crate::integrators`]), then `collision_response`
-//! (when there is terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
+//! ([`crate::integrators::Route`]), with no spring list on the host or the device. Otherwise
+//! the integrator's ([`crate::integrators`]), then `collision_response` (when there is
+//! terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
 //! is followed by the grid of the end state and the response between bodies, and (with
 //! terrain) by the terrain's record of the next step's start, which that response changed.
