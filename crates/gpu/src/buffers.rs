@@ -4,15 +4,22 @@
 //! Vectors are `vec4<f32>` (w = 0); masses are `vec2(m, 1/m)` and the CSR adjacency is its
 //! offsets followed by its entries in one `u32` buffer, which keeps the force kernel at 8
 //! storage buffers with the terrain's (WebGPU's guaranteed minimum).
+//!
+//! The springs are on the device as the run's [`Route`] reads them ([`SpringBuffers`]): on the
+//! stencil route only the lattices' tables, which is what makes it lean (no spring record, no
+//! adjacency, no per-spring vector: 20 + 8 + 16 bytes per spring, about 13 springs per
+//! particle, and the list is never built on the host either); on every other route the
+//! spring list.
 
 use glam::{DVec3, Vec3};
 use softbody_scene::{Model, State};
 
 use crate::builder::Builder;
 use crate::chunks::SpringChunks;
+use crate::integrators::Route;
 use crate::kernel::Resources;
-use crate::layout::{Params, SpringGpu, Status, StepIndex};
-use crate::{STEPS_PER_SUBMISSION, VEC4, WORKGROUP_SIZE};
+use crate::layout::{LatticeBodyGpu, Params, SpringGpu, Status, StepIndex};
+use crate::{STEPS_PER_SUBMISSION, VEC4};
 
 /// The buffers of the model and state.
 pub(crate) struct ModelBuffers {
@@ -22,16 +29,10 @@ pub(crate) struct ModelBuffers {
     pub x: wgpu::Buffer,
     /// Velocities.
     pub v: wgpu::Buffer,
-    /// Accelerations of the last force evaluation.
-    pub a: wgpu::Buffer,
     /// (m, 1/m) per particle.
     pub mass: wgpu::Buffer,
-    /// CSR offsets then entries.
-    pub adjacency: wgpu::Buffer,
-    /// Spring records, one buffer per chunk.
-    pub springs: Vec<wgpu::Buffer>,
-    /// Per-spring vectors (forces, implicit Euler's products), one buffer per chunk.
-    pub per_spring: Vec<wgpu::Buffer>,
+    /// The springs, as the route reads them.
+    pub springs: SpringBuffers,
     /// The instability record of a submission.
     pub status: wgpu::Buffer,
     /// [`StepIndex`] 1..=[`STEPS_PER_SUBMISSION`], one per `step_stride` bytes.
@@ -40,32 +41,57 @@ pub(crate) struct ModelBuffers {
     pub step_stride: u64,
     /// Per-workgroup partial sums of the particle energies.
     pub particle_partials: wgpu::Buffer,
-    /// Per-workgroup partial sums of the spring energies.
+    /// Per-workgroup partial sums of the spring energies (per spring workgroup, or on the
+    /// stencil route per particle workgroup: [`crate::energy`]).
     pub spring_partials: wgpu::Buffer,
 }
 
+/// The springs on the device.
+pub(crate) enum SpringBuffers {
+    /// The stencil route: each lattice body's table and the mesh bodies' masks
+    /// (`lattice_bodies`, `lattice_points` of `shaders/lattice.wgsl`).
+    Lattices {
+        bodies: wgpu::Buffer,
+        points: wgpu::Buffer,
+    },
+    /// Every other route.
+    List(SpringList),
+}
+
+/// The spring list on the device and what the per-spring kernels write.
+pub(crate) struct SpringList {
+    /// Accelerations of the last force evaluation (the per-spring path's gather).
+    pub a: wgpu::Buffer,
+    /// CSR offsets then entries.
+    pub adjacency: wgpu::Buffer,
+    /// Spring records, one buffer per chunk.
+    pub records: Vec<wgpu::Buffer>,
+    /// Per-spring vectors (forces, implicit Euler's products), one buffer per chunk.
+    pub per_spring: Vec<wgpu::Buffer>,
+}
+
 impl ModelBuffers {
-    /// Uploads `model` and `state` (rounded to f32), split into `chunks`.
+    /// Uploads `model` and `state` (rounded to f32) for `route`: on the stencil route the
+    /// lattices, otherwise the spring list split into `chunks`, with `spring_groups` energy
+    /// partial sums of the springs.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         builder: &Builder,
         model: &Model,
         state: &State,
+        route: Route,
         chunks: &SpringChunks,
         n_surfaces: u32,
         particle_groups: u64,
+        spring_groups: u64,
         uniform_alignment: u32,
     ) -> ModelBuffers {
-        let n = model.len() as u64;
-        let mut adjacency = model.adjacency().offsets.clone();
-        adjacency.extend_from_slice(&model.adjacency().entries);
         let mass: Vec<[f32; 2]> = model
             .mass
             .iter()
             .zip(&model.inv_mass)
             .map(|(&m, &w)| [m as f32, w as f32])
             .collect();
-        let springs = SpringGpu::pack(model.springs());
-        let spring_size = std::mem::size_of::<SpringGpu>();
         let step_stride = u64::from(uniform_alignment).max(std::mem::size_of::<StepIndex>() as u64);
         let mut step_indices = vec![0u8; (STEPS_PER_SUBMISSION * step_stride) as usize];
         for k in 0..STEPS_PER_SUBMISSION {
@@ -78,6 +104,24 @@ impl ModelBuffers {
                 .copy_from_slice(bytemuck::bytes_of(&index));
         }
         let params = Params::new(model, n_surfaces);
+        let springs = match route {
+            Route::Stencil => {
+                let (bodies, points) = LatticeBodyGpu::pack(model.lattices());
+                SpringBuffers::Lattices {
+                    bodies: builder.storage_init(
+                        "lattice_bodies",
+                        bytemuck::cast_slice(&bodies),
+                        std::mem::size_of::<LatticeBodyGpu>(),
+                    ),
+                    points: builder.storage_init(
+                        "lattice_points",
+                        bytemuck::cast_slice(&points),
+                        4,
+                    ),
+                }
+            }
+            Route::Springs => SpringBuffers::List(SpringList::new(builder, model, chunks)),
+        };
         ModelBuffers {
             params: builder.init(
                 "params",
@@ -86,10 +130,84 @@ impl ModelBuffers {
             ),
             x: builder.storage_init("x", bytemuck::cast_slice(&vec4s(&state.x)), 16),
             v: builder.storage_init("v", bytemuck::cast_slice(&vec4s(&state.v)), 16),
-            a: builder.storage("a", n, VEC4),
             mass: builder.storage_init("mass", bytemuck::cast_slice(&mass), 8),
+            springs,
+            status: builder.storage_init("status", bytemuck::bytes_of(&Status::RESET), 16),
+            step_indices: builder.init("step_indices", &step_indices, wgpu::BufferUsages::UNIFORM),
+            step_stride,
+            particle_partials: builder.storage("particle_partials", particle_groups, 8),
+            spring_partials: builder.storage("spring_partials", spring_groups, 4),
+        }
+    }
+
+    /// The spring list, `None` on the stencil route.
+    pub fn list(&self) -> Option<&SpringList> {
+        match &self.springs {
+            SpringBuffers::List(list) => Some(list),
+            SpringBuffers::Lattices { .. } => None,
+        }
+    }
+
+    /// The buffers by their shader names, as the per-particle kernels bind them: the state,
+    /// the model (the lattices, or the adjacency and the per-spring vectors' chunks for the
+    /// gathers), the status and the step index (one slot: the dispatch picks which by its
+    /// dynamic offset), the energy partials.
+    pub fn resources(&self) -> Resources<'_> {
+        let resources = Resources::default()
+            .buffer("params", &self.params)
+            .buffer("x", &self.x)
+            .buffer("v", &self.v)
+            .buffer("mass", &self.mass)
+            .buffer("status", &self.status)
+            .resource(
+                "step_index",
+                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &self.step_indices,
+                    offset: 0,
+                    size: std::num::NonZeroU64::new(std::mem::size_of::<StepIndex>() as u64),
+                }),
+            )
+            .buffer("particle_partials", &self.particle_partials)
+            .buffer("spring_partials", &self.spring_partials);
+        match &self.springs {
+            SpringBuffers::Lattices { bodies, points } => resources
+                .buffer("lattice_bodies", bodies)
+                .buffer("lattice_points", points),
+            SpringBuffers::List(list) => resources
+                .buffer("a", &list.a)
+                .buffer("adjacency", &list.adjacency)
+                .chunks("per_spring", "per_spring", &list.per_spring),
+        }
+    }
+
+    /// [`ModelBuffers::resources`] as a per-spring kernel of chunk `c` binds them: its springs,
+    /// its per-spring vectors (`per_spring`, or `per_spring_out` in `system.wgsl`) and its
+    /// [`SpringChunk`](crate::layout::SpringChunk) uniform (`chunk`). On the stencil route,
+    /// which has no per-spring array, only the latter: a per-spring kernel then fails to bind.
+    pub fn chunk_resources<'a>(&'a self, chunks: &'a SpringChunks, c: usize) -> Resources<'a> {
+        let resources = self.resources().resource("chunk", chunks.uniform(c));
+        match self.list() {
+            Some(list) => resources
+                .buffer("springs", &list.records[c])
+                .buffer("per_spring", &list.per_spring[c])
+                .buffer("per_spring_out", &list.per_spring[c]),
+            None => resources,
+        }
+    }
+}
+
+impl SpringList {
+    /// The spring list of `model` (built on the host if it was not) split into `chunks`, and
+    /// the per-spring path's buffers.
+    fn new(builder: &Builder, model: &Model, chunks: &SpringChunks) -> SpringList {
+        let mut adjacency = model.adjacency().offsets.clone();
+        adjacency.extend_from_slice(&model.adjacency().entries);
+        let springs = SpringGpu::pack(model.springs());
+        let spring_size = std::mem::size_of::<SpringGpu>();
+        SpringList {
+            a: builder.storage("a", model.len() as u64, VEC4),
             adjacency: builder.storage_init("adjacency", bytemuck::cast_slice(&adjacency), 4),
-            springs: chunks
+            records: chunks
                 .ranges
                 .iter()
                 .map(|&(base, count)| {
@@ -106,52 +224,7 @@ impl ModelBuffers {
                 .iter()
                 .map(|&(_, count)| builder.storage("per_spring", count, VEC4))
                 .collect(),
-            status: builder.storage_init("status", bytemuck::bytes_of(&Status::RESET), 16),
-            step_indices: builder.init("step_indices", &step_indices, wgpu::BufferUsages::UNIFORM),
-            step_stride,
-            particle_partials: builder.storage("particle_partials", particle_groups, 8),
-            spring_partials: builder.storage(
-                "spring_partials",
-                (model.springs().len() as u64).div_ceil(WORKGROUP_SIZE),
-                4,
-            ),
         }
-    }
-
-    /// The buffers by their shader names, as the per-particle kernels bind them: the state,
-    /// the model, the per-spring vectors' chunks for the gathers, the status and the step index
-    /// (one slot: the dispatch picks which by its dynamic offset), the energy partials.
-    pub fn resources(&self) -> Resources<'_> {
-        Resources::default()
-            .buffer("params", &self.params)
-            .buffer("x", &self.x)
-            .buffer("v", &self.v)
-            .buffer("a", &self.a)
-            .buffer("mass", &self.mass)
-            .buffer("adjacency", &self.adjacency)
-            .chunks("per_spring", "per_spring", &self.per_spring)
-            .buffer("status", &self.status)
-            .resource(
-                "step_index",
-                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &self.step_indices,
-                    offset: 0,
-                    size: std::num::NonZeroU64::new(std::mem::size_of::<StepIndex>() as u64),
-                }),
-            )
-            .buffer("particle_partials", &self.particle_partials)
-            .buffer("spring_partials", &self.spring_partials)
-    }
-
-    /// [`ModelBuffers::resources`] as a per-spring kernel of chunk `c` binds them: its springs,
-    /// its per-spring vectors (`per_spring`, or `per_spring_out` in `system.wgsl`) and its
-    /// [`SpringChunk`](crate::layout::SpringChunk) uniform (`chunk`).
-    pub fn chunk_resources<'a>(&'a self, chunks: &'a SpringChunks, c: usize) -> Resources<'a> {
-        self.resources()
-            .buffer("springs", &self.springs[c])
-            .buffer("per_spring", &self.per_spring[c])
-            .buffer("per_spring_out", &self.per_spring[c])
-            .resource("chunk", chunks.uniform(c))
     }
 }
 

@@ -14,7 +14,7 @@ use crate::chunks::Chunking;
 use crate::chunks::SpringChunks;
 use crate::device::Gpu;
 use crate::grid::Grid;
-use crate::kernel::{self, Binding, Call, Kernel, Module, Resources, Traffic};
+use crate::kernel::{self, Binding, Call, Kernel, Module, Parsed, Resources, Traffic};
 use crate::shaders::Stage;
 use crate::terrain::{SurfaceGpu, TerrainBuffers};
 
@@ -86,7 +86,7 @@ impl Builder {
         chunking: Chunking,
         packed: &TerrainBuffers,
     ) -> Result<Builder, GpuError> {
-        let entries = kernel::terrain_entries().map_err(|e| internal(&gpu, e))?;
+        let entries = kernel::terrain_entries().map_err(|e| internal(&gpu.name(), e))?;
         let device = &gpu.device;
         let terrain_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("terrain"),
@@ -114,7 +114,7 @@ impl Builder {
             .map(|(name, entry)| {
                 let resource = resources.get(name).ok_or_else(|| {
                     internal(
-                        &gpu,
+                        &gpu.name(),
                         format!("terrain.wgsl declares an unknown binding `{name}`"),
                     )
                 })?;
@@ -190,7 +190,7 @@ impl Builder {
     fn module(&self, stage: Stage) -> Result<std::cell::Ref<'_, Module>, GpuError> {
         if !self.modules.borrow().contains_key(&stage) {
             let module = Module::new(&self.gpu.device, stage, stage.source_chunked(self.chunking))
-                .map_err(|e| internal(&self.gpu, e))?;
+                .map_err(|e| internal(&self.gpu.name(), e))?;
             self.modules.borrow_mut().insert(stage, module);
         }
         Ok(std::cell::Ref::map(self.modules.borrow(), |m| &m[&stage]))
@@ -202,7 +202,7 @@ impl Builder {
         let (bindings, terrain) = self
             .module(stage)?
             .reflect(entry)
-            .map_err(|e| internal(&self.gpu, e))?;
+            .map_err(|e| internal(&self.gpu.name(), e))?;
         self.check_bindings(stage, entry, &bindings, terrain)
     }
 
@@ -214,13 +214,12 @@ impl Builder {
             entry,
             &self.terrain_layout,
         )
-        .map_err(|e| internal(&self.gpu, e))?;
+        .map_err(|e| internal(&self.gpu.name(), e))?;
         self.check_bindings(stage, entry, kernel.bindings(), kernel.terrain())?;
         Ok(kernel)
     }
 
-    /// [`GpuError::Limit`] if the adapter cannot bind `bindings` (and the terrain's group, if
-    /// `terrain`) for `entry` of `stage`.
+    /// [`check_bindings`] under the builder's limits.
     fn check_bindings(
         &self,
         stage: Stage,
@@ -229,28 +228,14 @@ impl Builder {
         terrain: bool,
     ) -> Result<(), GpuError> {
         let storage = kernel::storage_buffers(bindings, terrain, self.terrain_buffers);
-        let allowed = self.limits.max_storage_buffers_per_shader_stage;
-        if storage > allowed {
-            return Err(GpuError::Limit {
-                adapter: self.gpu.name(),
-                limit: "max_storage_buffers_per_shader_stage",
-                what: format!("the kernel {entry} ({})", stage.file()),
-                needed: format!("{storage} storage buffers"),
-                available: format!("{allowed}"),
-            });
-        }
-        if let Some(b) = bindings.last()
-            && b.binding >= self.limits.max_bindings_per_bind_group
-        {
-            return Err(GpuError::Limit {
-                adapter: self.gpu.name(),
-                limit: "max_bindings_per_bind_group",
-                what: format!("the kernel {entry} ({})", stage.file()),
-                needed: format!("binding numbers up to {}", b.binding),
-                available: format!("{}", self.limits.max_bindings_per_bind_group),
-            });
-        }
-        Ok(())
+        check_bindings(
+            &self.limits,
+            &self.gpu.name(),
+            stage,
+            entry,
+            bindings,
+            storage,
+        )
     }
 
     /// What the calls made here have dispatched.
@@ -268,7 +253,7 @@ impl Builder {
         let kernel = self.kernel(stage, entry)?;
         kernel
             .call(&self.gpu.device, resources, &self.terrain, &self.traffic)
-            .map_err(|e| internal(&self.gpu, e))
+            .map_err(|e| internal(&self.gpu.name(), e))
     }
 
     /// Calls of `entry` in `stage`, one per resource table of `tables` (a per-spring kernel's
@@ -285,10 +270,69 @@ impl Builder {
             .map(|resources| {
                 kernel
                     .call(&self.gpu.device, &resources, &self.terrain, &self.traffic)
-                    .map_err(|e| internal(&self.gpu, e))
+                    .map_err(|e| internal(&self.gpu.name(), e))
             })
             .collect()
     }
+}
+
+/// Whether an adapter with `limits` can bind what each of `entries` of `stage` binds (its
+/// per-spring arrays split as `chunking`): [`GpuError::Limit`] naming the first that cannot.
+/// [`Builder::fits`] without a builder: found by reflection on the composed module alone, before
+/// anything is allocated or compiled (a run's route is decided with it).
+pub(crate) fn fits(
+    limits: &wgpu::Limits,
+    adapter: &str,
+    stage: Stage,
+    entries: &[&'static str],
+    chunking: Chunking,
+) -> Result<(), GpuError> {
+    let parsed =
+        Parsed::new(stage, &stage.source_chunked(chunking)).map_err(|e| internal(adapter, e))?;
+    let terrain_buffers = kernel::terrain_entries()
+        .map_err(|e| internal(adapter, e))?
+        .len() as u32;
+    for &entry in entries {
+        let (bindings, terrain) =
+            kernel::reflect(&parsed, entry).map_err(|e| internal(adapter, e))?;
+        let storage = kernel::storage_buffers(&bindings, terrain, terrain_buffers);
+        check_bindings(limits, adapter, stage, entry, &bindings, storage)?;
+    }
+    Ok(())
+}
+
+/// [`GpuError::Limit`] if an adapter with `limits` cannot bind `bindings` (`storage` storage
+/// buffers with the terrain's) for `entry` of `stage`.
+fn check_bindings(
+    limits: &wgpu::Limits,
+    adapter: &str,
+    stage: Stage,
+    entry: &'static str,
+    bindings: &[Binding],
+    storage: u32,
+) -> Result<(), GpuError> {
+    let allowed = limits.max_storage_buffers_per_shader_stage;
+    if storage > allowed {
+        return Err(GpuError::Limit {
+            adapter: adapter.to_owned(),
+            limit: "max_storage_buffers_per_shader_stage",
+            what: format!("the kernel {entry} ({})", stage.file()),
+            needed: format!("{storage} storage buffers"),
+            available: format!("{allowed}"),
+        });
+    }
+    if let Some(b) = bindings.last()
+        && b.binding >= limits.max_bindings_per_bind_group
+    {
+        return Err(GpuError::Limit {
+            adapter: adapter.to_owned(),
+            limit: "max_bindings_per_bind_group",
+            what: format!("the kernel {entry} ({})", stage.file()),
+            needed: format!("binding numbers up to {}", b.binding),
+            available: format!("{}", limits.max_bindings_per_bind_group),
+        });
+    }
+    Ok(())
 }
 
 /// `bytes`, or one zeroed element of `element` bytes if empty: wgpu refuses to bind an empty
@@ -302,9 +346,9 @@ fn at_least(bytes: &[u8], element: usize) -> Vec<u8> {
 }
 
 /// A defect of the shaders or of the host's wiring, reported rather than panicking.
-fn internal(gpu: &Gpu, message: String) -> GpuError {
+fn internal(adapter: &str, message: String) -> GpuError {
     GpuError::Device {
-        adapter: gpu.name(),
+        adapter: adapter.to_owned(),
         message: format!("internal error in the GPU solver's kernels: {message}"),
     }
 }

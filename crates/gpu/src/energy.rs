@@ -3,23 +3,27 @@
 //!
 //! Each workgroup sums its particles' (or springs') terms in a fixed tree and writes one
 //! partial sum; the host reads the partials back and adds them in order, in f64: the same bits
-//! every run on one adapter.
+//! every run on one adapter. The springs' terms are summed per spring chunk over the spring
+//! list (`energy_springs`), or on the stencil route, which has none, per particle over the
+//! springs starting at its lattice point (`energy_lattices`, twin of
+//! `softbody_cpu::energy::energy_lattices`).
 
 use softbody_scene::{Energies, StepError};
 
-use crate::buffers::ModelBuffers;
+use crate::GpuError;
+use crate::buffers::{ModelBuffers, SpringBuffers};
 use crate::builder::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
 use crate::submit::Submitter;
-use crate::{GpuError, WORKGROUP_SIZE};
 
 /// The energy reductions of the solver's state.
 pub(crate) struct Energy {
     particles: Call,
     particle_grid: Grid,
-    /// One call per spring chunk, with its grid.
+    /// One call per spring chunk, with its grid; on the stencil route one call over the
+    /// particles.
     springs: Vec<(Call, Grid)>,
     particle_partials: wgpu::Buffer,
     spring_partials: wgpu::Buffer,
@@ -29,23 +33,33 @@ pub(crate) struct Energy {
 }
 
 impl Energy {
-    /// The reductions of the solver's state, for a model of `springs` springs.
-    pub fn new(s: Setup<'_>, springs: u64) -> Result<Energy, GpuError> {
+    /// The reductions of the solver's state, with `spring_groups` partial sums of the springs'
+    /// terms.
+    pub fn new(s: Setup<'_>, spring_groups: u64) -> Result<Energy, GpuError> {
         let b: &ModelBuffers = s.buffers;
-        let chunk_calls = s.per_chunk(Stage::Energy, "energy_springs", |_, r| r)?;
+        let springs = match b.springs {
+            SpringBuffers::Lattices { .. } => {
+                let call = s
+                    .builder
+                    .call(Stage::Energy, "energy_lattices", &b.resources())?;
+                vec![(call, s.particles)]
+            }
+            SpringBuffers::List(_) => s
+                .per_chunk(Stage::Energy, "energy_springs", |_, r| r)?
+                .into_iter()
+                .zip(s.chunks.grids.iter().copied())
+                .collect(),
+        };
         Ok(Energy {
             particles: s
                 .builder
                 .call(Stage::Energy, "energy_particles", &b.resources())?,
             particle_grid: s.particles,
-            springs: chunk_calls
-                .into_iter()
-                .zip(s.chunks.grids.iter().copied())
-                .collect(),
+            springs,
             particle_partials: b.particle_partials.clone(),
             spring_partials: b.spring_partials.clone(),
             particle_bytes: s.particles.groups() * 8,
-            spring_bytes: springs.div_ceil(WORKGROUP_SIZE) * 4,
+            spring_bytes: spring_groups * 4,
         })
     }
 

@@ -79,7 +79,7 @@ impl SpringGpu {
 }
 
 /// The springs of one lattice offset of a body: twin of `LatticeOffset` in
-/// `shaders/stencil.wgsl`.
+/// `shaders/lattice.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct LatticeOffsetGpu {
@@ -98,7 +98,7 @@ pub struct LatticeOffsetGpu {
     pub linear: i32,
 }
 
-/// One lattice body: twin of `LatticeBody` in `shaders/stencil.wgsl`.
+/// One lattice body: twin of `LatticeBody` in `shaders/lattice.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct LatticeBodyGpu {
@@ -130,7 +130,7 @@ impl LatticeBodyGpu {
     /// point of each particle, then per point its particle (`LatticeMask::NONE` where none) and
     /// its spring bits.
     pub fn pack(lattices: &[Lattice]) -> (Vec<LatticeBodyGpu>, Vec<u32>) {
-        let mut points = Vec::new();
+        let mut points = Vec::with_capacity(LatticeBodyGpu::point_words(lattices) as usize);
         let bodies = lattices
             .iter()
             .map(|lattice| {
@@ -181,6 +181,18 @@ impl LatticeBodyGpu {
             })
             .collect();
         (bodies, points)
+    }
+
+    /// The words of the mesh bodies' masks [`LatticeBodyGpu::pack`] makes, without making
+    /// them: per mesh body one per particle and two per lattice point.
+    pub fn point_words(lattices: &[Lattice]) -> u64 {
+        (lattices.iter())
+            .filter_map(|l| l.mask.as_ref())
+            .map(|mask| {
+                let kept = mask.particle_of.iter().filter(|&&q| q != LatticeMask::NONE);
+                kept.count() as u64 + 2 * mask.particle_of.len() as u64
+            })
+            .sum()
     }
 }
 
@@ -427,4 +439,49 @@ pub struct ScanLevel {
     pub sums: u32,
     /// Padding to WGSL's 16-byte uniform size.
     pub _pad: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softbody_scene::LatticeSpring;
+
+    /// A mesh body's mask packs into one word per particle and two per point, as
+    /// `point_words` counts without packing (the limits check sizes the buffer by it); a
+    /// cuboid has none.
+    #[test]
+    fn point_words_count_what_pack_makes() {
+        let spring = LatticeSpring {
+            offset: 0,
+            rest: 0.1,
+            stiffness: 100.0,
+            damping: 1.0,
+        };
+        let cuboid = Lattice {
+            body: 0,
+            first: 0,
+            dims: [3, 2, 2],
+            springs: vec![spring],
+            mask: None,
+        };
+        // A 3 × 2 × 1 lattice with points 1 and 4 empty: particles 0..4 at points 0, 2, 3, 5.
+        let none = LatticeMask::NONE;
+        let mesh = Lattice {
+            body: 1,
+            first: 12,
+            dims: [3, 2, 1],
+            springs: vec![spring],
+            mask: Some(LatticeMask {
+                particle_of: vec![0, none, 1, 2, none, 3],
+                springs: vec![0, 0, 0, 1, 0, 0],
+            }),
+        };
+        let lattices = [cuboid, mesh];
+        let (bodies, points) = LatticeBodyGpu::pack(&lattices);
+        assert_eq!(LatticeBodyGpu::point_words(&lattices), 4 + 2 * 6);
+        assert_eq!(points.len(), 4 + 2 * 6);
+        assert_eq!(&points[..4], &[0, 2, 3, 5]);
+        assert_eq!((bodies[0].points, bodies[1].points), (u32::MAX, 0));
+        assert_eq!(LatticeBodyGpu::point_words(&lattices[..1]), 0);
+    }
 }

@@ -5,7 +5,9 @@
 //! kernel; 8.4 M particles per 128 MiB of `vec4`, 4.2 M for implicit Euler's preconditioner,
 //! 2.8 M for its 48-byte contact records) and the CSR adjacency (n + 1 + 2m words: 16.7 M
 //! springs per 128 MiB). The per-spring arrays are chunked ([`crate::chunks`]) up to what one
-//! kernel may bind.
+//! kernel may bind. On the stencil route ([`crate::integrators::Route`]) there is neither an
+//! adjacency nor a per-spring array: the solver checks the lattice tables in their place and
+//! chunks no springs.
 
 use softbody_scene::{Model, State};
 
@@ -84,19 +86,26 @@ pub(crate) fn check_f32(model: &Model, state: &State) -> Result<(), GpuError> {
     if !divisor(sim.dt) {
         return refuse("dt, in seconds,".to_owned(), sim.dt);
     }
-    let springs = model.springs();
-    for s in 0..springs.len() {
-        let (k, d, r) = (springs.stiffness[s], springs.damping[s], springs.rest[s]);
-        if !fits(k) || !fits(d) || !divisor(r) {
-            let (what, value) = if !fits(k) {
-                ("stiffness, in N/m,", k)
+    // Streamed, not listed: a lattice body's springs exist only as its stencil, and the
+    // stencil route never builds the list (a 300³ cube's would take 13.7 GB).
+    let mut first_bad = None;
+    let mut s = 0u64;
+    model.for_each_spring(|_, _, r, k, d| {
+        if first_bad.is_none() {
+            first_bad = if !fits(k) {
+                Some((s, "stiffness, in N/m,", k))
             } else if !fits(d) {
-                ("damping, in N·s/m,", d)
+                Some((s, "damping, in N·s/m,", d))
+            } else if !divisor(r) {
+                Some((s, "rest length, in metres,", r))
             } else {
-                ("rest length, in metres,", r)
+                None
             };
-            return refuse(format!("the {what} of spring {s}"), value);
         }
+        s += 1;
+    });
+    if let Some((s, what, value)) = first_bad {
+        return refuse(format!("the {what} of spring {s}"), value);
     }
     Ok(())
 }
@@ -326,6 +335,45 @@ mod tests {
         assert!(e.starts_with("a gravity component"), "{e}");
         let e = scene(ok, "[0.0, -9.81, 0.0]", "1e-50").unwrap_err();
         assert!(e.starts_with("the mass of particle 1"), "{e}");
+    }
+
+    /// A lattice body's spring beyond f32 is named by its index in `Model::springs`' order,
+    /// found by streaming the springs: the model builds no spring list for the check.
+    #[test]
+    fn springs_beyond_f32_are_refused_without_listing_them() {
+        let cuboid = |name: &str, x: f64, bending: f64| {
+            format!(
+                "[[body]]\nname = \"{name}\"\nkind = \"cuboid\"\nsize = [0.1, 0.1, 0.1]\n\
+                 resolution = [3, 3, 3]\ncenter = [{x}, 0.5, 0.0]\nmass = 1.0\n\
+                 bending = {{ stiffness = {bending:e} }}\n"
+            )
+        };
+        let text = format!(
+            "[simulation]\ndt = 0.001\nduration = 0.01\n{}{}",
+            cuboid("a", 0.0, 100.0),
+            cuboid("b", 1.0, 1e39)
+        );
+        let scene = softbody_scene::Scene::from_toml(&text, "t.toml".as_ref()).unwrap();
+        let (model, state) = Model::build(&scene);
+        let lean = model.memory_bytes();
+        let e = check_f32(&model, &state).unwrap_err().to_string();
+        assert_eq!(
+            model.memory_bytes(),
+            lean,
+            "the check built the spring list"
+        );
+        let springs = model.springs();
+        let first = (0..springs.len())
+            .find(|&s| springs.stiffness[s] == 1e39)
+            .unwrap();
+        assert!(
+            first > 0 && springs.a[first] >= 27,
+            "in the second body: {first}"
+        );
+        assert!(
+            e.starts_with(&format!("the stiffness, in N/m, of spring {first} = 1e39")),
+            "{e}"
+        );
     }
 
     /// Bytes of a `vec4<f32>`.

@@ -6,7 +6,8 @@
 //! (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR gather) for the
 //! stages that gather over the springs (and `fused_gather.wgsl`, the spring records the fused step
 //! reads, or `stencil.wgsl`, the lattices it reads instead, for the fused step's two variants),
-//! `terrain.wgsl` for the stages that query the terrain,
+//! `lattice.wgsl` (the springs found on the lattices) for the stages of the stencil route (the
+//! stencil and the energies), `terrain.wgsl` for the stages that query the terrain,
 //! then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the stages that
 //! compute accelerations, `response.wgsl` (the collision response) for the stages that respond,
 //! and `neighbours.wgsl` (the hashed grid of contact between bodies) for the stages that build
@@ -47,6 +48,8 @@ pub const RESPONSE: &str = include_str!("../../../shaders/response.wgsl");
 pub const FINITE: &str = include_str!("../../../shaders/finite.wgsl");
 /// `shaders/fused_gather.wgsl`.
 pub const FUSED_GATHER: &str = include_str!("../../../shaders/fused_gather.wgsl");
+/// `shaders/lattice.wgsl`.
+pub const LATTICE: &str = include_str!("../../../shaders/lattice.wgsl");
 /// `shaders/stencil.wgsl`.
 pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
 /// `shaders/updates.wgsl`.
@@ -157,7 +160,7 @@ pub enum Stage {
     CollisionResponse,
     /// `check_finite.wgsl`.
     CheckFinite,
-    /// `energy.wgsl`.
+    /// `energy.wgsl` (with the lattices, for the stencil route's `energy_lattices`).
     Energy,
     /// `system.wgsl` (implicit Euler's linear system).
     System,
@@ -176,8 +179,8 @@ pub enum Stage {
     /// `fused_step.wgsl` (with terrain and contact): the explicit integrators' stages, one
     /// dispatch each, gathering through the CSR adjacency and the spring records.
     FusedStep,
-    /// `fused_step.wgsl` with `stencil.wgsl`: [`Stage::FusedStep`]'s kernels for models whose
-    /// bodies are all lattices, their springs found on the lattices.
+    /// `fused_step.wgsl` with `lattice.wgsl` and `stencil.wgsl`: [`Stage::FusedStep`]'s kernels
+    /// for models whose bodies are all lattices, their springs found on the lattices.
     FusedStencil,
 }
 
@@ -294,6 +297,12 @@ impl Stage {
         matches!(self, Stage::Forces | Stage::System | Stage::FusedStep)
     }
 
+    /// Whether its module includes `lattice.wgsl`: the stages of the stencil route (the energies
+    /// carry `energy_lattices` beside the spring list's `energy_springs`).
+    fn uses_lattices(self) -> bool {
+        matches!(self, Stage::Energy | Stage::FusedStencil)
+    }
+
     /// Whether its module includes `contact.wgsl` and `acceleration.wgsl`.
     fn uses_acceleration(self) -> bool {
         matches!(self, Stage::Forces | Stage::FusedStep | Stage::FusedStencil)
@@ -340,6 +349,9 @@ impl Stage {
         }
         if self.uses_gather() {
             pieces.push(("gather.wgsl", GATHER));
+        }
+        if self.uses_lattices() {
+            pieces.push(("lattice.wgsl", LATTICE));
         }
         match self {
             Stage::FusedStep => pieces.push(("fused_gather.wgsl", FUSED_GATHER)),

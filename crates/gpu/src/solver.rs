@@ -8,8 +8,10 @@
 //! dispatches: each is its own usage scope, so each sees what the previous wrote). Fused
 //! ([`crate::integrators::fused`], the explicit integrators unless bodies touch): one dispatch
 //! per integrator stage, the last of which also responds to the terrain and checks
-//! finiteness. Otherwise the integrator's ([`crate::integrators`]), then `collision_response`
-//! (when there is terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
+//! finiteness; where every body is a lattice, on the stencil route, decided before the upload
+//! ([`crate::integrators::Route`]), with no spring list on the host or the device. Otherwise
+//! the integrator's ([`crate::integrators`]), then `collision_response` (when there is
+//! terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
 //! is followed by the grid of the end state and the response between bodies, and (with
 //! terrain) by the terrain's record of the next step's start, which that response changed.
@@ -67,8 +69,8 @@ use crate::collision_response::CollisionResponse;
 use crate::device::Gpu;
 use crate::energy::Energy;
 use crate::grid::Grid;
-use crate::integrators::Stepper;
-use crate::layout::{CandidateGpu, NONE, SpringBlockGpu, SpringGpu, Status};
+use crate::integrators::{Route, Stepper};
+use crate::layout::{CandidateGpu, LatticeBodyGpu, NONE, SpringBlockGpu, SpringGpu, Status};
 use crate::limits::{Need, check_chunks, check_f32, check_limits};
 use crate::submit::Submitter;
 use crate::{GpuError, VEC4, WORKGROUP_SIZE, terrain};
@@ -101,8 +103,9 @@ pub struct GpuOptions {
     /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
     /// explicit integrators fall back to the per-spring path.
     pub max_storage_buffers: Option<u32>,
-    /// The fused step through the spring records and the CSR adjacency even where every body
-    /// is a lattice (which takes the stencil), to compare the two.
+    /// The fused step through the spring records and the CSR adjacency (the spring list
+    /// uploaded) even where every body is a lattice (which takes the stencil route, without
+    /// the list), to compare the two.
     pub gather: bool,
 }
 
@@ -202,12 +205,17 @@ impl GpuSolver {
         }
         check_f32(&model, &state)?;
         let n = model.len() as u64;
-        let m = model.spring_count() as u64;
         let packed = terrain::pack(&model.terrain);
+        let route = Route::of(&model, &options, &limits, &adapter)?;
+        // Springs on the device: none on the stencil route, which finds them on the lattices.
+        let m = match route {
+            Route::Stencil => 0,
+            Route::Springs => model.spring_count() as u64,
+        };
         check_limits(
             &limits,
             &adapter,
-            &needs(&model, &packed),
+            &needs(&model, &packed, route),
             2 * n * VEC4,
             &[
                 ("particle", n),
@@ -238,6 +246,12 @@ impl GpuSolver {
         let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
+        // The energies' partial sums of the springs: per spring workgroup, or on the stencil
+        // route per particle workgroup (`energy_lattices`).
+        let spring_groups = match route {
+            Route::Stencil => particles.groups(),
+            Route::Springs => m.div_ceil(WORKGROUP_SIZE),
+        };
         let built = (|| {
             let builder = Builder::new(gpu.clone(), limits, chunking, &packed)?;
             let n_surfaces = packed.surfaces.len() as u32;
@@ -245,9 +259,11 @@ impl GpuSolver {
                 &builder,
                 &model,
                 &state,
+                route,
                 &chunks,
                 n_surfaces,
                 particles.groups(),
+                spring_groups,
                 alignment,
             );
             let s = Setup {
@@ -276,12 +292,11 @@ impl GpuSolver {
                 integrator,
                 n_surfaces > 0,
                 collision_response.as_ref().map(|c| &c.start),
+                route,
                 options.per_spring,
-                (!options.gather && model.lattices().len() == model.bodies.len())
-                    .then(|| model.lattices()),
             )?;
             let check = CheckFinite::new(s)?;
-            let energy = Energy::new(s, m)?;
+            let energy = Energy::new(s, spring_groups)?;
             Ok((
                 stepper,
                 body_contact,
@@ -313,7 +328,7 @@ impl GpuSolver {
         // tests grow it on demand.
         let status_bytes = std::mem::size_of::<Status>() as u64;
         let readback = (2 * n * VEC4)
-            .max(particles.groups() * 8 + m.div_ceil(WORKGROUP_SIZE) * 4)
+            .max(particles.groups() * 8 + spring_groups * 4)
             .max(STATUS_RING as u64 * status_bytes);
         let builder_ring = builder.buffer(&wgpu::BufferDescriptor {
             label: Some("status ring"),
@@ -357,7 +372,8 @@ impl GpuSolver {
     }
 
     /// (first spring, springs) of each chunk the per-spring arrays are split into: one unless
-    /// they exceed a storage binding ([`crate::chunks`]).
+    /// they exceed a storage binding ([`crate::chunks`]). On the stencil route, which keeps no
+    /// per-spring array, one empty chunk (as for a model without springs).
     pub fn spring_chunks(&self) -> &[(u64, u64)] {
         &self.chunks.ranges
     }
@@ -494,10 +510,11 @@ impl GpuSolver {
     }
 }
 
-/// The storage buffers the scene needs, as [`check_limits`] checks them: the per-particle
-/// arrays, the adjacency, the terrain and the integrator's own.
-fn needs(model: &Model, packed: &terrain::TerrainBuffers) -> Vec<Need> {
-    let (n, m) = (model.len() as u64, model.spring_count() as u64);
+/// The storage buffers the scene needs on `route`, as [`check_limits`] checks them: the
+/// per-particle arrays, the springs (the lattices on the stencil route, the adjacency
+/// otherwise), the terrain and the integrator's own.
+fn needs(model: &Model, packed: &terrain::TerrainBuffers, route: Route) -> Vec<Need> {
+    let n = model.len() as u64;
     let need = |what, count, stride| Need {
         what,
         count,
@@ -506,18 +523,38 @@ fn needs(model: &Model, packed: &terrain::TerrainBuffers) -> Vec<Need> {
     let mut needs = vec![
         need("positions", n, VEC4),
         need("velocities", n, VEC4),
-        need("accelerations", n, VEC4),
         need("masses", n, 8),
-        // The per-spring arrays are chunked (check_chunks); the adjacency, a gather's index,
-        // stays whole: 2 words per spring, 16.7 M springs per 128 MiB.
-        need("adjacency", n + 1 + 2 * m, 4),
+    ];
+    match route {
+        Route::Stencil => {
+            let lattices = model.lattices();
+            needs.push(need(
+                "lattice bodies",
+                lattices.len() as u64,
+                std::mem::size_of::<LatticeBodyGpu>() as u64,
+            ));
+            needs.push(need(
+                "lattice points",
+                LatticeBodyGpu::point_words(lattices),
+                4,
+            ));
+        }
+        Route::Springs => {
+            let m = model.spring_count() as u64;
+            needs.push(need("accelerations", n, VEC4));
+            // The per-spring arrays are chunked (check_chunks); the adjacency, a gather's
+            // index, stays whole: 2 words per spring, 16.7 M springs per 128 MiB.
+            needs.push(need("adjacency", n + 1 + 2 * m, 4));
+        }
+    }
+    needs.extend([
         need(
             "terrain surfaces",
             packed.surfaces.len() as u64,
             std::mem::size_of::<terrain::SurfaceGpu>() as u64,
         ),
         need("terrain data", packed.data.len() as u64, 4),
-    ];
+    ]);
     use softbody_scene::Integrator::*;
     match model.simulation.integrator {
         Midpoint | Rk4 => {

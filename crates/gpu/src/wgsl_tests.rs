@@ -89,7 +89,7 @@ fn every_entry_point_reflects_within_webgpu_limits() {
             kernels += 1;
         }
     }
-    assert_eq!(kernels, 62);
+    assert_eq!(kernels, 63);
 }
 
 /// Reflection reads what an entry point uses through the functions it calls, with the access
@@ -306,9 +306,25 @@ fn lattice_layouts_match() {
     );
 }
 
-/// The stencil's kernels read the lattices in place of the spring records and the adjacency.
+/// The stencil route's kernels (the fused step's, the energies' `energy_lattices`) read the
+/// lattices in place of the spring records and the adjacency.
 #[test]
 fn the_stencil_reads_no_spring_record() {
+    assert_eq!(
+        names(Stage::Energy, Chunking::ONE, "energy_lattices"),
+        (
+            [
+                "params",
+                "x",
+                "spring_partials",
+                "lattice_bodies",
+                "lattice_points"
+            ]
+            .map(String::from)
+            .to_vec(),
+            false
+        )
+    );
     let (stencil, terrain) = names(Stage::FusedStencil, Chunking::ONE, "symplectic_euler");
     assert!(terrain);
     for name in ["lattice_bodies", "lattice_points", "x", "v", "mass"] {

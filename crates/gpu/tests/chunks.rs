@@ -40,6 +40,10 @@ fn main() -> ExitCode {
             chunked_two_dimensional,
         ),
         ("a_binding_too_small_is_refused_with_the_figures", too_small),
+        (
+            "the_stencil_runs_a_cube_whose_adjacency_exceeds_a_binding",
+            stencil_past_the_adjacency,
+        ),
     ];
     softbody_testkit::run_gpu("GPU chunk tests", tests.iter().copied())
 }
@@ -90,10 +94,20 @@ fn open(
         .map_err(|e| e.to_string().into())
 }
 
+/// The springs as a list on the device, which is what is chunked: the explicit integrators
+/// through the fused gather (a cuboid's would otherwise take the stencil route, which holds no
+/// per-spring array); implicit Euler always has the list.
+fn listed() -> GpuOptions {
+    GpuOptions {
+        gather: true,
+        ..GpuOptions::default()
+    }
+}
+
 fn capped() -> GpuOptions {
     GpuOptions {
         max_binding_size: Some(CAP),
-        ..GpuOptions::default()
+        ..listed()
     }
 }
 
@@ -157,10 +171,7 @@ fn same_bits(what: &str, a: &(State, Energies), b: &(State, Energies)) -> Result
 /// collision response act within the steps).
 fn chunked_run(gpu: &Arc<Gpu>, integrator: Integrator, steps: u64) -> Result<(), Failed> {
     let (model, state) = cube(integrator, 2e-4, BOUNCY_PLANE);
-    let whole = run(
-        &mut open(gpu, &model, &state, GpuOptions::default())?,
-        steps,
-    )?;
+    let whole = run(&mut open(gpu, &model, &state, listed())?, steps)?;
     let mut g = open(gpu, &model, &state, capped())?;
     check_split(&g, &model)?;
     let chunked = run(&mut g, steps)?;
@@ -181,7 +192,7 @@ fn chunked_implicit(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::ImplicitEuler, 2e-3, SLOPE);
     let steps = 10;
     let mut results = Vec::new();
-    for options in [GpuOptions::default(), capped()] {
+    for options in [listed(), capped()] {
         let mut g = open(gpu, &model, &state, options)?;
         if options.max_binding_size.is_some() {
             check_split(&g, &model)?;
@@ -208,7 +219,7 @@ fn chunked_implicit(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 /// The per-spring forces of every chunk, read back and concatenated, are the unchunked ones.
 fn chunked_spring_forces(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 5e-4, "");
-    let whole = open(gpu, &model, &state, GpuOptions::default())?
+    let whole = open(gpu, &model, &state, listed())?
         .debug_spring_forces()
         .map_err(step_error)?;
     let chunked = open(gpu, &model, &state, capped())?
@@ -224,7 +235,7 @@ fn chunked_spring_forces(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 /// is 1 × 8 workgroups, the last 1 × 1): the same bits as one chunk on 1-D grids.
 fn chunked_two_dimensional(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 2e-4, BOUNCY_PLANE);
-    let whole = run(&mut open(gpu, &model, &state, GpuOptions::default())?, 40)?;
+    let whole = run(&mut open(gpu, &model, &state, listed())?, 40)?;
     let options = GpuOptions {
         grid_width: Some(1),
         ..capped()
@@ -238,7 +249,7 @@ fn too_small(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 5e-4, "");
     let options = GpuOptions {
         max_binding_size: Some(4096),
-        ..GpuOptions::default()
+        ..listed()
     };
     let e = match GpuSolver::with_options(gpu, model, state, options) {
         Ok(_) => return Err("a 4 KiB binding was accepted".into()),
@@ -255,4 +266,35 @@ fn too_small(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         }
     }
     Ok(())
+}
+
+/// The 300³ cube on a 2 GiB binding in miniature: with 16 KiB bindings the 8×8×8 cube's
+/// per-particle arrays fit (8 KiB of positions) but its adjacency (51 KB) does not. The spring
+/// list is refused naming the adjacency; the stencil route, which holds none, runs, with the
+/// bits of the uncapped run.
+fn stencil_past_the_adjacency(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    let (model, state) = cube(Integrator::SymplecticEuler, 2e-4, BOUNCY_PLANE);
+    let cap = GpuOptions {
+        max_binding_size: Some(16 * 1024),
+        ..GpuOptions::default()
+    };
+    let listed = GpuOptions {
+        gather: true,
+        ..cap
+    };
+    let e = match GpuSolver::with_options(gpu, model.clone(), state.clone(), listed) {
+        Ok(_) => return Err("the spring list was accepted past a binding".into()),
+        Err(e) => e.to_string(),
+    };
+    println!("{e}");
+    if !e.contains("the adjacency buffer") || !e.contains("allows 16384 bytes") {
+        return Err(format!("the refusal does not name the adjacency: {e}").into());
+    }
+    let mut g = open(gpu, &model, &state, cap)?;
+    if g.statistics().kernel != "fused stencil" {
+        return Err(format!("capped: kernel {}", g.statistics().kernel).into());
+    }
+    let capped = run(&mut g, 150)?;
+    let whole = run(&mut open(gpu, &model, &state, GpuOptions::default())?, 150)?;
+    same_bits("the capped stencil", &whole, &capped)
 }

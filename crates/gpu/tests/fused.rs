@@ -20,6 +20,9 @@
 //!   buffers per stage) takes the per-spring path.
 //! - The design's figures: 1, 2 and 4 dispatches per step, less traffic than the per-spring
 //!   path, and the stencil less than the gather.
+//! - The stencil route's energies (`energy_lattices`, per particle over the lattices) against
+//!   the CPU's and the gather's, and that route holding no spring list, on the host or the
+//!   device.
 
 mod common;
 
@@ -27,10 +30,10 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use common::{BOUNCY_PLANE, SLOPE, step_error};
-use softbody_cpu::CpuSolver;
+use softbody_cpu::{CpuSolver, energy};
 use softbody_gpu::{Gpu, GpuOptions, GpuSolver};
-use softbody_scene::{Energies, Integrator, Model, Scene, Solver, State};
-use softbody_testkit::{Failed, GpuTest, ensure};
+use softbody_scene::{Energies, Integrator, Model, Scene, Solver, State, StepError};
+use softbody_testkit::{Failed, GpuTest, Rng, ensure};
 
 const EXPLICIT: [Integrator; 4] = [
     Integrator::ExplicitEuler,
@@ -76,6 +79,14 @@ fn main() -> ExitCode {
         minimum_adapter,
     ));
     tests.push(("fused_design_figures".into(), design_figures));
+    tests.push((
+        "stencil_energies_match_the_cpu_and_the_gather".into(),
+        stencil_energies,
+    ));
+    tests.push((
+        "the_stencil_route_builds_no_spring_list".into(),
+        no_spring_list,
+    ));
     softbody_testkit::run_gpu("GPU fused step tests", tests)
 }
 
@@ -300,8 +311,29 @@ fn batches(g: &mut GpuSolver, batches: &[u64]) -> Result<Vec<(State, Energies)>,
 /// splits them).
 const BATCHES: [u64; 4] = [1, 2, 7, 300];
 
-/// Runs `model` by paths `a` and `b`: the same bits, states and energies, after every batch;
-/// and the bodies moved.
+/// Relative difference allowed between the elastic energies of the stencil route
+/// (`energy_lattices`: per particle, the springs starting at its point) and of the spring list
+/// (`energy_springs`: per spring): the same f32 terms, bit for bit, added in other orders, a
+/// per-thread sum of up to 13 and trees of 256 terms, all non-negative: a relative rounding of
+/// about 25 u (1.5e-6).
+const ELASTIC_ROUNDING: f64 = 1e-5;
+
+/// Whether two runs' energies agree as their paths allow: bit for bit where both take their
+/// elastic energy from the same kernel; where one is the stencil, the kinetic and
+/// gravitational energies bit for bit (one kernel) and the elastic within
+/// [`ELASTIC_ROUNDING`].
+fn energies_agree(a: Path, b: Path, ea: &Energies, eb: &Energies) -> bool {
+    if (a == Path::Stencil) == (b == Path::Stencil) {
+        return ea == eb;
+    }
+    let largest = ea.elastic.abs().max(eb.elastic.abs());
+    ea.kinetic.to_bits() == eb.kinetic.to_bits()
+        && ea.gravitational.to_bits() == eb.gravitational.to_bits()
+        && (ea.elastic - eb.elastic).abs() <= ELASTIC_ROUNDING * largest
+}
+
+/// Runs `model` by paths `a` and `b`: the same bits, states after every batch, the energies
+/// as [`energies_agree`]; and the bodies moved.
 fn same_bits(
     gpu: &Arc<Gpu>,
     (model, state): &(Model, State),
@@ -322,7 +354,7 @@ fn same_bits(
     );
     for (k, (f, p)) in first.iter().zip(&second).enumerate() {
         let (x, v) = differences(&f.0, &p.0);
-        ensure(f == p, || {
+        ensure(f.0 == p.0 && energies_agree(a, b, &f.1, &p.1), || {
             format!(
                 "{integrator}: after batch {k} the {a:?} run differs from the {b:?} run \
                  (|Δx| {x:e}, |Δv| {v:e}; energies {:?} and {:?})",
@@ -372,7 +404,8 @@ fn repeatable(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 }
 
 /// With 8 storage buffers per stage (the fused kernels bind 11 to 13), every explicit
-/// integrator takes the per-spring path, with the fused path's bits.
+/// integrator takes the per-spring path, with the fused path's bits (and, holding the spring
+/// list, its energies by `energy_springs`).
 fn minimum_adapter(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     for integrator in EXPLICIT {
         let (model, state) = cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE);
@@ -390,7 +423,12 @@ fn minimum_adapter(gpu: &Arc<Gpu>) -> Result<(), Failed> {
             &mut open(gpu, &model, &state, Path::Stencil)?,
             &BATCHES[..3],
         )?;
-        ensure(batches(&mut g, &BATCHES[..3])? == fused, || {
+        let fallback = batches(&mut g, &BATCHES[..3])?;
+        let same = fused
+            .iter()
+            .zip(&fallback)
+            .all(|(f, p)| f.0 == p.0 && energies_agree(Path::Stencil, Path::PerSpring, &f.1, &p.1));
+        ensure(same, || {
             format!("{integrator}: the fallback differs from the fused run")
         })?;
     }
@@ -435,6 +473,143 @@ fn design_figures(gpu: &Arc<Gpu>) -> Result<(), Failed> {
                 && fused_bytes > stencil_bytes,
             || format!("{integrator}: {figures:?}"),
         )?;
+    }
+    Ok(())
+}
+
+/// The state perturbed by up to 2 cm and 1 m/s, rounded to f32 (what the GPU holds), so that
+/// every spring is stretched or compressed and the CPU sees the GPU's input.
+fn perturbed(state: &State, seed: u64) -> State {
+    let mut rng = Rng::new(seed);
+    let mut jitter = |p: &[glam::DVec3], by: f64| -> Vec<glam::DVec3> {
+        p.iter()
+            .map(|&p| (p + rng.vec(by)).as_vec3().as_dvec3())
+            .collect()
+    };
+    State {
+        x: jitter(&state.x, 0.02),
+        v: jitter(&state.v, 1.0),
+    }
+}
+
+/// The stencil route's energies on a perturbed state, for the cube, the three cuboids and the
+/// mesh body: against the CPU's on the same state within 1e-5 of each energy's scale (the sum
+/// of its terms' magnitudes, the twin tests' bound: f32 rounding of each term), against the
+/// gather route's as [`energies_agree`] (the elastic energy by the other kernel), and twice
+/// the same bits.
+fn stencil_energies(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    let integrator = Integrator::SymplecticEuler;
+    for (name, (model, state)) in [
+        ("cube", cube(integrator, 2.5e-4, 0.1, BOUNCY_PLANE)),
+        ("three cuboids", bodies(integrator)),
+        ("torus", torus(integrator)),
+    ] {
+        let state = perturbed(&state, 11);
+        let mut g = open(gpu, &model, &state, Path::Stencil)?;
+        let got = g.energies().map_err(step_error)?;
+        let again = g.energies().map_err(step_error)?;
+        let gather = open(gpu, &model, &state, Path::Gather)?
+            .energies()
+            .map_err(step_error)?;
+        let want = energy::energies(&model, &state);
+        let g_len = model.simulation.gravity.length();
+        let gravitational_scale: f64 = (0..model.len())
+            .map(|i| model.mass[i] * g_len * state.x[i].length())
+            .sum();
+        let mut elastic_scale = 0.0;
+        model.for_each_spring(|a, b, rest, k, _| {
+            let d = state.x[a as usize].distance(state.x[b as usize]);
+            elastic_scale += 0.5 * k * (d + rest) * (d + rest);
+        });
+        println!(
+            "{name}: {} particles, {} springs; elastic energy {:.6e} J on the stencil, {:.6e} J \
+             on the gather, {:.6e} J on the CPU",
+            model.len(),
+            model.spring_count(),
+            got.elastic,
+            gather.elastic,
+            want.elastic
+        );
+        ensure(want.elastic > 1e-3 * elastic_scale, || {
+            format!("{name}: the springs are barely stretched")
+        })?;
+        for (what, got, want, scale) in [
+            ("kinetic", got.kinetic, want.kinetic, want.kinetic),
+            (
+                "gravitational",
+                got.gravitational,
+                want.gravitational,
+                gravitational_scale,
+            ),
+            ("elastic", got.elastic, want.elastic, elastic_scale),
+        ] {
+            let error = (got - want).abs();
+            ensure(error <= 1e-5 * scale, || {
+                format!(
+                    "{name}: the {what} energy {got:e} J is {error:e} J from the CPU's {want:e} J \
+                     ({:e} of its scale)",
+                    error / scale
+                )
+            })?;
+        }
+        ensure(
+            energies_agree(Path::Stencil, Path::Gather, &got, &gather),
+            || format!("{name}: the stencil's energies {got:?}, the gather's {gather:?}"),
+        )?;
+        ensure(got == again, || {
+            format!("{name}: two reductions of one state differ: {got:?}, {again:?}")
+        })?;
+    }
+    Ok(())
+}
+
+/// The stencil route builds no spring list: the model the solver holds is as lean after it
+/// opened, stepped and summed the energies as before (the gather route's grows by the list it
+/// builds, so the check can fail), and the device holds at least 44 bytes per spring less
+/// than on the gather (a 20-byte record, a 16-byte per-spring vector, two adjacency words).
+/// The per-spring read-backs, which need the list, are refused there, not a panic.
+fn no_spring_list(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    for (name, (model, state)) in [
+        (
+            "cube",
+            cube(Integrator::SymplecticEuler, 2.5e-4, 0.1, BOUNCY_PLANE),
+        ),
+        ("torus", torus(Integrator::Rk4)),
+    ] {
+        let lean = model.memory_bytes();
+        let mut g = open(gpu, &model, &state, Path::Stencil)?;
+        g.advance(3).map_err(step_error)?;
+        g.energies().map_err(step_error)?;
+        g.state().map_err(step_error)?;
+        let held = g.model().memory_bytes();
+        ensure(held == lean, || {
+            format!("{name}: the stencil route built the spring list ({lean} B, then {held} B)")
+        })?;
+        match g.debug_spring_forces() {
+            Err(StepError::Invalid(_)) => {}
+            other => {
+                return Err(
+                    format!("{name}: spring forces read back on the stencil: {other:?}").into(),
+                );
+            }
+        }
+        let gather = open(gpu, &model, &state, Path::Gather)?;
+        ensure(gather.model().memory_bytes() > lean, || {
+            format!("{name}: the gather built no spring list")
+        })?;
+        let m = model.spring_count() as u64;
+        let (lean_device, listed_device) = (g.memory_bytes(), gather.memory_bytes());
+        let n = model.len() as f64;
+        println!(
+            "{name}: {} particles, {m} springs; device memory {:.0} B per particle on the \
+             stencil, {:.0} B on the gather",
+            model.len(),
+            lean_device as f64 / n,
+            listed_device as f64 / n
+        );
+        ensure(listed_device >= lean_device + 44 * m, || {
+            format!("{name}: {lean_device} B on the stencil, {listed_device} B on the gather")
+        })?;
     }
     Ok(())
 }

@@ -19,19 +19,20 @@
 //! place: their last stage reads the neighbours from a stage state and writes only its own
 //! particle of (x, v).
 //!
-//! Where every body is a lattice (cuboids and mesh bodies), the kernels find their springs on the
-//! lattices (`Stage::FusedStencil`, `shaders/stencil.wgsl`): per body a table of its offsets'
-//! parameters and their two orders, per mesh body its mask, and no spring record or adjacency
-//! read — the same sums bit for bit ("fused stencil"; otherwise "fused gather").
+//! On the stencil route ([`crate::integrators::Route`]: every body a lattice, cuboids and mesh
+//! bodies) the kernels find their springs on the lattices (`Stage::FusedStencil`,
+//! `shaders/stencil.wgsl`): per body a table of its offsets' parameters and their two orders, per
+//! mesh body its mask, and no spring record or adjacency read — the same sums bit for bit
+//! ("fused stencil"; otherwise "fused gather").
 
 use std::sync::Arc;
 
-use softbody_scene::{Integrator, Lattice};
+use softbody_scene::Integrator;
 
+use crate::buffers::SpringBuffers;
 use crate::builder::Setup;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources, Traffic};
-use crate::layout::LatticeBodyGpu;
 use crate::shaders::Stage;
 use crate::{GpuError, STEPS_PER_SUBMISSION, VEC4};
 
@@ -59,7 +60,7 @@ pub(crate) struct Fused {
 
 impl Fused {
     /// Names of the kernels of `integrator`, in the order of a step.
-    fn entries(integrator: Integrator) -> &'static [&'static str] {
+    pub fn entries(integrator: Integrator) -> &'static [&'static str] {
         match integrator {
             Integrator::ExplicitEuler => &["explicit_euler"],
             Integrator::SymplecticEuler => &["symplectic_euler"],
@@ -70,25 +71,24 @@ impl Fused {
     }
 
     /// `integrator` fused, with the collision response's record of each step's start in
-    /// `start` (None without terrain), gathering by the stencil of `lattices` (every body's,
-    /// in body order) if given, through the spring records otherwise. Fails with
+    /// `start` (None without terrain), gathering by the stencil of the lattices where the
+    /// buffers hold them (the stencil route), through the spring records otherwise. Fails with
     /// [`GpuError::Limit`] before allocating anything where the adapter cannot bind its
     /// kernels' buffers: the per-spring path then serves.
     pub fn new(
         s: Setup<'_>,
         integrator: Integrator,
         start: Option<&wgpu::Buffer>,
-        lattices: Option<&[Lattice]>,
     ) -> Result<Fused, GpuError> {
-        let stage = match lattices {
-            Some(_) => Stage::FusedStencil,
-            None => Stage::FusedStep,
+        let b = s.buffers;
+        let (stage, stencil) = match &b.springs {
+            SpringBuffers::Lattices { .. } => (Stage::FusedStencil, true),
+            SpringBuffers::List(_) => (Stage::FusedStep, false),
         };
         let entries = Fused::entries(integrator);
         for entry in entries {
             s.builder.fits(stage, entry)?;
         }
-        let b = s.buffers;
         let pair = |label: &str| {
             (
                 s.builder.storage(&format!("{label}_x"), s.n, VEC4),
@@ -104,24 +104,12 @@ impl Fused {
                 &placeholder
             }
         };
-        let stencil = lattices.map(|lattices| {
-            let (bodies, points) = LatticeBodyGpu::pack(lattices);
-            (
-                s.builder.storage_init(
-                    "lattice_bodies",
-                    bytemuck::cast_slice(&bodies),
-                    std::mem::size_of::<LatticeBodyGpu>(),
-                ),
-                s.builder
-                    .storage_init("lattice_points", bytemuck::cast_slice(&points), 4),
-            )
-        });
-        let mut resources = b.resources().buffer("start", start);
-        resources = match &stencil {
-            Some((bodies, points)) => resources
-                .buffer("lattice_bodies", bodies)
-                .buffer("lattice_points", points),
-            None => resources.chunks("springs", "spring", &b.springs),
+        // The lattices are among the buffers' own resources; the gather reads every chunk of
+        // the spring records.
+        let resources = b.resources().buffer("start", start);
+        let resources = match b.list() {
+            Some(list) => resources.chunks("springs", "spring", &list.records),
+            None => resources,
         };
         let call = |r: &Resources<'_>, entry, from: Pair<'_>, to: Pair<'_>| {
             let r = r
@@ -180,7 +168,7 @@ impl Fused {
             traffic: Arc::clone(s.builder.traffic()),
             grid: s.particles,
             stride: b.step_stride,
-            stencil: lattices.is_some(),
+            stencil,
         })
     }
 

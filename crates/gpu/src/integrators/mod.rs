@@ -16,6 +16,10 @@
 //! models whose bodies touch (their pair forces need the broad phase's grid of each stage's
 //! state) and adapters that cannot bind the fused kernels' buffers. Implicit Euler is driven
 //! from the host, which reads the CG's progress back ([`implicit_euler`]).
+//!
+//! Where the fused step finds its springs on the lattices (every body a lattice), the run needs
+//! no spring list at all: [`Route`] decides that before anything is allocated, and both the
+//! buffers ([`crate::buffers`]) and the [`Stepper`] follow its decision.
 
 pub mod explicit_euler;
 pub mod fused;
@@ -24,14 +28,15 @@ pub mod midpoint;
 pub mod rk4;
 pub mod symplectic_euler;
 
-use softbody_scene::{Integrator, Lattice};
+use softbody_scene::{Integrator, Model};
 
-use crate::GpuError;
-use crate::builder::Setup;
+use crate::builder::{Setup, fits};
+use crate::chunks::Chunking;
 use crate::forces::Accelerations;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
+use crate::{GpuError, GpuOptions};
 
 /// An integrator whose steps are encoded on the device alone.
 pub(crate) trait ExplicitStep: Send {
@@ -50,26 +55,79 @@ pub(crate) enum Stepper {
     Implicit(Box<implicit_euler::ImplicitEuler>),
 }
 
+/// How a run finds each particle's springs: decided once, before anything is allocated, by
+/// [`Route::of`]; the buffers uploaded and the [`Stepper`] built follow it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Route {
+    /// The explicit integrators fused, finding the springs on the lattices (`stencil.wgsl`):
+    /// neither the host nor the device holds a spring list.
+    Stencil,
+    /// The spring records and the CSR adjacency on the device: the fused step's gather, the
+    /// per-spring path and implicit Euler.
+    Springs,
+}
+
+impl Route {
+    /// The route of `model` on an adapter with `limits`: the stencil where the explicit
+    /// integrators run fused ([`fused_applies`]), every body is a lattice, `options` do not ask
+    /// for the gather, and the adapter can bind the stencil's kernels (reflected from their
+    /// WGSL); the spring list otherwise.
+    pub fn of(
+        model: &Model,
+        options: &GpuOptions,
+        limits: &wgpu::Limits,
+        adapter: &str,
+    ) -> Result<Route, GpuError> {
+        let integrator = model.simulation.integrator;
+        let lattices = model.lattices().len() == model.bodies.len();
+        if !(fused_applies(integrator, model.contact.enabled(), options.per_spring)
+            && lattices
+            && !options.gather)
+        {
+            return Ok(Route::Springs);
+        }
+        let entries = fused::Fused::entries(integrator);
+        match fits(limits, adapter, Stage::FusedStencil, entries, Chunking::ONE) {
+            Ok(()) => Ok(Route::Stencil),
+            Err(GpuError::Limit { .. }) => Ok(Route::Springs),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+/// Whether `integrator` runs fused unless the adapter cannot bind the fused kernels: an
+/// explicit integrator, bodies that do not touch (`contact`: their pair forces need the broad
+/// phase of each stage's state), and `per_spring` not asking for the per-spring path.
+fn fused_applies(integrator: Integrator, contact: bool, per_spring: bool) -> bool {
+    integrator != Integrator::ImplicitEuler && !contact && !per_spring
+}
+
 impl Stepper {
-    /// `integrator`'s buffers and calls; `terrain` says whether the scene has terrain, `start`
-    /// is the collision response's record of each step's start (explicit integrators with
-    /// terrain). The explicit integrators are fused unless `per_spring` asks for the per-spring
-    /// path, bodies touch, or the adapter cannot bind the fused kernels; fused, they find their
-    /// springs on `lattices` where given (every body's).
+    /// `integrator`'s buffers and calls on `route`; `terrain` says whether the scene has
+    /// terrain, `start` is the collision response's record of each step's start (explicit
+    /// integrators with terrain). On the stencil route the explicit integrators are fused on
+    /// the lattices; on the spring list they are fused through it where [`fused_applies`]
+    /// (`per_spring` asks for the per-spring path) and the adapter can bind the fused kernels,
+    /// and run on the per-spring path otherwise.
     pub fn new(
         s: Setup<'_>,
         integrator: Integrator,
         terrain: bool,
         start: Option<&wgpu::Buffer>,
+        route: Route,
         per_spring: bool,
-        lattices: Option<&[Lattice]>,
     ) -> Result<Stepper, GpuError> {
-        if integrator != Integrator::ImplicitEuler && s.body_contact.is_none() && !per_spring {
-            match fused::Fused::new(s, integrator, start, lattices) {
-                Ok(fused) => return Ok(Stepper::Fused(fused)),
-                Err(GpuError::Limit { .. }) => {}
-                Err(e) => return Err(e),
+        match route {
+            // Route::of found that the stencil fits: no fallback, there is no spring list.
+            Route::Stencil => return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?)),
+            Route::Springs if fused_applies(integrator, s.body_contact.is_some(), per_spring) => {
+                match fused::Fused::new(s, integrator, start) {
+                    Ok(fused) => return Ok(Stepper::Fused(fused)),
+                    Err(GpuError::Limit { .. }) => {}
+                    Err(e) => return Err(e),
+                }
             }
+            Route::Springs => {}
         }
         Ok(match integrator {
             Integrator::ExplicitEuler => Stepper::Explicit(Box::new(explicit_euler::new(s)?)),
