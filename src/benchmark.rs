@@ -219,6 +219,10 @@ pub const MIN_STEPS: u64 = 3;
 const PILOT_SECONDS: f64 = 0.25;
 /// The longest pilot run, steps.
 const MAX_PILOT: u64 = 100_000;
+/// Pilot runs at most.
+const MAX_PILOT_RUNS: u32 = 8;
+/// Two pilots agree when their times per step differ by at most this fraction.
+const PILOT_AGREEMENT: f64 = 0.1;
 /// Shortest batch of timed steps between two progress reports, seconds.
 const PROGRESS_SECONDS: f64 = 0.1;
 
@@ -354,7 +358,7 @@ pub enum BenchError {
 }
 
 /// Builds the n³ benchmark cube for `options`, warms the solver up (one step, then runs of
-/// steps growing to about a quarter of a second, which estimate the time per step), times
+/// about a quarter of a second until two agree on the time per step), times
 /// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps and at
 /// least [`MIN_SECONDS`], at most [`MAX_SECONDS`]) with nothing else in the loop, and checks
 /// that the final state is finite.
@@ -398,19 +402,27 @@ fn time(
         solver.sync().map_err(step_error)?;
         Ok(started.elapsed().as_secs_f64())
     };
-    // The first step pays for what happens once (pipelines, first touches of memory); the
-    // pilots then grow until one lasts half of PILOT_SECONDS, so that the time per step is
-    // not the first step's, and a GPU has left its idle clocks by the timed steps.
+    // The first step pays for what happens once (pipelines, first touches of memory). Then
+    // pilots of about PILOT_SECONDS run until one that lasts at least half of that agrees with
+    // the one before on the time per step: neither the first steps nor a GPU's clocks, still
+    // rising from idle after a long setup, set the step count (on an H200, a 300³ cube's
+    // first pilots ran at a third of its rate).
     let mut pilot = ((PILOT_SECONDS / run(solver, 1)?.max(1e-9)) as u64).clamp(1, MAX_PILOT);
     let mut warmup_steps = 1;
+    let mut previous: Option<f64> = None;
+    let mut runs = 0;
     let per_step = loop {
         let seconds = run(solver, pilot)?;
         warmup_steps += pilot;
+        runs += 1;
         let per_step = seconds / pilot as f64;
-        if seconds >= 0.5 * PILOT_SECONDS || pilot == MAX_PILOT || warmup_steps > 4 * MAX_PILOT {
+        let long = seconds >= 0.5 * PILOT_SECONDS || pilot == MAX_PILOT;
+        let agrees = previous.is_some_and(|p| (per_step - p).abs() <= PILOT_AGREEMENT * p);
+        if (long && agrees) || runs == MAX_PILOT_RUNS {
             break per_step;
         }
-        pilot = ((PILOT_SECONDS / per_step.max(1e-12)) as u64).clamp(pilot + 1, MAX_PILOT);
+        previous = Some(per_step);
+        pilot = ((PILOT_SECONDS / per_step.max(1e-12)) as u64).clamp(1, MAX_PILOT);
     };
     let steps = options.steps.unwrap_or_else(|| {
         let per_step = per_step.max(1e-12);
