@@ -8,8 +8,9 @@
 //! The springs are on the device as the run's [`Route`] reads them ([`SpringBuffers`]): on the
 //! stencil route only the lattices' tables, which is what makes it lean (no spring record, no
 //! adjacency, no per-spring vector: 20 + 8 + 16 bytes per spring, about 13 springs per
-//! particle, and the list is never built on the host either); on every other route the
-//! spring list.
+//! particle, and the list is never built on the host either); on the fused gather's the
+//! spring list (records and adjacency); on the per-spring route also what its kernels write
+//! ([`PerSpringWrites`]).
 
 use glam::{DVec3, Vec3};
 use softbody_scene::{Model, State};
@@ -58,14 +59,21 @@ pub(crate) enum SpringBuffers {
     List(SpringList),
 }
 
-/// The spring list on the device and what the per-spring kernels write.
+/// The spring list on the device and, on the per-spring route, what the per-spring kernels
+/// write.
 pub(crate) struct SpringList {
-    /// Accelerations of the last force evaluation (the per-spring path's gather).
-    pub a: wgpu::Buffer,
     /// CSR offsets then entries.
     pub adjacency: wgpu::Buffer,
     /// Spring records, one buffer per chunk.
     pub records: Vec<wgpu::Buffer>,
+    /// The per-spring route's: `None` on the fused gather, which writes nothing per spring.
+    pub writes: Option<PerSpringWrites>,
+}
+
+/// What the per-spring kernels write.
+pub(crate) struct PerSpringWrites {
+    /// Accelerations of the last force evaluation (the per-spring path's gather).
+    pub a: wgpu::Buffer,
     /// Per-spring vectors (forces, implicit Euler's products), one buffer per chunk.
     pub per_spring: Vec<wgpu::Buffer>,
 }
@@ -120,7 +128,12 @@ impl ModelBuffers {
                     ),
                 }
             }
-            Route::Springs => SpringBuffers::List(SpringList::new(builder, model, chunks)),
+            Route::Gather | Route::PerSpring => SpringBuffers::List(SpringList::new(
+                builder,
+                model,
+                chunks,
+                route == Route::PerSpring,
+            )),
         };
         ModelBuffers {
             params: builder.init(
@@ -173,10 +186,17 @@ impl ModelBuffers {
             SpringBuffers::Lattices { bodies, points } => resources
                 .buffer("lattice_bodies", bodies)
                 .buffer("lattice_points", points),
-            SpringBuffers::List(list) => resources
-                .buffer("a", &list.a)
-                .buffer("adjacency", &list.adjacency)
-                .chunks("per_spring", "per_spring", &list.per_spring),
+            SpringBuffers::List(list) => {
+                let resources = resources.buffer("adjacency", &list.adjacency);
+                match &list.writes {
+                    Some(w) => resources.buffer("a", &w.a).chunks(
+                        "per_spring",
+                        "per_spring",
+                        &w.per_spring,
+                    ),
+                    None => resources,
+                }
+            }
         }
     }
 
@@ -186,11 +206,14 @@ impl ModelBuffers {
     /// which has no per-spring array, only the latter: a per-spring kernel then fails to bind.
     pub fn chunk_resources<'a>(&'a self, chunks: &'a SpringChunks, c: usize) -> Resources<'a> {
         let resources = self.resources().resource("chunk", chunks.uniform(c));
-        match self.list() {
-            Some(list) => resources
-                .buffer("springs", &list.records[c])
-                .buffer("per_spring", &list.per_spring[c])
-                .buffer("per_spring_out", &list.per_spring[c]),
+        let Some(list) = self.list() else {
+            return resources;
+        };
+        let resources = resources.buffer("springs", &list.records[c]);
+        match &list.writes {
+            Some(w) => resources
+                .buffer("per_spring", &w.per_spring[c])
+                .buffer("per_spring_out", &w.per_spring[c]),
             None => resources,
         }
     }
@@ -198,14 +221,13 @@ impl ModelBuffers {
 
 impl SpringList {
     /// The spring list of `model` (built on the host if it was not) split into `chunks`, and
-    /// the per-spring path's buffers.
-    fn new(builder: &Builder, model: &Model, chunks: &SpringChunks) -> SpringList {
+    /// with `writes` the per-spring kernels' buffers.
+    fn new(builder: &Builder, model: &Model, chunks: &SpringChunks, writes: bool) -> SpringList {
         let mut adjacency = model.adjacency().offsets.clone();
         adjacency.extend_from_slice(&model.adjacency().entries);
         let springs = SpringGpu::pack(model.springs());
         let spring_size = std::mem::size_of::<SpringGpu>();
         SpringList {
-            a: builder.storage("a", model.len() as u64, VEC4),
             adjacency: builder.storage_init("adjacency", bytemuck::cast_slice(&adjacency), 4),
             records: chunks
                 .ranges
@@ -219,11 +241,14 @@ impl SpringList {
                     )
                 })
                 .collect(),
-            per_spring: chunks
-                .ranges
-                .iter()
-                .map(|&(_, count)| builder.storage("per_spring", count, VEC4))
-                .collect(),
+            writes: writes.then(|| PerSpringWrites {
+                a: builder.storage("a", model.len() as u64, VEC4),
+                per_spring: chunks
+                    .ranges
+                    .iter()
+                    .map(|&(_, count)| builder.storage("per_spring", count, VEC4))
+                    .collect(),
+            }),
         }
     }
 }

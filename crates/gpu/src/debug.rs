@@ -10,7 +10,7 @@ use softbody_scene::{State, StepError};
 
 use crate::body_contact::BodyContact;
 use crate::broad_phase::Snapshot;
-use crate::buffers::{SpringList, to_dvec3, to_vec3, vec4s};
+use crate::buffers::{PerSpringWrites, to_dvec3, to_vec3, vec4s};
 use crate::builder::{Builder, Setup};
 use crate::collision_response::CollisionResponse;
 use crate::device::Gpu;
@@ -57,23 +57,25 @@ impl GpuSolver {
         Ok(&mut self.submitter)
     }
 
-    /// The spring list on the device, which the per-spring read-backs need: an error on the
-    /// stencil route, which has none.
-    fn spring_list(&self) -> Result<&SpringList, StepError> {
-        self.buffers.list().ok_or_else(|| {
-            StepError::Invalid(
-                "the solver finds its springs on the lattices (the stencil route) and holds no \
-                 spring list for the per-spring kernels: open it with GpuOptions::per_spring or \
-                 GpuOptions::gather"
-                    .to_owned(),
-            )
-        })
+    /// What the per-spring kernels write, which the per-spring read-backs need: an error on
+    /// the routes that write nothing per spring (the stencil and the fused gather).
+    fn writes(&self) -> Result<&PerSpringWrites, StepError> {
+        self.buffers
+            .list()
+            .and_then(|list| list.writes.as_ref())
+            .ok_or_else(|| {
+                StepError::Invalid(
+                    "the solver runs the fused step, which writes nothing per spring and keeps \
+                     no buffers for the per-spring kernels: open it with GpuOptions::per_spring"
+                        .to_owned(),
+                )
+            })
     }
 
     /// Spring forces of the current state, f_a per spring: `spring_forces` alone (not on the
     /// stencil route).
     pub fn debug_spring_forces(&mut self) -> Result<Vec<Vec3>, StepError> {
-        let per_spring = self.spring_list()?.per_spring.clone();
+        let per_spring = self.writes()?.per_spring.clone();
         let forces = {
             let s = self.setup();
             Accelerations::new(s, &s.buffers.x, &s.buffers.v).map_err(setup_error)?
@@ -92,7 +94,7 @@ impl GpuSolver {
     /// Accelerations of the current state: `spring_forces` and `accelerations` alone (not on
     /// the stencil route).
     pub fn debug_accelerations(&mut self) -> Result<Vec<Vec3>, StepError> {
-        let (a, n) = (self.spring_list()?.a.clone(), self.model_len());
+        let (a, n) = (self.writes()?.a.clone(), self.model_len());
         let forces = {
             let s = self.setup();
             Accelerations::new(s, &s.buffers.x, &s.buffers.v).map_err(setup_error)?
@@ -205,7 +207,7 @@ impl GpuSolver {
             contact.encode_start(pass);
             forces.run(pass, grid);
         });
-        let a = self.spring_list()?.a.clone();
+        let a = self.writes()?.a.clone();
         let submitter = self.stage_submitter()?;
         Ok(to_vec3(
             &submitter.submit_and_read(encoder, &[(&a, n * VEC4)])?,

@@ -70,8 +70,8 @@ use crate::device::Gpu;
 use crate::energy::Energy;
 use crate::grid::Grid;
 use crate::integrators::{Route, Stepper};
-use crate::layout::{CandidateGpu, LatticeBodyGpu, NONE, SpringBlockGpu, SpringGpu, Status};
-use crate::limits::{Need, check_chunks, check_f32, check_limits};
+use crate::layout::{CandidateGpu, LatticeBodyGpu, NONE, Status};
+use crate::limits::{Need, check_f32, check_limits};
 use crate::submit::Submitter;
 use crate::{GpuError, VEC4, WORKGROUP_SIZE, terrain};
 
@@ -206,11 +206,11 @@ impl GpuSolver {
         check_f32(&model, &state)?;
         let n = model.len() as u64;
         let packed = terrain::pack(&model.terrain);
-        let route = Route::of(&model, &options, &limits, &adapter)?;
+        let (route, chunking) = Route::of(&model, &options, &limits, &adapter)?;
         // Springs on the device: none on the stencil route, which finds them on the lattices.
         let m = match route {
             Route::Stencil => 0,
-            Route::Springs => model.spring_count() as u64,
+            Route::Gather | Route::PerSpring => model.spring_count() as u64,
         };
         check_limits(
             &limits,
@@ -223,12 +223,6 @@ impl GpuSolver {
                 ("broad-phase bucket", body_contact::buckets(n)),
             ],
         )?;
-        let spring_stride = if implicit {
-            std::mem::size_of::<SpringBlockGpu>()
-        } else {
-            std::mem::size_of::<SpringGpu>()
-        } as u64;
-        let chunking = check_chunks(&limits, &adapter, m, spring_stride, implicit)?;
         let max_dim = limits.max_compute_workgroups_per_dimension;
         let width = options.grid_width.map_or(max_dim, |w| w.clamp(1, max_dim));
         let alignment = limits.min_uniform_buffer_offset_alignment;
@@ -250,7 +244,7 @@ impl GpuSolver {
         // route per particle workgroup (`energy_lattices`).
         let spring_groups = match route {
             Route::Stencil => particles.groups(),
-            Route::Springs => m.div_ceil(WORKGROUP_SIZE),
+            Route::Gather | Route::PerSpring => m.div_ceil(WORKGROUP_SIZE),
         };
         let built = (|| {
             let builder = Builder::new(gpu.clone(), limits, chunking, &packed)?;
@@ -293,7 +287,6 @@ impl GpuSolver {
                 n_surfaces > 0,
                 collision_response.as_ref().map(|c| &c.start),
                 route,
-                options.per_spring,
             )?;
             let check = CheckFinite::new(s)?;
             let energy = Energy::new(s, spring_groups)?;
@@ -539,9 +532,11 @@ fn needs(model: &Model, packed: &terrain::TerrainBuffers, route: Route) -> Vec<N
                 4,
             ));
         }
-        Route::Springs => {
+        Route::Gather | Route::PerSpring => {
             let m = model.spring_count() as u64;
-            needs.push(need("accelerations", n, VEC4));
+            if route == Route::PerSpring {
+                needs.push(need("accelerations", n, VEC4));
+            }
             // The per-spring arrays are chunked (check_chunks); the adjacency, a gather's
             // index, stays whole: 2 words per spring, 16.7 M springs per 128 MiB.
             needs.push(need("adjacency", n + 1 + 2 * m, 4));

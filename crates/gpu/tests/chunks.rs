@@ -219,10 +219,15 @@ fn chunked_implicit(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 /// The per-spring forces of every chunk, read back and concatenated, are the unchunked ones.
 fn chunked_spring_forces(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (model, state) = cube(Integrator::SymplecticEuler, 5e-4, "");
-    let whole = open(gpu, &model, &state, listed())?
+    // The read-back is the per-spring kernels' output: only their route keeps it.
+    let per_spring = |options: GpuOptions| GpuOptions {
+        per_spring: true,
+        ..options
+    };
+    let whole = open(gpu, &model, &state, per_spring(listed()))?
         .debug_spring_forces()
         .map_err(step_error)?;
-    let chunked = open(gpu, &model, &state, capped())?
+    let chunked = open(gpu, &model, &state, per_spring(capped()))?
         .debug_spring_forces()
         .map_err(step_error)?;
     if chunked.len() != model.springs().len() || chunked != whole {

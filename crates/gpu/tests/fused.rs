@@ -565,9 +565,13 @@ fn stencil_energies(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 
 /// The stencil route builds no spring list: the model the solver holds is as lean after it
 /// opened, stepped and summed the energies as before (the gather route's grows by the list it
-/// builds, so the check can fail), and the device holds at least 44 bytes per spring less
-/// than on the gather (a 20-byte record, a 16-byte per-spring vector, two adjacency words).
-/// The per-spring read-backs, which need the list, are refused there, not a panic.
+/// builds, so the check can fail), and the device holds at least 24 bytes per spring less
+/// than on the gather (a 20-byte record and two adjacency words, less a mesh body's mask,
+/// which only the stencil holds: a few words per lattice point). The gather holds no
+/// per-spring vectors and no accelerations: 16 bytes per spring and per particle less than the
+/// per-spring path, which for its part needs no second state pair (32 per particle). The
+/// per-spring read-backs, which need the per-spring path's buffers, are refused on the fused
+/// routes, not a panic.
 fn no_spring_list(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     for (name, (model, state)) in [
         (
@@ -593,23 +597,44 @@ fn no_spring_list(gpu: &Arc<Gpu>) -> Result<(), Failed> {
                 );
             }
         }
-        let gather = open(gpu, &model, &state, Path::Gather)?;
+        let mut gather = open(gpu, &model, &state, Path::Gather)?;
         ensure(gather.model().memory_bytes() > lean, || {
             format!("{name}: the gather built no spring list")
         })?;
-        let m = model.spring_count() as u64;
-        let (lean_device, listed_device) = (g.memory_bytes(), gather.memory_bytes());
-        let n = model.len() as f64;
-        println!(
-            "{name}: {} particles, {m} springs; device memory {:.0} B per particle on the \
-             stencil, {:.0} B on the gather",
-            model.len(),
-            lean_device as f64 / n,
-            listed_device as f64 / n
+        match gather.debug_spring_forces() {
+            Err(StepError::Invalid(_)) => {}
+            other => {
+                return Err(
+                    format!("{name}: spring forces read back on the gather: {other:?}").into(),
+                );
+            }
+        }
+        let per_spring = open(gpu, &model, &state, Path::PerSpring)?;
+        let (m, n) = (model.spring_count() as u64, model.len() as u64);
+        let (lean_device, listed_device, written_device) = (
+            g.memory_bytes(),
+            gather.memory_bytes(),
+            per_spring.memory_bytes(),
         );
-        ensure(listed_device >= lean_device + 44 * m, || {
+        println!(
+            "{name}: {n} particles, {m} springs; device memory {:.0} B per particle on the \
+             stencil, {:.0} B on the gather, {:.0} B on the per-spring path",
+            lean_device as f64 / n as f64,
+            listed_device as f64 / n as f64,
+            written_device as f64 / n as f64
+        );
+        ensure(listed_device >= lean_device + 24 * m, || {
             format!("{name}: {lean_device} B on the stencil, {listed_device} B on the gather")
         })?;
+        ensure(
+            written_device == listed_device + 16 * (m + n) - 32 * n,
+            || {
+                format!(
+                    "{name}: {listed_device} B on the gather, {written_device} B on the per-spring \
+                 path"
+                )
+            },
+        )?;
     }
     Ok(())
 }

@@ -35,6 +35,8 @@ use crate::chunks::Chunking;
 use crate::forces::Accelerations;
 use crate::grid::Grid;
 use crate::kernel::Call;
+use crate::layout::{SpringBlockGpu, SpringGpu};
+use crate::limits::check_chunks;
 use crate::shaders::Stage;
 use crate::{GpuError, GpuOptions};
 
@@ -55,43 +57,64 @@ pub(crate) enum Stepper {
     Implicit(Box<implicit_euler::ImplicitEuler>),
 }
 
-/// How a run finds each particle's springs: decided once, before anything is allocated, by
-/// [`Route::of`]; the buffers uploaded and the [`Stepper`] built follow it.
+/// How a run finds each particle's springs, and so what the device holds of them: decided
+/// once, before anything is allocated, by [`Route::of`]; the buffers uploaded and the
+/// [`Stepper`] built follow it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Route {
     /// The explicit integrators fused, finding the springs on the lattices (`stencil.wgsl`):
     /// neither the host nor the device holds a spring list.
     Stencil,
-    /// The spring records and the CSR adjacency on the device: the fused step's gather, the
-    /// per-spring path and implicit Euler.
-    Springs,
+    /// The explicit integrators fused, gathering through the spring records and the CSR
+    /// adjacency (`fused_gather.wgsl`): nothing per spring is written.
+    Gather,
+    /// The spring list and what the per-spring kernels write into (the per-spring vectors, the
+    /// accelerations): the per-spring path and implicit Euler.
+    PerSpring,
 }
 
 impl Route {
-    /// The route of `model` on an adapter with `limits`: the stencil where the explicit
-    /// integrators run fused ([`fused_applies`]), every body is a lattice, `options` do not ask
-    /// for the gather, and the adapter can bind the stencil's kernels (reflected from their
-    /// WGSL); the spring list otherwise.
+    /// The route of `model` on an adapter with `limits`, and the chunking of its spring list
+    /// (one empty chunk on the stencil route). The explicit integrators run fused
+    /// ([`fused_applies`]) where the adapter can bind the fused kernels (reflected from their
+    /// WGSL): on the stencil where every body is a lattice and `options` do not ask for the
+    /// gather, else on the gather. Everything else takes the per-spring route.
     pub fn of(
         model: &Model,
         options: &GpuOptions,
         limits: &wgpu::Limits,
         adapter: &str,
-    ) -> Result<Route, GpuError> {
+    ) -> Result<(Route, Chunking), GpuError> {
         let integrator = model.simulation.integrator;
-        let lattices = model.lattices().len() == model.bodies.len();
-        if !(fused_applies(integrator, model.contact.enabled(), options.per_spring)
-            && lattices
-            && !options.gather)
-        {
-            return Ok(Route::Springs);
-        }
+        let implicit = integrator == Integrator::ImplicitEuler;
+        let stride = if implicit {
+            std::mem::size_of::<SpringBlockGpu>()
+        } else {
+            std::mem::size_of::<SpringGpu>()
+        } as u64;
+        let fused = fused_applies(integrator, model.contact.enabled(), options.per_spring);
         let entries = fused::Fused::entries(integrator);
-        match fits(limits, adapter, Stage::FusedStencil, entries, Chunking::ONE) {
-            Ok(()) => Ok(Route::Stencil),
-            Err(GpuError::Limit { .. }) => Ok(Route::Springs),
+        // Whether `stage`'s fused kernels fit; a limit is an answer, anything else an error.
+        let fit = |stage, chunking| match fits(limits, adapter, stage, entries, chunking) {
+            Ok(()) => Ok(true),
+            Err(GpuError::Limit { .. }) => Ok(false),
             Err(e) => Err(e),
+        };
+        let lattices = model.lattices().len() == model.bodies.len();
+        if fused && lattices && !options.gather && fit(Stage::FusedStencil, Chunking::ONE)? {
+            return Ok((
+                Route::Stencil,
+                check_chunks(limits, adapter, 0, stride, implicit)?,
+            ));
         }
+        let springs = model.spring_count() as u64;
+        let chunking = check_chunks(limits, adapter, springs, stride, implicit)?;
+        let route = if fused && fit(Stage::FusedStep, chunking)? {
+            Route::Gather
+        } else {
+            Route::PerSpring
+        };
+        Ok((route, chunking))
     }
 }
 
@@ -103,31 +126,19 @@ fn fused_applies(integrator: Integrator, contact: bool, per_spring: bool) -> boo
 }
 
 impl Stepper {
-    /// `integrator`'s buffers and calls on `route`; `terrain` says whether the scene has
-    /// terrain, `start` is the collision response's record of each step's start (explicit
-    /// integrators with terrain). On the stencil route the explicit integrators are fused on
-    /// the lattices; on the spring list they are fused through it where [`fused_applies`]
-    /// (`per_spring` asks for the per-spring path) and the adapter can bind the fused kernels,
-    /// and run on the per-spring path otherwise.
+    /// `integrator`'s buffers and calls on `route` ([`Route::of`], which found that the fused
+    /// kernels fit where it chose them); `terrain` says whether the scene has terrain, `start`
+    /// is the collision response's record of each step's start (explicit integrators with
+    /// terrain).
     pub fn new(
         s: Setup<'_>,
         integrator: Integrator,
         terrain: bool,
         start: Option<&wgpu::Buffer>,
         route: Route,
-        per_spring: bool,
     ) -> Result<Stepper, GpuError> {
-        match route {
-            // Route::of found that the stencil fits: no fallback, there is no spring list.
-            Route::Stencil => return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?)),
-            Route::Springs if fused_applies(integrator, s.body_contact.is_some(), per_spring) => {
-                match fused::Fused::new(s, integrator, start) {
-                    Ok(fused) => return Ok(Stepper::Fused(fused)),
-                    Err(GpuError::Limit { .. }) => {}
-                    Err(e) => return Err(e),
-                }
-            }
-            Route::Springs => {}
+        if route != Route::PerSpring {
+            return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?));
         }
         Ok(match integrator {
             Integrator::ExplicitEuler => Stepper::Explicit(Box::new(explicit_euler::new(s)?)),
