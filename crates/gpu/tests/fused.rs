@@ -589,24 +589,19 @@ fn no_spring_list(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         ensure(held == lean, || {
             format!("{name}: the stencil route built the spring list ({lean} B, then {held} B)")
         })?;
-        match g.debug_spring_forces() {
-            Err(StepError::Invalid(_)) => {}
-            other => {
-                return Err(
-                    format!("{name}: spring forces read back on the stencil: {other:?}").into(),
-                );
-            }
-        }
         let mut gather = open(gpu, &model, &state, Path::Gather)?;
         ensure(gather.model().memory_bytes() > lean, || {
             format!("{name}: the gather built no spring list")
         })?;
-        match gather.debug_spring_forces() {
-            Err(StepError::Invalid(_)) => {}
-            other => {
-                return Err(
-                    format!("{name}: spring forces read back on the gather: {other:?}").into(),
-                );
+        for (route, solver) in [("stencil", &mut g), ("gather", &mut gather)] {
+            match solver.debug_spring_forces() {
+                Err(StepError::Invalid(_)) => {}
+                other => {
+                    return Err(format!(
+                        "{name}: spring forces read back on the {route}: {other:?}"
+                    )
+                    .into());
+                }
             }
         }
         let per_spring = open(gpu, &model, &state, Path::PerSpring)?;
