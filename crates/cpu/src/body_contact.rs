@@ -53,6 +53,8 @@ pub use softbody_scene::model::{PENALTY, PENALTY_IMPLICIT, SLOP};
 /// Forces between particles that the explicit stages add to the springs' (a generic parameter
 /// of the integrators, so that a model whose bodies cannot touch pays nothing).
 pub trait PairForces: Sync {
+    /// Whether the force is always zero (the passes then update whole rows side by side).
+    const NONE: bool = false;
     /// The force on particle i at the stage state (x, v).
     fn force(&self, model: &Model, i: usize, x: &[DVec3], v: &[DVec3]) -> DVec3;
 }
@@ -61,6 +63,7 @@ pub trait PairForces: Sync {
 pub struct NoPairs;
 
 impl PairForces for NoPairs {
+    const NONE: bool = true;
     #[inline(always)]
     fn force(&self, _: &Model, _: usize, _: &[DVec3], _: &[DVec3]) -> DVec3 {
         DVec3::ZERO

@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 use rayon::prelude::*;
-use softbody_scene::Model;
+use softbody_scene::{Model, Simulation};
 use softbody_terrain::Surface;
 
 use crate::contact::contact_force;
@@ -59,12 +59,25 @@ pub fn acceleration_with(
     v: DVec3,
     springs: DVec3,
 ) -> DVec3 {
-    let w = model.inv_mass[i];
+    let (m, w) = (model.mass[i], model.inv_mass[i]);
+    acceleration_of(&model.simulation, (m, w), surfaces, x, v, springs)
+}
+
+/// a(x, v) of a particle of mass m and inverse mass w (0 where pinned) with the sum of its
+/// spring forces `springs`: [`acceleration_with`] given the masses, so that a loop over a row
+/// of particles reads them from slices it has checked once.
+#[inline(always)]
+pub fn acceleration_of(
+    sim: &Simulation,
+    (m, w): (f64, f64),
+    surfaces: &[Surface],
+    x: DVec3,
+    v: DVec3,
+    springs: DVec3,
+) -> DVec3 {
     if w == 0.0 {
         return DVec3::ZERO;
     }
-    let sim = &model.simulation;
-    let m = model.mass[i];
     let f = m * sim.gravity - sim.drag * m * v + springs;
     let eps = sim.contact_distance;
     // Clear of every surface: no contact, contact_force's zero without its queries.

@@ -48,7 +48,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{Model, Springs};
 
-use crate::spring_forces::stencil::{Slab, Stencil};
+use crate::spring_forces::stencil::{Row, Slab, Stencil};
 use crate::spring_forces::{Cursor, Kernel, LANES, Sum, gather_block};
 
 /// Particles gathered, or updated, together.
@@ -457,17 +457,50 @@ impl Chunks<'_> {
     }
 }
 
+/// What a pass on the stencil route does with a whole grid row before the per-particle
+/// update: the lanes it can update together (in vector registers), leaving the others to the
+/// per-particle update. It must write, for every lane it takes, the bits the per-particle
+/// update would, and take no lane that update would find not finite.
+pub(crate) trait RowUpdate<O: Outputs>: Sync {
+    /// Updates the lanes of `row` that it can into `out` (the chunk's outputs, in which the
+    /// row's first particle is at `at`), and sets `todo[i]` to whether it leaves lane i to the per-particle update.
+    fn row(&self, row: &Row<'_>, out: &mut O::Chunk, at: usize, todo: &mut [bool]);
+}
+
+/// Every particle by the per-particle update.
+pub(crate) struct PerParticle;
+
+impl<O: Outputs> RowUpdate<O> for PerParticle {
+    fn row(&self, _: &Row<'_>, _: &mut O::Chunk, _: usize, todo: &mut [bool]) {
+        todo.fill(true);
+    }
+}
+
 /// One fused pass: the spring forces at (x, v), then for every particle i
 /// `update(i, springs_i, outputs_i)` with `springs_i` the sum of its spring forces. `update`
 /// returns false for a particle it finds not finite; the pass returns the first such particle.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn pass<O: Outputs, U>(
     plan: &mut Plan,
     kernel: Kernel,
     model: &Model,
-    x: &[DVec3],
-    v: &[DVec3],
+    (x, v): (&[DVec3], &[DVec3]),
     outputs: O,
+    update: U,
+) -> Option<usize>
+where
+    U: Fn(usize, DVec3, O::Item<'_>) -> bool + Sync,
+{
+    pass_rows(plan, kernel, model, (x, v), outputs, &PerParticle, update)
+}
+
+/// [`pass`], with `rows` taking what it can of each grid row on the stencil route first.
+pub(crate) fn pass_rows<O: Outputs, U>(
+    plan: &mut Plan,
+    kernel: Kernel,
+    model: &Model,
+    (x, v): (&[DVec3], &[DVec3]),
+    outputs: O,
+    rows: &impl RowUpdate<O>,
     update: U,
 ) -> Option<usize>
 where
@@ -489,9 +522,15 @@ where
                 let start = ctx.bounds[c];
                 let mut bad = None;
                 let stencil = &stencils[slab.lattice];
-                slab.sweep(stencil, x, v, &mut |p, f| {
-                    if !update(p, f, O::item(&mut out, p - start)) && bad.is_none() {
-                        bad = Some(p);
+                let mut todo = Vec::new();
+                slab.sweep(stencil, x, v, &mut |row| {
+                    todo.resize(row.len(), true);
+                    rows.row(row, &mut out, row.p0 - start, &mut todo);
+                    for (i, _) in todo.iter().enumerate().filter(|(_, t)| **t) {
+                        let (p, (_, _, f)) = (row.p0 + i, row.particle(i));
+                        if !update(p, f, O::item(&mut out, p - start)) && bad.is_none() {
+                            bad = Some(p);
+                        }
                     }
                 });
                 bad
@@ -751,8 +790,7 @@ mod tests {
                 &mut plan,
                 Kernel::new(model.springs()),
                 model,
-                x,
-                v,
+                (x, v),
                 (&mut sums[..], &mut seen[..]),
                 |i, f, (sum, at)| {
                     (*sum, *at) = (f, x[i]);

@@ -63,11 +63,11 @@ use glam::DVec3;
 use softbody_scene::{FrictionModel, Terrain, TerrainShape};
 
 pub use heightfield::CellTriangle;
+pub use plane::PlaneGeometry;
 
 use cuboid::BoxGeometry;
 use heightfield::HeightfieldGeometry;
 use mesh::MeshGeometry;
-use plane::PlaneGeometry;
 use sphere::BallGeometry;
 
 /// Degenerate-normal threshold, relative to the shape's coordinate magnitude.
@@ -176,8 +176,17 @@ impl Surface {
     #[inline]
     pub fn clear_of(&self, x: DVec3, reach: f64) -> bool {
         match &self.geometry {
-            Geometry::Plane(plane) => plane.phi(x) >= reach,
+            Geometry::Plane(plane) => plane.clear_of(x, reach),
             _ => false,
+        }
+    }
+
+    /// The plane, when this surface is one: its [`PlaneGeometry::clear_of`] is this surface's
+    /// [`Surface::clear_of`].
+    pub fn plane(&self) -> Option<&PlaneGeometry> {
+        match &self.geometry {
+            Geometry::Plane(plane) => Some(plane),
+            _ => None,
         }
     }
 

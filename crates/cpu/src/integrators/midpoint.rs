@@ -57,8 +57,7 @@ impl Midpoint {
             plan,
             kernel,
             model,
-            x,
-            v,
+            (x, v),
             (&mut self.mid_x[..], &mut self.mid_v[..]),
             |i, springs, (xm, vm)| {
                 let f = springs + pairs.force(model, i, x, v);
@@ -73,8 +72,7 @@ impl Midpoint {
             plan,
             kernel,
             model,
-            xm,
-            vm,
+            (xm, vm),
             (&mut next_x[..], &mut next_v[..]),
             |i, springs, (xn, vn)| {
                 let f = springs + pairs.force(model, i, xm, vm);

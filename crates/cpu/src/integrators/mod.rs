@@ -21,13 +21,14 @@ pub mod symplectic_euler;
 
 use glam::DVec3;
 use softbody_scene::{History, Integrator, Model, State, Statistics, StepError, Timings};
-use softbody_terrain::Surface;
+use softbody_terrain::{PlaneGeometry, Surface};
 
 use crate::body_contact::{NoPairs, PairForces, Partners};
 use crate::collision_response::respond_one;
-use crate::forces::acceleration_with;
-use crate::pipeline::{Plan, RouteKind, pass};
+use crate::forces::{acceleration_of, acceleration_with};
+use crate::pipeline::{PerParticle, Plan, RouteKind, RowUpdate, pass_rows};
 use crate::spring_forces::Kernel;
+use crate::spring_forces::stencil::Row;
 use crate::vec_bytes;
 
 /// The integrator of a run with its scratch.
@@ -170,6 +171,9 @@ impl Stepper {
 pub struct Passes {
     plan: Plan,
     kernel: Kernel,
+    /// The instructions of the Euler methods' row updates ([`EulerRows`]); None: particle by
+    /// particle.
+    rows: Option<Isa>,
     next_x: Vec<DVec3>,
     next_v: Vec<DVec3>,
 }
@@ -187,6 +191,7 @@ impl Passes {
         Passes {
             plan,
             kernel,
+            rows: Some(Isa::detect()),
             next_x: vec![DVec3::ZERO; n],
             next_v: vec![DVec3::ZERO; n],
         }
@@ -201,33 +206,37 @@ impl Passes {
     /// particle the gathered forces, gravity, drag and contact, `update(x, v, a, h) -> (x', v')`,
     /// the collision response and the finiteness check. Returns the first particle that is not
     /// finite.
-    pub(crate) fn euler_step(
+    pub(crate) fn euler_step<P: PairForces>(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
-        pairs: &impl PairForces,
+        pairs: &P,
         state: &mut State,
         update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
     ) -> Option<usize> {
         let h = model.simulation.dt;
         let (x, v) = (&state.x[..], &state.v[..]);
-        let bad = pass(
-            &mut self.plan,
-            self.kernel,
-            model,
-            x,
-            v,
-            (&mut self.next_x[..], &mut self.next_v[..]),
-            // Inlined into the pass's block loop: a call per particle costs more than the
-            // update.
-            #[inline(always)]
-            |i, springs, (xn, vn)| {
-                let f = springs + pairs.force(model, i, x, v);
-                let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
-                (*xn, *vn) = update(x[i], v[i], a, h);
-                finish(model, surfaces, i, (x[i], v[i]), xn, vn)
-            },
-        );
+        let particle = |i: usize, springs: DVec3, (xn, vn): (&mut DVec3, &mut DVec3)| {
+            let f = springs + pairs.force(model, i, x, v);
+            let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
+            (*xn, *vn) = update(x[i], v[i], a, h);
+            finish(model, surfaces, i, (x[i], v[i]), xn, vn)
+        };
+        let outputs = (&mut self.next_x[..], &mut self.next_v[..]);
+        let (plan, kernel) = (&mut self.plan, self.kernel);
+        let planes: Option<Vec<&PlaneGeometry>> = surfaces.iter().map(Surface::plane).collect();
+        let bad = match (planes, self.rows) {
+            (Some(planes), Some(isa)) if P::NONE => {
+                let rows = EulerRows {
+                    model,
+                    planes,
+                    update: &update,
+                    isa,
+                };
+                pass_rows(plan, kernel, model, (x, v), outputs, &rows, particle)
+            }
+            _ => pass_rows(plan, kernel, model, (x, v), outputs, &PerParticle, particle),
+        };
         self.swap_into(state);
         bad
     }
@@ -247,6 +256,130 @@ impl Passes {
     pub(crate) fn swap_into(&mut self, state: &mut State) {
         std::mem::swap(&mut state.x, &mut self.next_x);
         std::mem::swap(&mut state.v, &mut self.next_v);
+    }
+}
+
+/// The Euler methods' update of a grid row on the stencil route, where no forces act between
+/// particles and every surface is a plane: a lane clear of every plane (φ ≥ ε) before and after
+/// its update meets no contact force and no collision response, so its update is
+/// [`acceleration_of`] without surfaces and `update`, the per-particle update's bits. Those
+/// lanes run side by side in vector registers; the others, and any lane whose result is not
+/// finite, are left to the per-particle update.
+struct EulerRows<'a, U> {
+    model: &'a Model,
+    planes: Vec<&'a PlaneGeometry>,
+    update: &'a U,
+    isa: Isa,
+}
+
+/// The widest vector instructions the CPU runs, for loops the compiler vectorises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Isa {
+    Avx512,
+    Avx2,
+    Baseline,
+}
+
+impl Isa {
+    fn detect() -> Isa {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f") {
+                return Isa::Avx512;
+            }
+            if std::is_x86_feature_detected!("avx2") {
+                return Isa::Avx2;
+            }
+        }
+        Isa::Baseline
+    }
+}
+
+impl<'o, U> RowUpdate<(&'o mut [DVec3], &'o mut [DVec3])> for EulerRows<'_, U>
+where
+    U: Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
+{
+    fn row(
+        &self,
+        row: &Row<'_>,
+        (xn, vn): &mut (&'o mut [DVec3], &'o mut [DVec3]),
+        at: usize,
+        todo: &mut [bool],
+    ) {
+        let n = row.len();
+        let (xn, vn) = (&mut xn[at..at + n], &mut vn[at..at + n]);
+        match self.isa {
+            // SAFETY: the CPU has AVX-512F (Isa::detect).
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { self.row_avx512(row, xn, vn, todo) },
+            // SAFETY: the CPU has AVX2 (Isa::detect).
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { self.row_avx2(row, xn, vn, todo) },
+            _ => self.lanes(row, xn, vn, todo),
+        }
+    }
+}
+
+impl<U> EulerRows<'_, U>
+where
+    U: Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
+{
+    /// [`EulerRows::lanes`] compiled for AVX-512.
+    ///
+    /// # Safety
+    /// The CPU has AVX-512F.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn row_avx512(
+        &self,
+        row: &Row<'_>,
+        xn: &mut [DVec3],
+        vn: &mut [DVec3],
+        todo: &mut [bool],
+    ) {
+        self.lanes(row, xn, vn, todo);
+    }
+
+    /// [`EulerRows::lanes`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// The CPU has AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn row_avx2(
+        &self,
+        row: &Row<'_>,
+        xn: &mut [DVec3],
+        vn: &mut [DVec3],
+        todo: &mut [bool],
+    ) {
+        self.lanes(row, xn, vn, todo);
+    }
+
+    /// Every lane's update into `xn`, `vn` (the row's outputs), and in `todo` whether the
+    /// per-particle update must redo it: branch-free loops over the row, which the compiler
+    /// vectorises.
+    #[inline(always)]
+    fn lanes(&self, row: &Row<'_>, xn: &mut [DVec3], vn: &mut [DVec3], todo: &mut [bool]) {
+        let n = row.len();
+        let model = self.model;
+        let sim = &model.simulation;
+        let (h, eps) = (sim.dt, sim.contact_distance);
+        let mass = &model.mass[row.p0..row.p0 + n];
+        let inv_mass = &model.inv_mass[row.p0..row.p0 + n];
+        let (xn, vn, todo) = (&mut xn[..n], &mut vn[..n], &mut todo[..n]);
+        for i in 0..n {
+            let (x, v, springs) = row.particle(i);
+            let a = acceleration_of(sim, (mass[i], inv_mass[i]), &[], x, v, springs);
+            (xn[i], vn[i]) = (self.update)(x, v, a, h);
+            todo[i] = !all_finite(xn[i], vn[i]);
+        }
+        for plane in &self.planes {
+            for i in 0..n {
+                let (x, _, _) = row.particle(i);
+                todo[i] |= !(plane.clear_of(x, eps) & plane.clear_of(xn[i], eps));
+            }
+        }
     }
 }
 
@@ -280,9 +413,107 @@ fn all_finite(x: DVec3, v: DVec3) -> bool {
 
 #[cfg(test)]
 mod tests {
-    use glam::DVec3;
+    use std::path::Path;
 
-    use super::all_finite;
+    use glam::DVec3;
+    use softbody_scene::{Model, Scene, State};
+    use softbody_terrain::Surface;
+
+    use super::{Isa, Passes, all_finite};
+    use crate::body_contact::NoPairs;
+
+    /// Cuboids of `resolutions` (one body each) on two planes that cut through them, every
+    /// particle moved and moving differently, a few pinned, one with an infinite velocity if
+    /// `blow_up`.
+    fn scene_on_planes(resolutions: &[[u32; 3]], blow_up: bool) -> (Model, State, Vec<Surface>) {
+        let mut text = String::from(
+            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-3\nduration = 0.0\n\
+             contact_distance = 0.05\n\
+             [[terrain]]\nkind = \"plane\"\npoint = [0.0, 0.8, 0.0]\nnormal = [0.0, 1.0, 0.0]\n\
+             friction = 0.5\nrestitution = 0.3\n\
+             [[terrain]]\nkind = \"plane\"\npoint = [0.0, 0.0, 0.6]\nnormal = [0.2, 0.3, -1.0]\n\
+             friction = 0.2\nrestitution = 0.0\n",
+        );
+        for (b, [nx, ny, nz]) in resolutions.iter().enumerate() {
+            text += &format!(
+                "[[body]]\nname = \"b{b}\"\nkind = \"cuboid\"\ncenter = [{x}, 1.0, 0.0]\n\
+                 size = [1.2, 1.0, 1.6]\nresolution = [{nx}, {ny}, {nz}]\nmass = 2.0\n\
+                 pinned = [0, 3]\n\
+                 structural = {{ stiffness = 2000.0, damping = 5.0 }}\n\
+                 shear = {{ stiffness = 1500.0, damping = 4.0 }}\n\
+                 bending = {{ stiffness = 700.0, damping = 3.0 }}\n",
+                x = 1.5 * b as f64,
+            );
+        }
+        let scene = Scene::from_toml(&text, Path::new("test.toml")).expect("valid scene");
+        let (model, mut state) = Model::build(&scene);
+        for (i, (x, v)) in state.x.iter_mut().zip(&mut state.v).enumerate() {
+            let t = i as f64;
+            *x += 0.01 * DVec3::new((1.3 * t).sin(), (0.7 * t).cos(), (2.1 * t).sin());
+            *v = DVec3::new((0.9 * t).sin(), (0.3 * t).cos() - 2.0, (1.7 * t).sin());
+        }
+        if blow_up {
+            state.v[model.len() / 2].y = f64::INFINITY;
+        }
+        let surfaces = scene.terrain.iter().map(Surface::new).collect();
+        (model, state, surfaces)
+    }
+
+    /// The Euler methods' row updates (with every instruction set the CPU has) give the bits
+    /// of the per-particle update, on lattices 2 and 3 wide, lanes in contact with two planes
+    /// or pinned among lanes in the air, and a particle blown up, for 1 to 7 threads.
+    #[test]
+    fn euler_row_updates_are_the_per_particle_update() {
+        let mut isas = vec![Isa::Baseline];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx2") {
+                isas.push(Isa::Avx2);
+            }
+            if std::is_x86_feature_detected!("avx512f") {
+                isas.push(Isa::Avx512);
+            }
+        }
+        let shapes: [&[[u32; 3]]; 3] = [&[[13, 11, 17]], &[[2, 3, 5], [3, 2, 4]], &[[9, 9, 9]]];
+        for (resolutions, blow_up) in shapes.into_iter().zip([false, false, true]) {
+            let (model, start, surfaces) = scene_on_planes(resolutions, blow_up);
+            let step = |threads: usize, rows: Option<Isa>, symplectic: bool| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("thread pool");
+                pool.install(|| {
+                    let mut passes = Passes::new(&model);
+                    passes.rows = rows;
+                    let mut state = start.clone();
+                    let bad =
+                        passes.euler_step(&model, &surfaces, &NoPairs, &mut state, |x, v, a, h| {
+                            if symplectic {
+                                let v1 = v + h * a;
+                                (x + h * v1, v1)
+                            } else {
+                                (x + h * v, v + h * a)
+                            }
+                        });
+                    let bits = |p: &[DVec3]| -> Vec<[u64; 3]> {
+                        p.iter().map(|p| p.to_array().map(f64::to_bits)).collect()
+                    };
+                    (bad, bits(&state.x), bits(&state.v))
+                })
+            };
+            for symplectic in [true, false] {
+                let expected = step(1, None, symplectic);
+                assert_eq!(expected.0.is_some(), blow_up, "{resolutions:?}");
+                for threads in 1..=7 {
+                    for &isa in &isas {
+                        let got = step(threads, Some(isa), symplectic);
+                        let what = format!("{resolutions:?} {isa:?} {threads} threads");
+                        assert!(got == expected, "{what}, symplectic {symplectic}");
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn all_finite_is_is_finite() {

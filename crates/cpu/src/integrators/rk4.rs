@@ -70,8 +70,7 @@ impl Rk4 {
             plan,
             kernel,
             model,
-            x,
-            v,
+            (x, v),
             (
                 &mut self.stage_x[..],
                 &mut self.stage_v[..],
@@ -95,8 +94,7 @@ impl Rk4 {
                 plan,
                 kernel,
                 model,
-                xs,
-                vs,
+                (xs, vs),
                 (
                     &mut next_x[..],
                     &mut next_v[..],
@@ -123,8 +121,7 @@ impl Rk4 {
             plan,
             kernel,
             model,
-            xs,
-            vs,
+            (xs, vs),
             (&mut next_x[..], &mut next_v[..]),
             |i, springs, (xn, vn)| {
                 let f = springs + pairs.force(model, i, xs, vs);

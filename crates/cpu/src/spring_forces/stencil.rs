@@ -283,14 +283,14 @@ impl Slab {
         plane
     }
 
-    /// Hands every particle of the slab, in ascending order, to `done` with the sum of its
-    /// spring forces at (x, v) (the whole model's arrays).
+    /// Hands every row of the slab, in ascending order, to `done` with its particles' state
+    /// and the sums of their spring forces at (x, v) (the whole model's arrays).
     pub(crate) fn sweep(
         &mut self,
         stencil: &Stencil,
         x: &[DVec3],
         v: &[DVec3],
-        done: &mut impl FnMut(usize, DVec3),
+        done: &mut impl FnMut(&Row<'_>),
     ) {
         let [nx, ny, _] = stencil.dims;
         self.window(stencil, x, v, self.kb, self.k0);
@@ -309,12 +309,15 @@ impl Slab {
             for j in 0..ny {
                 self.compute_row(stencil, &plane, j, k, 0);
                 self.sum_row(stencil, &plane, j);
-                let p0 = stencil.first + nx * (j + ny * k);
-                let r = stencil.row;
-                for i in 0..nx {
-                    let f = DVec3::new(self.sums[i], self.sums[r + i], self.sums[2 * r + i]);
-                    done(p0 + i, f);
-                }
+                let s0 = self.slot(stencil, 0, j, k);
+                let state = |c: usize| &self.state[c * self.len + s0..][..nx];
+                let sums = |c: usize| &self.sums[c * stencil.row..][..nx];
+                done(&Row {
+                    p0: stencil.first + nx * (j + ny * k),
+                    x: [state(0), state(1), state(2)],
+                    v: [state(3), state(4), state(5)],
+                    f: [sums(0), sums(1), sums(2)],
+                });
             }
         }
     }
@@ -446,6 +449,31 @@ impl Slab {
                 }
             }
         }
+    }
+}
+
+/// One grid row of a sweep ([`Slab::sweep`]), structure of arrays: particles
+/// `p0..p0 + len()`, their positions and velocities (the bits of the model's arrays) and the
+/// sums of their spring forces.
+pub(crate) struct Row<'a> {
+    pub(crate) p0: usize,
+    pub(crate) x: [&'a [f64]; 3],
+    pub(crate) v: [&'a [f64]; 3],
+    pub(crate) f: [&'a [f64]; 3],
+}
+
+impl Row<'_> {
+    /// Particles in the row.
+    #[inline(always)]
+    pub(crate) fn len(&self) -> usize {
+        self.x[0].len()
+    }
+
+    /// Position, velocity and spring-force sum of the row's i-th particle.
+    #[inline(always)]
+    pub(crate) fn particle(&self, i: usize) -> (DVec3, DVec3, DVec3) {
+        let at = |c: &[&[f64]; 3]| DVec3::new(c[0][i], c[1][i], c[2][i]);
+        (at(&self.x), at(&self.v), at(&self.f))
     }
 }
 
