@@ -242,6 +242,7 @@ impl Plan {
         let avx2 = crate::spring_forces::avx2();
         match (self.route(), avx2) {
             (RouteKind::Stencil, _) => match Isa::detect() {
+                Isa::Avx512 => "stencil-avx512",
                 Isa::Avx2 => "stencil-avx2",
                 Isa::Scalar => "stencil",
             },
@@ -796,7 +797,7 @@ mod tests {
         }
     }
 
-    /// The stencil (each of its paths that the CPU runs: scalar, AVX2) equals the
+    /// The stencil (each of its paths that the CPU runs: scalar, AVX2, AVX-512) equals the
     /// scalar definition on lattices two and three particles wide along each axis (where
     /// bending springs are missing or single), on several bodies at once, and on a slab of
     /// several windows of planes, for 1 to 7 threads.
@@ -811,7 +812,7 @@ mod tests {
             &[[6, 5, 12], [3, 3, 3]],
         ];
         // A path the CPU lacks is skipped: it cannot run here.
-        let isas = [Isa::Scalar, Isa::Avx2];
+        let isas = [Isa::Scalar, Isa::Avx2, Isa::Avx512];
         let isas: Vec<Isa> = isas.into_iter().filter(|isa| isa.runs()).collect();
         eprintln!("stencil paths tested: {isas:?}");
         for resolutions in shapes {

@@ -5,8 +5,8 @@
 //! in the same order), and particle p's sum is the one [`gather`](super::gather) forms, the
 //! same bits: the gather adds, in ascending spring order, −f of every spring ending at p (its
 //! first end a = p − o ascends as the linear offset o descends), then +f of every spring
-//! starting at p, in [`OFFSETS`] order. Here, for four (AVX2) consecutive particles of a grid
-//! row at once, or one at a time where the CPU lacks it ([`Isa`]):
+//! starting at p, in [`OFFSETS`] order. Here, for four (AVX2) or eight (AVX-512) consecutive
+//! particles of a grid row at once, or one at a time where the CPU has neither ([`Isa`]):
 //!
 //! 1. the force of every spring starting in the row is computed once, a vector at a time, and
 //!    kept in a ring of per-offset planes of rows (zero where no spring starts), as many
@@ -38,8 +38,8 @@ use super::spring_force;
 /// Zeros before and after every buffer, so that partners one or two slots before a row's start
 /// stay inside it.
 const GUARD: usize = 4;
-/// Slots per padded row are a multiple of this, so that the groups of every vector path tile a
-/// row.
+/// Slots per padded row are a multiple of this: the lanes of the widest path (AVX-512's eight
+/// f64), so that the groups of every path tile a row.
 const ROW_MULTIPLE: usize = 8;
 /// Planes of a slab whose sums one copy of the state serves.
 const WINDOW: usize = 8;
@@ -63,12 +63,14 @@ pub(crate) enum Isa {
     Scalar,
     /// Four particles side by side in 256-bit vectors.
     Avx2,
+    /// Eight particles side by side in 512-bit vectors (AVX-512F alone).
+    Avx512,
 }
 
 impl Isa {
-    /// The widest the CPU runs: AVX2, then scalar.
+    /// The widest the CPU runs: AVX-512, then AVX2, then scalar.
     pub(crate) fn detect() -> Isa {
-        [Isa::Avx2]
+        [Isa::Avx512, Isa::Avx2]
             .into_iter()
             .find(|isa| isa.runs())
             .unwrap_or(Isa::Scalar)
@@ -79,6 +81,7 @@ impl Isa {
         match self {
             Isa::Scalar => true,
             Isa::Avx2 => super::avx2(),
+            Isa::Avx512 => super::avx512(),
         }
     }
 }
@@ -383,6 +386,9 @@ impl Slab {
         let springs = self.row_springs(stencil, plane, j, k, min_dk);
         #[cfg(target_arch = "x86_64")]
         match stencil.isa {
+            // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `row_springs` checked
+            // the slots.
+            Isa::Avx512 => return unsafe { avx512::compute_row(self, stencil, &springs) },
             // SAFETY: AVX2 was detected at run time (`Isa::runs`); `row_springs` checked the
             // slots.
             Isa::Avx2 => return unsafe { avx::compute_row(self, stencil, &springs) },
@@ -495,6 +501,9 @@ impl Slab {
         let sources = self.sources(stencil, plane, j);
         #[cfg(target_arch = "x86_64")]
         match stencil.isa {
+            // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `sources` checked the
+            // slots.
+            Isa::Avx512 => return unsafe { avx512::sum_row(self, stencil.row, &sources) },
             // SAFETY: AVX2 was detected at run time (`Isa::runs`); `sources` checked the slots.
             Isa::Avx2 => return unsafe { avx::sum_row(self, stencil.row, &sources) },
             Isa::Scalar => {}
@@ -574,6 +583,9 @@ fn offset_slots(stencil: &Stencil, o: [i32; 3]) -> isize {
     o[0] as isize
         + stencil.row as isize * (o[1] as isize + stencil.dims[1] as isize * o[2] as isize)
 }
+
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 
 #[cfg(target_arch = "x86_64")]
 mod avx {
