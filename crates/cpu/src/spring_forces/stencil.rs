@@ -36,11 +36,14 @@ use softbody_scene::topology::OFFSETS;
 use super::spring_force;
 
 /// Zeros before and after every buffer, so that partners one or two slots before a row's start
-/// stay inside it.
-const GUARD: usize = 4;
+/// stay inside it; a cache line of them, so that rows start on lines ([`Lines`]).
+const GUARD: usize = LINE;
 /// Slots per padded row are a multiple of this: the lanes of the widest path (AVX-512's eight
-/// f64), so that the groups of every path tile a row.
-const ROW_MULTIPLE: usize = 8;
+/// f64), so that the groups of every path tile a row; a cache line, so that rows start on
+/// lines ([`Lines`]).
+const ROW_MULTIPLE: usize = LINE;
+/// f64 slots per cache line (64 bytes).
+const LINE: usize = 8;
 /// Planes of a slab whose sums one copy of the state serves.
 const WINDOW: usize = 8;
 
@@ -231,13 +234,13 @@ pub(crate) struct Slab {
     base: usize,
     /// Slots of each of the six state arrays (x, y, z of x; x, y, z of v).
     len: usize,
-    state: Vec<f64>,
+    state: Lines,
     /// Slots of each ring row array: a guarded padded plane.
     ring_len: usize,
     /// Per offset, plane k % (dk + 1) and component: the forces of the springs starting there.
-    ring: Vec<f64>,
+    ring: Lines,
     /// A row's sums, per component.
-    sums: Vec<f64>,
+    sums: Lines,
 }
 
 impl Slab {
@@ -255,17 +258,17 @@ impl Slab {
             kb,
             base: kb,
             len,
-            state: vec![0.0; 6 * len],
+            state: Lines::zeroed(6 * len),
             ring_len,
-            ring: vec![0.0; stencil.ring_planes() * 3 * ring_len],
-            sums: vec![0.0; 3 * stencil.row],
+            ring: Lines::zeroed(stencil.ring_planes() * 3 * ring_len),
+            sums: Lines::zeroed(3 * stencil.row),
         }
     }
 
     /// Bytes held on the heap.
     pub(crate) fn memory_bytes(&self) -> u64 {
         use crate::vec_bytes;
-        vec_bytes(&self.state) + vec_bytes(&self.ring) + vec_bytes(&self.sums)
+        vec_bytes(&self.state.0) + vec_bytes(&self.ring.0) + vec_bytes(&self.sums.0)
     }
 
     /// Global index of the slab's first particle and one past its last.
@@ -564,6 +567,44 @@ impl Sources {
     }
     fn forth(&self) -> &[usize] {
         &self.forth[..self.counts.1]
+    }
+}
+
+/// A cache line of f64 slots.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(64))]
+struct Line([f64; LINE]);
+const _: () = assert!(size_of::<Line>() == size_of::<[f64; LINE]>());
+
+/// Zeroed f64 slots on whole cache lines, as a slice: a slab's buffers start on a line, and
+/// with guards and rows of whole lines so does every row of the state, of the ring and of the
+/// sums. Then a vector of a row's own slots never straddles two lines (which costs a second
+/// access; the AVX-512 path's vectors, a line each, would straddle on every load elsewhere).
+#[derive(Debug, Clone)]
+struct Lines(Vec<Line>);
+
+impl Lines {
+    /// `slots` zeros, whole lines of them.
+    fn zeroed(slots: usize) -> Lines {
+        assert!(slots.is_multiple_of(LINE));
+        Lines(vec![Line([0.0; LINE]); slots / LINE])
+    }
+}
+
+impl std::ops::Deref for Lines {
+    type Target = [f64];
+
+    fn deref(&self) -> &[f64] {
+        // SAFETY: a `Line` is LINE f64 and nothing else (`repr(C)`, no padding: asserted
+        // beside it), so the lines are LINE times as many contiguous f64.
+        unsafe { std::slice::from_raw_parts(self.0.as_ptr().cast(), LINE * self.0.len()) }
+    }
+}
+
+impl std::ops::DerefMut for Lines {
+    fn deref_mut(&mut self) -> &mut [f64] {
+        // SAFETY: as for `deref`, through the only borrow of the lines.
+        unsafe { std::slice::from_raw_parts_mut(self.0.as_mut_ptr().cast(), LINE * self.0.len()) }
     }
 }
 
