@@ -315,6 +315,18 @@ pub(crate) fn avx2() -> bool {
     }
 }
 
+/// Whether the CPU runs AVX-512F (then the lattice stencil uses it: [`stencil`]).
+pub(crate) fn avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 /// Sum of the spring forces on particle `i`.
 #[inline(always)]
 pub fn gather(adjacency: &Adjacency, per_spring: &[DVec3], i: usize) -> DVec3 {

@@ -5,11 +5,11 @@
 //! in the same order), and particle p's sum is the one [`gather`](super::gather) forms, the
 //! same bits: the gather adds, in ascending spring order, −f of every spring ending at p (its
 //! first end a = p − o ascends as the linear offset o descends), then +f of every spring
-//! starting at p, in [`OFFSETS`] order. Here, for four consecutive particles of a grid row at
-//! once:
+//! starting at p, in [`OFFSETS`] order. Here, for four (AVX2) or eight (AVX-512) consecutive
+//! particles of a grid row at once, or one at a time where the CPU has neither ([`Isa`]):
 //!
-//! 1. the force of every spring starting in the row is computed once, four lanes at a time,
-//!    and kept in a ring of per-offset planes of rows (zero where no spring starts), as many
+//! 1. the force of every spring starting in the row is computed once, a vector at a time, and
+//!    kept in a ring of per-offset planes of rows (zero where no spring starts), as many
 //!    planes as the offset reaches up (dk + 1: a plane's sums read its own and, for offsets
 //!    with dk > 0, the planes dk below);
 //! 2. the row's sums take −f from the ring at p − o, offsets by descending linear offset, then
@@ -17,7 +17,7 @@
 //!    a sum's bits as they are (a sum that starts at +0 is never −0), so the boundary needs no
 //!    branch.
 //!
-//! Positions and velocities are first copied into rows padded to a multiple of four with at
+//! Positions and velocities are first copied into rows padded to a multiple of eight with at
 //! least two spare slots (so that a partner beyond the row's end, or before its start, lands
 //! in zeros of the padding), structure of arrays. A row needs the forces of the two planes
 //! below it, so each thread sweeps its own slab of planes upwards and first computes the
@@ -36,10 +36,14 @@ use softbody_scene::topology::OFFSETS;
 use super::spring_force;
 
 /// Zeros before and after every buffer, so that partners one or two slots before a row's start
-/// stay inside it.
-const GUARD: usize = 4;
-/// Particles side by side.
-const LANES: usize = 4;
+/// stay inside it; a cache line of them, so that rows start on lines ([`Lines`]).
+const GUARD: usize = LINE;
+/// Slots per padded row are a multiple of this: the lanes of the widest path (AVX-512's eight
+/// f64), so that the groups of every path tile a row; a cache line, so that rows start on
+/// lines ([`Lines`]).
+const ROW_MULTIPLE: usize = LINE;
+/// f64 slots per cache line (64 bytes).
+const LINE: usize = 8;
 /// Planes of a slab whose sums one copy of the state serves.
 const WINDOW: usize = 8;
 
@@ -55,6 +59,36 @@ struct Offset {
     kd: f64,
 }
 
+/// The instruction set of a stencil's rows, each giving the same bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// One particle at a time.
+    Scalar,
+    /// Four particles side by side in 256-bit vectors.
+    Avx2,
+    /// Eight particles side by side in 512-bit vectors (AVX-512F alone).
+    Avx512,
+}
+
+impl Isa {
+    /// The widest the CPU runs: AVX-512, then AVX2, then scalar.
+    pub(crate) fn detect() -> Isa {
+        [Isa::Avx512, Isa::Avx2]
+            .into_iter()
+            .find(|isa| isa.runs())
+            .unwrap_or(Isa::Scalar)
+    }
+
+    /// Whether the CPU runs it (detected at run time; the vector paths rely on it).
+    pub(crate) fn runs(self) -> bool {
+        match self {
+            Isa::Scalar => true,
+            Isa::Avx2 => super::avx2(),
+            Isa::Avx512 => super::avx512(),
+        }
+    }
+}
+
 /// A lattice body's stencil: its geometry in the padded layout and its offsets.
 #[derive(Debug, Clone)]
 pub(crate) struct Stencil {
@@ -62,7 +96,7 @@ pub(crate) struct Stencil {
     first: usize,
     /// Particles per axis.
     dims: [usize; 3],
-    /// Slots per padded row: nx + 2 rounded up to a multiple of [`LANES`].
+    /// Slots per padded row: nx + 2 rounded up to a multiple of [`ROW_MULTIPLE`].
     row: usize,
     /// The offsets with springs, in [`OFFSETS`] order: the order of the forward sums, and each
     /// one's place in the ring.
@@ -70,10 +104,12 @@ pub(crate) struct Stencil {
     /// The offsets (indices into `offsets`) by descending linear offset: the order of the
     /// backward sums.
     backward: Vec<usize>,
-    /// Per offset and group of four slots of a row (offset after offset): the lanes where a
-    /// spring of that offset starts (all ones) or none does (zero), whatever the row.
-    lane_masks: Vec<[u64; LANES]>,
-    avx2: bool,
+    /// Per offset and slot of a row (offset after offset): whether a spring of that offset
+    /// starts there (all ones) or none does (zero), whatever the row; the vector paths load
+    /// their lane masks from it.
+    lane_masks: Vec<u64>,
+    /// The path the rows take.
+    isa: Isa,
 }
 
 impl Stencil {
@@ -81,7 +117,7 @@ impl Stencil {
     pub(crate) fn new(lattice: &Lattice) -> Stencil {
         let dims = lattice.dims.map(|d| d as usize);
         let [nx, ny, _] = dims;
-        let row = (nx + 2).next_multiple_of(LANES);
+        let row = (nx + 2).next_multiple_of(ROW_MULTIPLE);
         let mut planes = 0;
         let offsets: Vec<Offset> = (lattice.springs.iter())
             .map(|s| {
@@ -104,17 +140,15 @@ impl Stencil {
         // Two offsets of equal linear offset never both end at one particle (its partner
         // would be one particle at two places), so their relative order does not matter.
         backward.sort_by_key(|&r| std::cmp::Reverse(linear(offsets[r].o)));
-        let mut lane_masks = Vec::with_capacity(row / LANES * offsets.len());
-        for off in &offsets {
-            for g in 0..row / LANES {
-                lane_masks.push(std::array::from_fn(|l| {
-                    let i = (LANES * g + l) as i64;
+        let lane_masks = (offsets.iter())
+            .flat_map(|off| {
+                (0..row as i64).map(|i| {
                     let q = i + i64::from(off.o[0]);
                     let starts = i < nx as i64 && (0..nx as i64).contains(&q);
                     if starts { u64::MAX } else { 0 }
-                }));
-            }
-        }
+                })
+            })
+            .collect();
         Stencil {
             first: lattice.first as usize,
             dims,
@@ -122,14 +156,16 @@ impl Stencil {
             offsets,
             backward,
             lane_masks,
-            avx2: super::avx2(),
+            isa: Isa::detect(),
         }
     }
 
-    /// Takes the scalar path whatever the CPU (for tests of that path on AVX2 machines).
+    /// Takes the path of `isa`, which the CPU must run, rather than the widest it runs (for
+    /// tests of every path).
     #[cfg(test)]
-    pub(crate) fn scalar(&mut self) {
-        self.avx2 = false;
+    pub(crate) fn with_isa(&mut self, isa: Isa) {
+        assert!(isa.runs(), "{isa:?} on a CPU without it");
+        self.isa = isa;
     }
 
     /// Planes of the ring: dk + 1 per offset.
@@ -198,13 +234,13 @@ pub(crate) struct Slab {
     base: usize,
     /// Slots of each of the six state arrays (x, y, z of x; x, y, z of v).
     len: usize,
-    state: Vec<f64>,
+    state: Lines,
     /// Slots of each ring row array: a guarded padded plane.
     ring_len: usize,
     /// Per offset, plane k % (dk + 1) and component: the forces of the springs starting there.
-    ring: Vec<f64>,
+    ring: Lines,
     /// A row's sums, per component.
-    sums: Vec<f64>,
+    sums: Lines,
 }
 
 impl Slab {
@@ -222,17 +258,17 @@ impl Slab {
             kb,
             base: kb,
             len,
-            state: vec![0.0; 6 * len],
+            state: Lines::zeroed(6 * len),
             ring_len,
-            ring: vec![0.0; stencil.ring_planes() * 3 * ring_len],
-            sums: vec![0.0; 3 * stencil.row],
+            ring: Lines::zeroed(stencil.ring_planes() * 3 * ring_len),
+            sums: Lines::zeroed(3 * stencil.row),
         }
     }
 
     /// Bytes held on the heap.
     pub(crate) fn memory_bytes(&self) -> u64 {
         use crate::vec_bytes;
-        vec_bytes(&self.state) + vec_bytes(&self.ring) + vec_bytes(&self.sums)
+        vec_bytes(&self.state.0) + vec_bytes(&self.ring.0) + vec_bytes(&self.sums.0)
     }
 
     /// Global index of the slab's first particle and one past its last.
@@ -353,42 +389,80 @@ impl Slab {
         k: usize,
         min_dk: i32,
     ) {
+        let springs = self.row_springs(stencil, plane, j, k, min_dk);
         #[cfg(target_arch = "x86_64")]
-        if stencil.avx2 {
-            // SAFETY: AVX2 was detected at run time.
-            unsafe { avx::compute_row(self, stencil, plane, j, k, min_dk) };
-            return;
+        match stencil.isa {
+            // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `row_springs` checked
+            // the slots.
+            Isa::Avx512 => return unsafe { avx512::compute_row(self, stencil, &springs) },
+            // SAFETY: AVX2 was detected at run time (`Isa::runs`); `row_springs` checked the
+            // slots.
+            Isa::Avx2 => return unsafe { avx::compute_row(self, stencil, &springs) },
+            Isa::Scalar => {}
         }
+        let a0 = springs.a0;
+        for &RowSpring { r, b0, out } in springs.springs() {
+            let off = &stencil.offsets[r];
+            let masks = &stencil.lane_masks[r * stencil.row..(r + 1) * stencil.row];
+            for (i, &lane) in masks.iter().enumerate() {
+                let at = |s: usize| {
+                    let c = |c: usize| self.state[c * self.len + s];
+                    (DVec3::new(c(0), c(1), c(2)), DVec3::new(c(3), c(4), c(5)))
+                };
+                let f = if lane != 0 {
+                    let ((xa, va), (xb, vb)) = (at(a0 + i), at(b0 + i));
+                    spring_force(xa, xb, va, vb, off.rest, off.ks, off.kd)
+                } else {
+                    DVec3::ZERO
+                };
+                for (c, value) in f.to_array().into_iter().enumerate() {
+                    self.ring[out + i + c * self.ring_len] = value;
+                }
+            }
+        }
+    }
+
+    /// The springs of offsets with dk ≥ `min_dk` starting in row (j, k): where the row starts
+    /// in the state arrays and, per offset, where its partners do and where its forces go in
+    /// the ring (x component).
+    fn row_springs(
+        &self,
+        stencil: &Stencil,
+        plane: &PlaneRing,
+        j: usize,
+        k: usize,
+        min_dk: i32,
+    ) -> RowSprings {
+        let row = stencil.row;
         let a0 = self.slot(stencil, 0, j, k);
-        let groups = stencil.row / LANES;
+        let mut springs = RowSprings {
+            a0,
+            springs: [RowSpring {
+                r: 0,
+                b0: 0,
+                out: 0,
+            }; 16],
+            count: 0,
+        };
+        // What the vector paths read and write lies in the buffers: a's row and b's row are
+        // rows of the state buffer (b's row is in the grid: `PlaneRing::starts`), and b's
+        // slots are at most two before its row's start (GUARD) or after a's slots (the
+        // padding); a spring's forces fill a row of each ring array; the lane masks hold a row
+        // per offset.
+        assert!(a0 >= GUARD && a0 + row <= self.len);
+        assert_eq!(stencil.lane_masks.len(), row * stencil.offsets.len());
         for (r, off) in stencil.offsets.iter().enumerate() {
             if off.o[2] < min_dk || !plane.starts(r, j) {
                 continue;
             }
-            let delta = offset_slots(stencil, off.o);
-            let out = plane.own[r] + stencil.row * j;
-            for g in 0..groups {
-                let mask = stencil.lane_masks[r * groups + g];
-                for (l, &lane) in mask.iter().enumerate() {
-                    let a = a0 + LANES * g + l;
-                    let b = a.wrapping_add_signed(delta);
-                    let at = |s: usize| {
-                        let c = |c: usize| self.state[c * self.len + s];
-                        (DVec3::new(c(0), c(1), c(2)), DVec3::new(c(3), c(4), c(5)))
-                    };
-                    let f = if lane != 0 {
-                        let ((xa, va), (xb, vb)) = (at(a), at(b));
-                        spring_force(xa, xb, va, vb, off.rest, off.ks, off.kd)
-                    } else {
-                        DVec3::ZERO
-                    };
-                    let s = out + LANES * g + l;
-                    for (c, value) in f.to_array().into_iter().enumerate() {
-                        self.ring[s + c * self.ring_len] = value;
-                    }
-                }
-            }
+            let b0 = a0.wrapping_add_signed(offset_slots(stencil, off.o));
+            assert!((GUARD - 2..=self.len - row).contains(&b0));
+            let out = plane.own[r] + row * j;
+            assert!(out + 2 * self.ring_len + row <= self.ring.len());
+            springs.springs[springs.count] = RowSpring { r, b0, out };
+            springs.count += 1;
         }
+        springs
     }
 
     /// Where the sums of row (j, k) take their forces from, in order: the first slot (of the
@@ -418,9 +492,12 @@ impl Slab {
                 sources.counts.1 += 1;
             }
         }
+        // What the vector paths read and write lies in the buffers: each source's row of every
+        // ring array, and the row of sums of every component.
         for &at in sources.back().iter().chain(sources.forth()) {
             assert!(at >= GUARD - 2 && at + r + 2 * self.ring_len <= self.ring.len());
         }
+        assert_eq!(self.sums.len(), 3 * r);
         sources
     }
 
@@ -429,10 +506,13 @@ impl Slab {
     fn sum_row(&mut self, stencil: &Stencil, plane: &PlaneRing, j: usize) {
         let sources = self.sources(stencil, plane, j);
         #[cfg(target_arch = "x86_64")]
-        if stencil.avx2 {
-            // SAFETY: AVX2 was detected at run time; `sources` checked the slots.
-            unsafe { avx::sum_row(self, stencil.row, &sources) };
-            return;
+        match stencil.isa {
+            // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `sources` checked the
+            // slots.
+            Isa::Avx512 => return unsafe { avx512::sum_row(self, stencil.row, &sources) },
+            // SAFETY: AVX2 was detected at run time (`Isa::runs`); `sources` checked the slots.
+            Isa::Avx2 => return unsafe { avx::sum_row(self, stencil.row, &sources) },
+            Isa::Scalar => {}
         }
         let r = stencil.row;
         for (c, sums) in self.sums.chunks_mut(r).enumerate() {
@@ -477,6 +557,31 @@ impl Row<'_> {
     }
 }
 
+/// A row's springs of one offset ([`Slab::row_springs`]).
+#[derive(Debug, Clone, Copy)]
+struct RowSpring {
+    /// The offset (an index into the stencil's offsets).
+    r: usize,
+    /// Slot of the first particle's partner in the state arrays.
+    b0: usize,
+    /// Slot of the first particle's force in the ring (x component).
+    out: usize,
+}
+
+/// A row's springs ([`Slab::row_springs`]).
+struct RowSprings {
+    /// Slot of the row's first particle in the state arrays.
+    a0: usize,
+    springs: [RowSpring; 16],
+    count: usize,
+}
+
+impl RowSprings {
+    fn springs(&self) -> &[RowSpring] {
+        &self.springs[..self.count]
+    }
+}
+
 /// A row's sources ([`Slab::sources`]).
 struct Sources {
     back: [usize; 16],
@@ -490,6 +595,44 @@ impl Sources {
     }
     fn forth(&self) -> &[usize] {
         &self.forth[..self.counts.1]
+    }
+}
+
+/// A cache line of f64 slots.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(64))]
+struct Line([f64; LINE]);
+const _: () = assert!(size_of::<Line>() == size_of::<[f64; LINE]>());
+
+/// Zeroed f64 slots on whole cache lines, as a slice: a slab's buffers start on a line, and
+/// with guards and rows of whole lines so does every row of the state, of the ring and of the
+/// sums. Then a vector of a row's own slots never straddles two lines (which costs a second
+/// access; the AVX-512 path's vectors, a line each, would straddle on every load elsewhere).
+#[derive(Debug, Clone)]
+struct Lines(Vec<Line>);
+
+impl Lines {
+    /// `slots` zeros, whole lines of them.
+    fn zeroed(slots: usize) -> Lines {
+        assert!(slots.is_multiple_of(LINE));
+        Lines(vec![Line([0.0; LINE]); slots / LINE])
+    }
+}
+
+impl std::ops::Deref for Lines {
+    type Target = [f64];
+
+    fn deref(&self) -> &[f64] {
+        // SAFETY: a `Line` is LINE f64 and nothing else (`repr(C)`, no padding: asserted
+        // beside it), so the lines are LINE times as many contiguous f64.
+        unsafe { std::slice::from_raw_parts(self.0.as_ptr().cast(), LINE * self.0.len()) }
+    }
+}
+
+impl std::ops::DerefMut for Lines {
+    fn deref_mut(&mut self) -> &mut [f64] {
+        // SAFETY: as for `deref`, through the only borrow of the lines.
+        unsafe { std::slice::from_raw_parts_mut(self.0.as_mut_ptr().cast(), LINE * self.0.len()) }
     }
 }
 
@@ -511,6 +654,9 @@ fn offset_slots(stencil: &Stencil, o: [i32; 3]) -> isize {
 }
 
 #[cfg(target_arch = "x86_64")]
+mod avx512;
+
+#[cfg(target_arch = "x86_64")]
 mod avx {
     //! The stencil's rows in 256-bit vectors: four consecutive particles per group, each lane
     //! doing exactly [`spring_force`](crate::spring_forces::spring_force)'s IEEE operations in
@@ -518,8 +664,12 @@ mod avx {
 
     use std::arch::x86_64::*;
 
-    use super::{GUARD, LANES, PlaneRing, Slab, Sources, Stencil, offset_slots};
+    use super::{ROW_MULTIPLE, RowSpring, RowSprings, Slab, Sources, Stencil};
     use crate::spring_forces::avx::forces;
+
+    /// Particles side by side.
+    const LANES: usize = 4;
+    const _: () = assert!(ROW_MULTIPLE.is_multiple_of(LANES));
 
     /// Four f64 from `p`.
     ///
@@ -532,49 +682,33 @@ mod avx {
         unsafe { _mm256_loadu_pd(p) }
     }
 
+    /// The forces of `springs` into the ring ([`Slab::compute_row`]).
+    ///
     /// # Safety
-    /// AVX2 is available.
+    /// AVX2 is available, and `springs` were made by [`Slab::row_springs`] for this slab and
+    /// stencil.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn compute_row(
-        slab: &mut Slab,
-        stencil: &Stencil,
-        plane: &PlaneRing,
-        j: usize,
-        k: usize,
-        min_dk: i32,
-    ) {
-        let a0 = slab.slot(stencil, 0, j, k);
-        let groups = stencil.row / LANES;
+    pub(super) unsafe fn compute_row(slab: &mut Slab, stencil: &Stencil, springs: &RowSprings) {
+        let row = stencil.row;
         let (len, rl) = (slab.len, slab.ring_len);
-        // Every slot read lies in the state buffer: a's row and b's row are rows of the
-        // buffer (b's row is in the grid: `PlaneRing::starts`), and b's lanes are at most two slots
-        // before its row's start (GUARD) or after a's lanes (the padding).
-        assert!(a0 >= GUARD && a0 + stencil.row <= len);
-        assert_eq!(stencil.lane_masks.len(), groups * stencil.offsets.len());
         let state = slab.state.as_ptr();
         let ring = slab.ring.as_mut_ptr();
-        for (r, off) in stencil.offsets.iter().enumerate() {
-            if off.o[2] < min_dk || !plane.starts(r, j) {
-                continue;
-            }
-            let b0 = a0.wrapping_add_signed(offset_slots(stencil, off.o));
-            assert!(b0 >= GUARD - 2 && b0 + stencil.row <= len);
-            let out = plane.own[r] + stencil.row * j;
-            assert!(out + 2 * rl + stencil.row <= slab.ring.len());
+        for &RowSpring { r, b0, out } in springs.springs() {
+            let off = &stencil.offsets[r];
             let (rest, ks, kd) = (
                 _mm256_set1_pd(off.rest),
                 _mm256_set1_pd(off.ks),
                 _mm256_set1_pd(off.kd),
             );
-            // SAFETY: asserted above: rows a0.., b0.. of every state array and row out.. of
-            // every ring array hold `stencil.row` slots, and the mask table this offset's
-            // groups.
+            // SAFETY: `Slab::row_springs` checked that rows a0.., b0.. of every state array,
+            // row out.. of every ring array and this offset's row of lane masks hold `row`
+            // slots, a multiple of four.
             unsafe {
-                let pa: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + a0));
+                let pa: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + springs.a0));
                 let pb: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + b0));
                 let dst = [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)];
-                let masks = stencil.lane_masks.as_ptr().add(r * groups).cast::<f64>();
-                for g in 0..groups {
+                let masks = stencil.lane_masks.as_ptr().add(r * row).cast::<f64>();
+                for g in 0..row / LANES {
                     let i = LANES * g;
                     let d = |c: usize| _mm256_sub_pd(load(pa[c].add(i)), load(pb[c].add(i)));
                     let (dx, dy, dz) = (d(0), d(1), d(2));
