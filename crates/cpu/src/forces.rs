@@ -75,9 +75,6 @@ pub fn acceleration_of(
     v: DVec3,
     springs: DVec3,
 ) -> DVec3 {
-    if w == 0.0 {
-        return DVec3::ZERO;
-    }
     let f = m * sim.gravity - sim.drag * m * v + springs;
     let eps = sim.contact_distance;
     // Clear of every surface: no contact, contact_force's zero without its queries.
@@ -86,7 +83,11 @@ pub fn acceleration_of(
     } else {
         contact_force(surfaces, eps, sim.dt, m, x, v, f)
     };
-    (f + fc) * w
+    // Computed for pinned particles too and then dropped: as a select rather than a branch
+    // before the loads, a loop over a row of particles reads its inputs with plain vector
+    // loads (masked loads of values just stored wait for the stores to retire).
+    let a = (f + fc) * w;
+    if w == 0.0 { DVec3::ZERO } else { a }
 }
 
 /// Writes a(x, v) of every particle into `a`; `per_spring` is scratch of one entry per spring.
