@@ -48,7 +48,8 @@ use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{Model, Springs};
 
-use crate::spring_forces::stencil::{Isa, Row, Slab, Stencil};
+use crate::spring_forces::Isa;
+use crate::spring_forces::stencil::{Row, Slab, Stencil};
 use crate::spring_forces::{Cursor, Kernel, LANES, Sum, gather_block};
 
 /// Particles gathered, or updated, together.

@@ -303,6 +303,37 @@ fn spring_chunk(springs: usize) -> usize {
         .next_multiple_of(LANES)
 }
 
+/// The vector instructions a pass runs (the stencil's rows, the Euler methods' row updates),
+/// each giving the same bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// One particle at a time.
+    Scalar,
+    /// Four particles side by side in 256-bit vectors.
+    Avx2,
+    /// Eight particles side by side in 512-bit vectors (AVX-512F alone).
+    Avx512,
+}
+
+impl Isa {
+    /// The widest the CPU runs: AVX-512, then AVX2, then scalar.
+    pub(crate) fn detect() -> Isa {
+        [Isa::Avx512, Isa::Avx2]
+            .into_iter()
+            .find(|isa| isa.runs())
+            .unwrap_or(Isa::Scalar)
+    }
+
+    /// Whether the CPU runs it (detected at run time; the vector paths rely on it).
+    pub(crate) fn runs(self) -> bool {
+        match self {
+            Isa::Scalar => true,
+            Isa::Avx2 => avx2(),
+            Isa::Avx512 => avx512(),
+        }
+    }
+}
+
 /// Whether the CPU runs AVX2 (then the kernels use it).
 pub(crate) fn avx2() -> bool {
     #[cfg(target_arch = "x86_64")]

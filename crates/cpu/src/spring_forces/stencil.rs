@@ -33,7 +33,7 @@ use glam::DVec3;
 use softbody_scene::Lattice;
 use softbody_scene::topology::OFFSETS;
 
-use super::spring_force;
+use super::{Isa, spring_force};
 
 /// Zeros before and after every buffer, so that partners one or two slots before a row's start
 /// stay inside it; a cache line of them, so that rows start on lines ([`Lines`]).
@@ -57,36 +57,6 @@ struct Offset {
     rest: f64,
     ks: f64,
     kd: f64,
-}
-
-/// The instruction set of a stencil's rows, each giving the same bits.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Isa {
-    /// One particle at a time.
-    Scalar,
-    /// Four particles side by side in 256-bit vectors.
-    Avx2,
-    /// Eight particles side by side in 512-bit vectors (AVX-512F alone).
-    Avx512,
-}
-
-impl Isa {
-    /// The widest the CPU runs: AVX-512, then AVX2, then scalar.
-    pub(crate) fn detect() -> Isa {
-        [Isa::Avx512, Isa::Avx2]
-            .into_iter()
-            .find(|isa| isa.runs())
-            .unwrap_or(Isa::Scalar)
-    }
-
-    /// Whether the CPU runs it (detected at run time; the vector paths rely on it).
-    pub(crate) fn runs(self) -> bool {
-        match self {
-            Isa::Scalar => true,
-            Isa::Avx2 => super::avx2(),
-            Isa::Avx512 => super::avx512(),
-        }
-    }
 }
 
 /// A lattice body's stencil: its geometry in the padded layout and its offsets.
@@ -371,10 +341,8 @@ impl Slab {
                 let s0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - base);
                 let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
                 let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + nx]);
-                for i in 0..nx {
-                    (r0[i], r1[i], r2[i]) = (xs[i].x, xs[i].y, xs[i].z);
-                    (r3[i], r4[i], r5[i]) = (vs[i].x, vs[i].y, vs[i].z);
-                }
+                transpose(stencil.isa, xs, [r0, r1, r2]);
+                transpose(stencil.isa, vs, [r3, r4, r5]);
             }
         }
     }
@@ -634,6 +602,30 @@ impl std::ops::DerefMut for Lines {
         // SAFETY: as for `deref`, through the only borrow of the lines.
         unsafe { std::slice::from_raw_parts_mut(self.0.as_mut_ptr().cast(), LINE * self.0.len()) }
     }
+}
+
+/// The components of `from` into the three arrays `to` (as long as `from`), with the widest
+/// vector instructions the CPU has (the compiler turns the loop into loads and permutes).
+fn transpose(isa: Isa, from: &[DVec3], to: [&mut [f64]; 3]) {
+    #[inline(always)]
+    fn lanes(from: &[DVec3], [x, y, z]: [&mut [f64]; 3]) {
+        let n = from.len();
+        let (x, y, z) = (&mut x[..n], &mut y[..n], &mut z[..n]);
+        for i in 0..n {
+            (x[i], y[i], z[i]) = (from[i].x, from[i].y, from[i].z);
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn avx512(from: &[DVec3], to: [&mut [f64]; 3]) {
+        lanes(from, to);
+    }
+    #[cfg(target_arch = "x86_64")]
+    if isa == Isa::Avx512 {
+        // SAFETY: AVX-512F was detected at run time (`Isa::runs`).
+        return unsafe { avx512(from, to) };
+    }
+    lanes(from, to);
 }
 
 /// The six arrays of `len` slots of a slab's state, apart.
