@@ -52,8 +52,11 @@ const WINDOW: usize = 8;
 struct Offset {
     /// (di, dj, dk).
     o: [i32; 3],
-    /// Its first plane in the ring (it has dk + 1, plane k at `ring + k % (dk + 1)`).
+    /// Where its records start in the ring ([`Slab::sweep`]): the x component of the first.
     ring: usize,
+    /// Its records in the ring: one more than the rows from a spring's start to its end in
+    /// the sweep's order, dk·ny + dj.
+    depth: usize,
     rest: f64,
     ks: f64,
     kd: f64,
@@ -88,15 +91,19 @@ impl Stencil {
         let dims = lattice.dims.map(|d| d as usize);
         let [nx, ny, _] = dims;
         let row = (nx + 2).next_multiple_of(ROW_MULTIPLE);
-        let mut planes = 0;
+        let mut ring = GUARD;
         let offsets: Vec<Offset> = (lattice.springs.iter())
             .map(|s| {
                 let o = OFFSETS[s.offset].0;
-                let ring = planes;
-                planes += o[2] as usize + 1;
+                // Forward offsets: dk > 0, or dk = 0 and dj ≥ 0, so the lag is not negative.
+                let lag = i64::from(o[2]) * ny as i64 + i64::from(o[1]);
+                let depth = usize::try_from(lag + 1).expect("a forward offset");
+                let first = ring;
+                ring += depth * 3 * row;
                 Offset {
                     o,
-                    ring,
+                    ring: first,
+                    depth,
                     rest: s.rest,
                     ks: s.stiffness,
                     kd: s.damping,
@@ -138,9 +145,10 @@ impl Stencil {
         self.isa = isa;
     }
 
-    /// Planes of the ring: dk + 1 per offset.
-    fn ring_planes(&self) -> usize {
-        self.offsets.iter().map(|o| o.o[2] as usize + 1).sum()
+    /// Slots of the ring: every offset's records, between guards.
+    fn ring_slots(&self) -> usize {
+        let records: usize = self.offsets.iter().map(|o| o.depth).sum();
+        GUARD + records * 3 * self.row + GUARD
     }
 
     /// Particles of one plane.
@@ -164,16 +172,56 @@ impl Stencil {
     }
 }
 
-/// What the rows of one plane k need of the ring, per offset (worked out once per plane, so
-/// that a row costs no division): where its springs starting in the plane go and where those
-/// ending in it come from (the x component's array; plane k − dk), and the rows j where they
-/// start (the partner's row j + dj and plane k + dk lie in the grid) and end (j − dj, k − dk).
+/// Which rows of one plane k have springs of each offset (worked out once per plane): the rows
+/// j where they start (the partner's row j + dj and plane k + dk lie in the grid) and end
+/// (j − dj, k − dk).
 #[derive(Debug, Clone, Copy)]
 struct PlaneRing {
-    own: [usize; 16],
-    below: [usize; 16],
     starts: [(usize, usize); 16],
     ends: [(usize, usize); 16],
+}
+
+/// Where the row the sweep is at, its t-th, writes and reads each offset's records in the
+/// ring: the sweep takes rows in order (j, then k), and a spring starting in row t ends in
+/// row t + lag with lag = dk·ny + dj, so an offset's forces live in a circle of lag + 1
+/// records, row t's in record t mod (lag + 1): written at row t, read at row t + lag, which
+/// writes record (t + lag) mod (lag + 1) = (t − 1) mod (lag + 1), not t's. Row t reads the
+/// record of row t − lag, (t + 1) mod (lag + 1): the next one. The ring so holds about 11
+/// rows per row of a plane instead of 27 planes' worth, and what a row reads was written a few
+/// rows or one plane before.
+#[derive(Debug, Clone, Copy)]
+struct Records {
+    /// Per offset, row t's record.
+    at: [usize; 16],
+}
+
+impl Records {
+    /// Row 0's.
+    fn start() -> Records {
+        Records { at: [0; 16] }
+    }
+
+    /// The next row's.
+    fn advance(&mut self, stencil: &Stencil) {
+        for (at, off) in self.at.iter_mut().zip(&stencil.offsets) {
+            *at = if *at + 1 == off.depth { 0 } else { *at + 1 };
+        }
+    }
+
+    /// Slot (x component) of the record that this row writes offset r's forces into.
+    #[inline]
+    fn write(&self, stencil: &Stencil, r: usize) -> usize {
+        stencil.offsets[r].ring + self.at[r] * 3 * stencil.row
+    }
+
+    /// Slot (x component) of the record of the row that offset r's springs ending in this row
+    /// start in.
+    #[inline]
+    fn read(&self, stencil: &Stencil, r: usize) -> usize {
+        let off = &stencil.offsets[r];
+        let next = if self.at[r] + 1 == off.depth { 0 } else { self.at[r] + 1 };
+        off.ring + next * 3 * stencil.row
+    }
 }
 
 impl PlaneRing {
@@ -205,9 +253,10 @@ pub(crate) struct Slab {
     /// Slots of each of the six state arrays (x, y, z of x; x, y, z of v).
     len: usize,
     state: Lines,
-    /// Slots of each ring row array: a guarded padded plane.
+    /// Slots between the components of a record in the ring: a padded row.
     ring_len: usize,
-    /// Per offset, plane k % (dk + 1) and component: the forces of the springs starting there.
+    /// Per offset, its records (`Records`): each the forces of the springs starting in a row,
+    /// the x components, then the y, then the z (zero where no spring starts).
     ring: Lines,
     /// A row's sums, per component.
     sums: Lines,
@@ -220,7 +269,7 @@ impl Slab {
         // The first window is the largest: the planes below, WINDOW planes, two above.
         let planes = (k0 - kb) + WINDOW.min(k1 - k0) + 2;
         let len = GUARD + planes * stencil.plane_slots() + GUARD;
-        let ring_len = GUARD + stencil.plane_slots() + GUARD;
+        let ring_len = stencil.row;
         Slab {
             lattice,
             k0,
@@ -230,7 +279,7 @@ impl Slab {
             len,
             state: Lines::zeroed(6 * len),
             ring_len,
-            ring: Lines::zeroed(stencil.ring_planes() * 3 * ring_len),
+            ring: Lines::zeroed(stencil.ring_slots()),
             sums: Lines::zeroed(3 * stencil.row),
         }
     }
@@ -252,19 +301,10 @@ impl Slab {
         GUARD + i + stencil.row * j + stencil.plane_slots() * (k - self.base)
     }
 
-    /// Start of the ring array of offset r, plane k, x component.
-    fn ring_at(&self, stencil: &Stencil, k: usize, r: usize) -> usize {
-        let off = &stencil.offsets[r];
-        let plane = off.ring + k % (off.o[2] as usize + 1);
-        plane * 3 * self.ring_len + GUARD
-    }
-
     /// Plane k's view of the ring.
     fn plane_ring(&self, stencil: &Stencil, k: usize) -> PlaneRing {
         let [_, ny, nz] = stencil.dims.map(|d| d as i64);
         let mut plane = PlaneRing {
-            own: [0; 16],
-            below: [0; 16],
             starts: [(0, 0); 16],
             ends: [(0, 0); 16],
         };
@@ -279,12 +319,8 @@ impl Slab {
         };
         for (r, off) in stencil.offsets.iter().enumerate() {
             let [_, dj, dk] = off.o.map(i64::from);
-            plane.own[r] = self.ring_at(stencil, k, r);
             plane.starts[r] = rows(dj, dk);
             plane.ends[r] = rows(-dj, -dk);
-            if plane.ends[r].0 < plane.ends[r].1 {
-                plane.below[r] = self.ring_at(stencil, k - dk as usize, r);
-            }
         }
         plane
     }
@@ -300,11 +336,13 @@ impl Slab {
     ) {
         let [nx, ny, _] = stencil.dims;
         self.window(stencil, x, v, self.kb, self.k0);
+        let mut records = Records::start();
         // The springs from the two planes below that reach into the slab.
         for k in self.kb..self.k0 {
             let plane = self.plane_ring(stencil, k);
             for j in 0..ny {
-                self.compute_row(stencil, &plane, j, k, (self.k0 - k) as i32);
+                self.compute_row(stencil, &plane, &records, (j, k), (self.k0 - k) as i32);
+                records.advance(stencil);
             }
         }
         for k in self.k0..self.k1 {
@@ -313,8 +351,8 @@ impl Slab {
             }
             let plane = self.plane_ring(stencil, k);
             for j in 0..ny {
-                self.compute_row(stencil, &plane, j, k, 0);
-                self.sum_row(stencil, &plane, j);
+                self.compute_row(stencil, &plane, &records, (j, k), 0);
+                self.sum_row(stencil, &plane, &records, j);
                 let s0 = self.slot(stencil, 0, j, k);
                 let state = |c: usize| &self.state[c * self.len + s0..][..nx];
                 let sums = |c: usize| &self.sums[c * stencil.row..][..nx];
@@ -324,6 +362,7 @@ impl Slab {
                     v: [state(3), state(4), state(5)],
                     f: [sums(0), sums(1), sums(2)],
                 });
+                records.advance(stencil);
             }
         }
     }
@@ -353,11 +392,11 @@ impl Slab {
         &mut self,
         stencil: &Stencil,
         plane: &PlaneRing,
-        j: usize,
-        k: usize,
+        records: &Records,
+        (j, k): (usize, usize),
         min_dk: i32,
     ) {
-        let springs = self.row_springs(stencil, plane, j, k, min_dk);
+        let springs = self.row_springs(stencil, plane, records, (j, k), min_dk);
         #[cfg(target_arch = "x86_64")]
         match stencil.isa {
             // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `row_springs` checked
@@ -397,8 +436,8 @@ impl Slab {
         &self,
         stencil: &Stencil,
         plane: &PlaneRing,
-        j: usize,
-        k: usize,
+        records: &Records,
+        (j, k): (usize, usize),
         min_dk: i32,
     ) -> RowSprings {
         let row = stencil.row;
@@ -425,7 +464,7 @@ impl Slab {
             }
             let b0 = a0.wrapping_add_signed(offset_slots(stencil, off.o));
             assert!((GUARD - 2..=self.len - row).contains(&b0));
-            let out = plane.own[r] + row * j;
+            let out = records.write(stencil, r);
             assert!(out + 2 * self.ring_len + row <= self.ring.len());
             springs.springs[springs.count] = RowSpring { r, b0, out };
             springs.count += 1;
@@ -436,7 +475,13 @@ impl Slab {
     /// Where the sums of row (j, k) take their forces from, in order: the first slot (of the
     /// x component) of the ring row of each spring ending in the row, lined up with the row's
     /// particles, then of each starting there.
-    fn sources(&self, stencil: &Stencil, plane: &PlaneRing, j: usize) -> Sources {
+    fn sources(
+        &self,
+        stencil: &Stencil,
+        plane: &PlaneRing,
+        records: &Records,
+        j: usize,
+    ) -> Sources {
         let r = stencil.row;
         let mut sources = Sources {
             back: [0; 16],
@@ -446,17 +491,16 @@ impl Slab {
         for &q in &stencil.backward {
             let o = stencil.offsets[q].o;
             if plane.ends(q, j) {
-                let jj = j.wrapping_add_signed(-o[1] as isize);
                 // Partners up to two slots before the row's start: the guard or the previous
                 // row's padding, both zero.
-                let at = (plane.below[q] + r * jj).wrapping_add_signed(-o[0] as isize);
+                let at = records.read(stencil, q).wrapping_add_signed(-o[0] as isize);
                 sources.back[sources.counts.0] = at;
                 sources.counts.0 += 1;
             }
         }
         for q in 0..stencil.offsets.len() {
             if plane.starts(q, j) {
-                sources.forth[sources.counts.1] = plane.own[q] + r * j;
+                sources.forth[sources.counts.1] = records.write(stencil, q);
                 sources.counts.1 += 1;
             }
         }
@@ -471,8 +515,8 @@ impl Slab {
 
     /// The sums of row (j, k) into `sums`: −f of the springs ending there, then +f of those
     /// starting there.
-    fn sum_row(&mut self, stencil: &Stencil, plane: &PlaneRing, j: usize) {
-        let sources = self.sources(stencil, plane, j);
+    fn sum_row(&mut self, stencil: &Stencil, plane: &PlaneRing, records: &Records, j: usize) {
+        let sources = self.sources(stencil, plane, records, j);
         #[cfg(target_arch = "x86_64")]
         match stencil.isa {
             // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `sources` checked the
