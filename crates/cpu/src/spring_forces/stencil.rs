@@ -9,9 +9,8 @@
 //! particles of a grid row at once, or one at a time where the CPU has neither ([`Isa`]):
 //!
 //! 1. the force of every spring starting in the row is computed once, a vector at a time, and
-//!    kept in a ring of per-offset planes of rows (zero where no spring starts), as many
-//!    planes as the offset reaches up (dk + 1: a plane's sums read its own and, for offsets
-//!    with dk > 0, the planes dk below);
+//!    kept in a ring of per-offset row records (zero where no spring starts) until the row
+//!    where those springs end has taken them ([`Records`]: lag + 1 records per offset);
 //! 2. the row's sums take −f from the ring at p − o, offsets by descending linear offset, then
 //!    +f at p in [`OFFSETS`] order. Missing springs read +0, and adding or subtracting +0 leaves
 //!    a sum's bits as they are (a sum that starts at +0 is never −0), so the boundary needs no
