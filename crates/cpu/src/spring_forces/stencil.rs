@@ -218,7 +218,11 @@ impl Records {
     #[inline]
     fn read(&self, stencil: &Stencil, r: usize) -> usize {
         let off = &stencil.offsets[r];
-        let next = if self.at[r] + 1 == off.depth { 0 } else { self.at[r] + 1 };
+        let next = if self.at[r] + 1 == off.depth {
+            0
+        } else {
+            self.at[r] + 1
+        };
         off.ring + next * 3 * stencil.row
     }
 }

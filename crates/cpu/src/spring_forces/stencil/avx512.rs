@@ -67,35 +67,35 @@ pub(super) unsafe fn compute_row(slab: &mut Slab, stencil: &Stencil, springs: &R
     let (len, rl) = (slab.len, slab.ring_len);
     let state = slab.state.as_ptr();
     let ring = slab.ring.as_mut_ptr();
-    for &RowSpring { r, b0, out } in springs.springs() {
-        let off = &stencil.offsets[r];
-        let (rest, ks, kd) = (
-            _mm512_set1_pd(off.rest),
-            _mm512_set1_pd(off.ks),
-            _mm512_set1_pd(off.kd),
-        );
+    // Group by group, every offset's springs: the group's own particles are read once for
+    // all of them.
+    for g in 0..row / LANES {
+        let i = LANES * g;
         // SAFETY: `Slab::row_springs` checked that rows a0.., b0.. of every state array, row
-        // out.. of every ring array and this offset's row of lane masks hold `row` slots, a
+        // out.. of every ring array and each offset's row of lane masks hold `row` slots, a
         // multiple of eight.
         unsafe {
-            let pa: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + springs.a0));
-            let pb: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + b0));
-            let dst = [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)];
-            let masks = stencil.lane_masks.as_ptr().add(r * row).cast::<i64>();
-            for g in 0..row / LANES {
-                let i = LANES * g;
-                let d = |c: usize| {
-                    _mm512_sub_pd(_mm512_loadu_pd(pa[c].add(i)), _mm512_loadu_pd(pb[c].add(i)))
-                };
+            let a: [__m512d; 6] =
+                std::array::from_fn(|c| _mm512_loadu_pd(state.add(c * len + springs.a0 + i)));
+            for &RowSpring { r, b0, out } in springs.springs() {
+                let off = &stencil.offsets[r];
+                let d =
+                    |c: usize| _mm512_sub_pd(a[c], _mm512_loadu_pd(state.add(c * len + b0 + i)));
                 let (dx, dy, dz) = (d(0), d(1), d(2));
-                let (wx, wy, wz) = (d(3), d(4), d(5));
+                let w = [d(3), d(4), d(5)];
                 // Lanes without a spring exert no force.
-                let mask = _mm512_loadu_epi64(masks.add(i));
+                let mask = _mm512_loadu_epi64(stencil.lane_masks.as_ptr().add(r * row + i).cast());
                 let live = _mm512_test_epi64_mask(mask, mask);
-                let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], rest, ks, kd, live);
-                _mm512_storeu_pd(dst[0].add(i), fx);
-                _mm512_storeu_pd(dst[1].add(i), fy);
-                _mm512_storeu_pd(dst[2].add(i), fz);
+                let (rest, ks, kd) = (
+                    _mm512_set1_pd(off.rest),
+                    _mm512_set1_pd(off.ks),
+                    _mm512_set1_pd(off.kd),
+                );
+                let [fx, fy, fz] = forces(dx, dy, dz, w, rest, ks, kd, live);
+                let dst = ring.add(out + i);
+                _mm512_storeu_pd(dst, fx);
+                _mm512_storeu_pd(dst.add(rl), fy);
+                _mm512_storeu_pd(dst.add(2 * rl), fz);
             }
         }
     }
