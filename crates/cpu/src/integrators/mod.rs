@@ -214,14 +214,22 @@ impl Passes {
         state: &mut State,
         update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
     ) -> Option<usize> {
-        let h = model.simulation.dt;
         let (x, v) = (&state.x[..], &state.v[..]);
-        let particle = |i: usize, springs: DVec3, (xn, vn): (&mut DVec3, &mut DVec3)| {
+        // Inlined into the pass's loops: a call per particle costs more than the update.
+        #[inline(always)]
+        fn particle<P: PairForces>(
+            (model, surfaces, pairs): (&Model, &[Surface], &P),
+            (x, v): (&[DVec3], &[DVec3]),
+            update: &impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3),
+            (i, springs): (usize, DVec3),
+            (xn, vn): (&mut DVec3, &mut DVec3),
+        ) -> bool {
             let f = springs + pairs.force(model, i, x, v);
             let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
-            (*xn, *vn) = update(x[i], v[i], a, h);
+            (*xn, *vn) = update(x[i], v[i], a, model.simulation.dt);
             finish(model, surfaces, i, (x[i], v[i]), xn, vn)
-        };
+        }
+        let scene = (model, surfaces, pairs);
         let outputs = (&mut self.next_x[..], &mut self.next_v[..]);
         let (plan, kernel) = (&mut self.plan, self.kernel);
         let planes: Option<Vec<&PlaneGeometry>> = surfaces.iter().map(Surface::plane).collect();
@@ -233,9 +241,27 @@ impl Passes {
                     update: &update,
                     isa,
                 };
-                pass_rows(plan, kernel, model, (x, v), outputs, &rows, particle)
+                pass_rows(
+                    plan,
+                    kernel,
+                    model,
+                    (x, v),
+                    outputs,
+                    &rows,
+                    #[inline(always)]
+                    |i, springs, out| particle(scene, (x, v), &update, (i, springs), out),
+                )
             }
-            _ => pass_rows(plan, kernel, model, (x, v), outputs, &PerParticle, particle),
+            _ => pass_rows(
+                plan,
+                kernel,
+                model,
+                (x, v),
+                outputs,
+                &PerParticle,
+                #[inline(always)]
+                |i, springs, out| particle(scene, (x, v), &update, (i, springs), out),
+            ),
         };
         self.swap_into(state);
         bad
@@ -363,8 +389,8 @@ where
     }
 }
 
-/// Asks for `ahead` in the cache (the hardware's prefetchers lose streams that advance a
-/// short row at a time).
+/// Asks for `ahead` in the cache: the row update waited on the masses' loads at 100³ (with
+/// the prefetch two rows ahead, +4–8% on one thread, BENCHMARKS.md).
 #[inline]
 fn prefetch<T>(ahead: Option<&[T]>) {
     #[cfg(target_arch = "x86_64")]
