@@ -7,10 +7,8 @@
 use glam::DVec3;
 use softbody_scene::{Model, State};
 
-use super::{Passes, finish};
+use super::{Passes, Stage};
 use crate::body_contact::PairForces;
-use crate::forces::acceleration_with;
-use crate::pipeline::pass;
 use crate::vec_bytes;
 use softbody_terrain::Surface;
 
@@ -37,6 +35,12 @@ impl Midpoint {
         &self.passes
     }
 
+    /// The same, to change (for tests of the row updates).
+    #[cfg(test)]
+    pub(crate) fn passes_mut(&mut self) -> &mut Passes {
+        &mut self.passes
+    }
+
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
         self.passes.memory_bytes() + vec_bytes(&self.mid_x) + vec_bytes(&self.mid_v)
@@ -51,37 +55,29 @@ impl Midpoint {
         state: &mut State,
     ) -> Option<usize> {
         let h = model.simulation.dt;
+        let rows = self.passes.rows;
         let (plan, kernel, next_x, next_v) = self.passes.parts();
         let (x, v) = (&state.x[..], &state.v[..]);
-        pass(
-            plan,
-            kernel,
-            model,
-            (x, v),
+        let half = Stage {
+            scene: (model, surfaces, pairs),
+            input: (x, v),
+            start: (x, v),
+            last: false,
+            update: |_, x, v, a| (x + 0.5 * h * v, v + 0.5 * h * a),
+        };
+        half.pass(
+            (plan, kernel, rows),
             (&mut self.mid_x[..], &mut self.mid_v[..]),
-            |i, springs, (xm, vm)| {
-                let f = springs + pairs.force(model, i, x, v);
-                let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
-                *xm = x[i] + 0.5 * h * v[i];
-                *vm = v[i] + 0.5 * h * a;
-                true
-            },
         );
         let (xm, vm) = (&self.mid_x[..], &self.mid_v[..]);
-        let bad = pass(
-            plan,
-            kernel,
-            model,
-            (xm, vm),
-            (&mut next_x[..], &mut next_v[..]),
-            |i, springs, (xn, vn)| {
-                let f = springs + pairs.force(model, i, xm, vm);
-                let a = acceleration_with(model, surfaces, i, xm[i], vm[i], f);
-                *xn = x[i] + h * vm[i];
-                *vn = v[i] + h * a;
-                finish(model, surfaces, i, (x[i], v[i]), xn, vn)
-            },
-        );
+        let whole = Stage {
+            scene: (model, surfaces, pairs),
+            input: (xm, vm),
+            start: (x, v),
+            last: true,
+            update: |i: usize, _, vm, a| (x[i] + h * vm, v[i] + h * a),
+        };
+        let bad = whole.pass((plan, kernel, rows), (&mut next_x[..], &mut next_v[..]));
         self.passes.swap_into(state);
         bad
     }

@@ -173,7 +173,7 @@ pub struct Passes {
     kernel: Kernel,
     /// The instructions of the Euler methods' row updates ([`EulerRows`]); None: particle by
     /// particle.
-    rows: Option<Isa>,
+    pub(crate) rows: Option<Isa>,
     next_x: Vec<DVec3>,
     next_v: Vec<DVec3>,
 }
@@ -214,55 +214,17 @@ impl Passes {
         state: &mut State,
         update: impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
     ) -> Option<usize> {
+        let h = model.simulation.dt;
         let (x, v) = (&state.x[..], &state.v[..]);
-        // Inlined into the pass's loops: a call per particle costs more than the update.
-        #[inline(always)]
-        fn particle<P: PairForces>(
-            (model, surfaces, pairs): (&Model, &[Surface], &P),
-            (x, v): (&[DVec3], &[DVec3]),
-            update: &impl Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3),
-            (i, springs): (usize, DVec3),
-            (xn, vn): (&mut DVec3, &mut DVec3),
-        ) -> bool {
-            let f = springs + pairs.force(model, i, x, v);
-            let a = acceleration_with(model, surfaces, i, x[i], v[i], f);
-            (*xn, *vn) = update(x[i], v[i], a, model.simulation.dt);
-            finish(model, surfaces, i, (x[i], v[i]), xn, vn)
-        }
-        let scene = (model, surfaces, pairs);
-        let outputs = (&mut self.next_x[..], &mut self.next_v[..]);
-        let (plan, kernel) = (&mut self.plan, self.kernel);
-        let planes: Option<Vec<&PlaneGeometry>> = surfaces.iter().map(Surface::plane).collect();
-        let bad = match (planes, self.rows) {
-            (Some(planes), Some(isa)) if P::NONE => {
-                let rows = EulerRows {
-                    model,
-                    planes,
-                    update: &update,
-                    isa,
-                };
-                pass_rows(
-                    plan,
-                    kernel,
-                    model,
-                    (x, v),
-                    outputs,
-                    &rows,
-                    #[inline(always)]
-                    |i, springs, out| particle(scene, (x, v), &update, (i, springs), out),
-                )
-            }
-            _ => pass_rows(
-                plan,
-                kernel,
-                model,
-                (x, v),
-                outputs,
-                &PerParticle,
-                #[inline(always)]
-                |i, springs, out| particle(scene, (x, v), &update, (i, springs), out),
-            ),
+        let stage = Stage {
+            scene: (model, surfaces, pairs),
+            input: (x, v),
+            start: (x, v),
+            last: true,
+            update: |_, x, v, a| update(x, v, a, h),
         };
+        let outputs = (&mut self.next_x[..], &mut self.next_v[..]);
+        let bad = stage.pass((&mut self.plan, self.kernel, self.rows), outputs);
         self.swap_into(state);
         bad
     }
@@ -285,49 +247,125 @@ impl Passes {
     }
 }
 
-/// The Euler methods' update of a grid row on the stencil route, where no forces act between
-/// particles and every surface is a plane: a lane clear of every plane (φ ≥ ε) before and after
-/// its update meets no contact force and no collision response, so its update is
-/// [`acceleration_of`] without surfaces and `update`, the per-particle update's bits. Those
-/// lanes run side by side in vector registers; the others, and any lane whose result is not
-/// finite, are left to the per-particle update.
-struct EulerRows<'a, U> {
-    model: &'a Model,
+/// A stage of an explicit integrator that writes a pair of per-particle arrays: at the stage
+/// state `input` (x_s, v_s), with a = a(x_s, v_s), each particle's outputs are
+/// `update(i, x_s, v_s, a)`; the `last` stage's are the new (x, v), which then take the
+/// collision response (from the step's `start`) and the finiteness check.
+pub(crate) struct Stage<'a, P, U> {
+    pub(crate) scene: (&'a Model, &'a [Surface], &'a P),
+    pub(crate) input: (&'a [DVec3], &'a [DVec3]),
+    pub(crate) start: (&'a [DVec3], &'a [DVec3]),
+    pub(crate) last: bool,
+    pub(crate) update: U,
+}
+
+impl<P, U> Stage<'_, P, U>
+where
+    P: PairForces,
+    U: Fn(usize, DVec3, DVec3, DVec3) -> (DVec3, DVec3) + Sync,
+{
+    /// The stage in one fused pass into `outputs`, by whole grid rows where they apply (`rows`:
+    /// their instructions, None for particle by particle); returns the first particle that is
+    /// not finite.
+    pub(crate) fn pass(
+        &self,
+        (plan, kernel, rows): (&mut Plan, Kernel, Option<Isa>),
+        outputs: (&mut [DVec3], &mut [DVec3]),
+    ) -> Option<usize> {
+        let (model, surfaces, _) = self.scene;
+        let planes: Option<Vec<&PlaneGeometry>> = surfaces.iter().map(Surface::plane).collect();
+        match (planes, rows) {
+            (Some(planes), Some(isa)) if P::NONE => {
+                let rows = StageRows {
+                    stage: self,
+                    planes,
+                    isa,
+                };
+                pass_rows(
+                    plan,
+                    kernel,
+                    model,
+                    self.input,
+                    outputs,
+                    &rows,
+                    // Inlined into the pass's loops: a call per particle costs more than the
+                    // update.
+                    #[inline(always)]
+                    |i, springs, out| self.particle(i, springs, out),
+                )
+            }
+            _ => pass_rows(
+                plan,
+                kernel,
+                model,
+                self.input,
+                outputs,
+                &PerParticle,
+                #[inline(always)]
+                |i, springs, out| self.particle(i, springs, out),
+            ),
+        }
+    }
+
+    /// Particle i's outputs, its spring forces' sum `springs` given; false if the last stage
+    /// leaves it not finite.
+    #[inline(always)]
+    fn particle(&self, i: usize, springs: DVec3, (o1, o2): (&mut DVec3, &mut DVec3)) -> bool {
+        let (model, surfaces, pairs) = self.scene;
+        let (xs, vs) = self.input;
+        let f = springs + pairs.force(model, i, xs, vs);
+        let a = acceleration_with(model, surfaces, i, xs[i], vs[i], f);
+        (*o1, *o2) = (self.update)(i, xs[i], vs[i], a);
+        let (x, v) = self.start;
+        !self.last || finish(model, surfaces, i, (x[i], v[i]), o1, o2)
+    }
+}
+
+/// A [`Stage`]'s update of a grid row on the stencil route, where no forces act between
+/// particles and every surface is a plane: a lane clear of every plane (φ ≥ ε) at the stage
+/// state meets no contact force, and one also clear at its new position after the last stage
+/// meets no collision response, so its outputs are the per-particle update's arithmetic with
+/// [`acceleration_of`] without surfaces: the same bits. Those lanes run side by side in vector
+/// registers; the others, and any lane the last stage leaves not finite, are left to the
+/// per-particle update.
+struct StageRows<'s, 'a, P, U> {
+    stage: &'s Stage<'a, P, U>,
     planes: Vec<&'a PlaneGeometry>,
-    update: &'a U,
     isa: Isa,
 }
 
-impl<'o, U> RowUpdate<(&'o mut [DVec3], &'o mut [DVec3])> for EulerRows<'_, U>
+impl<'o, P, U> RowUpdate<(&'o mut [DVec3], &'o mut [DVec3])> for StageRows<'_, '_, P, U>
 where
-    U: Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
+    P: PairForces,
+    U: Fn(usize, DVec3, DVec3, DVec3) -> (DVec3, DVec3) + Sync,
 {
     fn row(
         &self,
         row: &Row<'_>,
-        (xn, vn): &mut (&'o mut [DVec3], &'o mut [DVec3]),
+        (o1, o2): &mut (&'o mut [DVec3], &'o mut [DVec3]),
         at: usize,
         todo: &mut [bool],
     ) {
         let n = row.len();
-        let (xn, vn) = (&mut xn[at..at + n], &mut vn[at..at + n]);
+        let (o1, o2) = (&mut o1[at..at + n], &mut o2[at..at + n]);
         #[cfg(target_arch = "x86_64")]
         match self.isa {
             // SAFETY: the CPU has AVX-512F (`Isa::detect`; the tests take only what `runs`).
-            Isa::Avx512 => return unsafe { self.row_avx512(row, xn, vn, todo) },
+            Isa::Avx512 => return unsafe { self.row_avx512(row, o1, o2, todo) },
             // SAFETY: the CPU has AVX2 (as above).
-            Isa::Avx2 => return unsafe { self.row_avx2(row, xn, vn, todo) },
+            Isa::Avx2 => return unsafe { self.row_avx2(row, o1, o2, todo) },
             Isa::Scalar => {}
         }
-        self.lanes(row, xn, vn, todo);
+        self.lanes(row, o1, o2, todo);
     }
 }
 
-impl<U> EulerRows<'_, U>
+impl<P, U> StageRows<'_, '_, P, U>
 where
-    U: Fn(DVec3, DVec3, DVec3, f64) -> (DVec3, DVec3) + Sync,
+    P: PairForces,
+    U: Fn(usize, DVec3, DVec3, DVec3) -> (DVec3, DVec3) + Sync,
 {
-    /// [`EulerRows::lanes`] compiled for AVX-512.
+    /// [`StageRows::lanes`] compiled for AVX-512.
     ///
     /// # Safety
     /// The CPU has AVX-512F.
@@ -336,14 +374,14 @@ where
     unsafe fn row_avx512(
         &self,
         row: &Row<'_>,
-        xn: &mut [DVec3],
-        vn: &mut [DVec3],
+        o1: &mut [DVec3],
+        o2: &mut [DVec3],
         todo: &mut [bool],
     ) {
-        self.lanes(row, xn, vn, todo);
+        self.lanes(row, o1, o2, todo);
     }
 
-    /// [`EulerRows::lanes`] compiled for AVX2.
+    /// [`StageRows::lanes`] compiled for AVX2.
     ///
     /// # Safety
     /// The CPU has AVX2.
@@ -352,38 +390,38 @@ where
     unsafe fn row_avx2(
         &self,
         row: &Row<'_>,
-        xn: &mut [DVec3],
-        vn: &mut [DVec3],
+        o1: &mut [DVec3],
+        o2: &mut [DVec3],
         todo: &mut [bool],
     ) {
-        self.lanes(row, xn, vn, todo);
+        self.lanes(row, o1, o2, todo);
     }
 
-    /// Every lane's update into `xn`, `vn` (the row's outputs), and in `todo` whether the
+    /// Every lane's outputs into `o1`, `o2` (the row's), and in `todo` whether the
     /// per-particle update must redo it: branch-free loops over the row, which the compiler
     /// vectorises.
     #[inline(always)]
-    fn lanes(&self, row: &Row<'_>, xn: &mut [DVec3], vn: &mut [DVec3], todo: &mut [bool]) {
+    fn lanes(&self, row: &Row<'_>, o1: &mut [DVec3], o2: &mut [DVec3], todo: &mut [bool]) {
         let n = row.len();
-        let model = self.model;
-        let sim = &model.simulation;
-        let (h, eps) = (sim.dt, sim.contact_distance);
+        let (model, _, _) = self.stage.scene;
+        let (sim, last) = (&model.simulation, self.stage.last);
+        let eps = sim.contact_distance;
         let mass = &model.mass[row.p0..row.p0 + n];
         let inv_mass = &model.inv_mass[row.p0..row.p0 + n];
         // Two rows ahead (the rows of a slab follow one another in the arrays).
         prefetch(model.mass.get(row.p0 + 2 * n..row.p0 + 3 * n));
         prefetch(model.inv_mass.get(row.p0 + 2 * n..row.p0 + 3 * n));
-        let (xn, vn, todo) = (&mut xn[..n], &mut vn[..n], &mut todo[..n]);
+        let (o1, o2, todo) = (&mut o1[..n], &mut o2[..n], &mut todo[..n]);
         for i in 0..n {
             let (x, v, springs) = row.particle(i);
             let a = acceleration_of(sim, (mass[i], inv_mass[i]), &[], x, v, springs);
-            (xn[i], vn[i]) = (self.update)(x, v, a, h);
-            todo[i] = !all_finite(xn[i], vn[i]);
+            (o1[i], o2[i]) = (self.stage.update)(row.p0 + i, x, v, a);
+            todo[i] = last & !all_finite(o1[i], o2[i]);
         }
         for plane in &self.planes {
             for i in 0..n {
                 let (x, _, _) = row.particle(i);
-                todo[i] |= !(plane.clear_of(x, eps) & plane.clear_of(xn[i], eps));
+                todo[i] |= !(plane.clear_of(x, eps) & (!last | plane.clear_of(o1[i], eps)));
             }
         }
     }
@@ -438,9 +476,10 @@ mod tests {
     use std::path::Path;
 
     use glam::DVec3;
-    use softbody_scene::{Model, Scene, State};
+    use softbody_scene::{Integrator, Model, Scene, State};
     use softbody_terrain::Surface;
 
+    use super::midpoint::Midpoint;
     use super::{Isa, Passes, all_finite};
     use crate::body_contact::NoPairs;
 
@@ -481,50 +520,71 @@ mod tests {
         (model, state, surfaces)
     }
 
-    /// The Euler methods' row updates (with every instruction set the CPU has) give the bits
-    /// of the per-particle update, on lattices 2 and 3 wide, lanes in contact with two planes
-    /// or pinned among lanes in the air, and a particle blown up, for 1 to 7 threads.
+    /// The row updates of explicit and symplectic Euler and of both midpoint stages (with
+    /// every instruction set the CPU has) give the bits of the per-particle update, on lattices
+    /// 2 and 3 wide, lanes in contact with two planes or pinned among lanes in the air, and a
+    /// particle blown up, for 1 to 7 threads.
     #[test]
-    fn euler_row_updates_are_the_per_particle_update() {
+    fn row_updates_are_the_per_particle_update() {
         let isas: Vec<Isa> = [Isa::Scalar, Isa::Avx2, Isa::Avx512]
             .into_iter()
             .filter(|isa| isa.runs())
             .collect();
         let shapes: [&[[u32; 3]]; 3] = [&[[13, 11, 17]], &[[2, 3, 5], [3, 2, 4]], &[[9, 9, 9]]];
+        let integrators = [
+            Integrator::SymplecticEuler,
+            Integrator::ExplicitEuler,
+            Integrator::Midpoint,
+        ];
         for (resolutions, blow_up) in shapes.into_iter().zip([false, false, true]) {
             let (model, start, surfaces) = scene_on_planes(resolutions, blow_up);
-            let step = |threads: usize, rows: Option<Isa>, symplectic: bool| {
+            let step = |threads: usize, rows: Option<Isa>, integrator: Integrator| {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
                     .build()
                     .expect("thread pool");
                 pool.install(|| {
-                    let mut passes = Passes::new(&model);
-                    passes.rows = rows;
                     let mut state = start.clone();
-                    let bad =
-                        passes.euler_step(&model, &surfaces, &NoPairs, &mut state, |x, v, a, h| {
-                            if symplectic {
-                                let v1 = v + h * a;
-                                (x + h * v1, v1)
-                            } else {
-                                (x + h * v, v + h * a)
-                            }
-                        });
+                    let bad = match integrator {
+                        Integrator::Midpoint => {
+                            let mut midpoint = Midpoint::new(&model);
+                            midpoint.passes_mut().rows = rows;
+                            midpoint.step(&model, &surfaces, &NoPairs, &mut state)
+                        }
+                        euler => {
+                            let mut passes = Passes::new(&model);
+                            passes.rows = rows;
+                            let symplectic = euler == Integrator::SymplecticEuler;
+                            passes.euler_step(
+                                &model,
+                                &surfaces,
+                                &NoPairs,
+                                &mut state,
+                                |x, v, a, h| {
+                                    if symplectic {
+                                        let v1 = v + h * a;
+                                        (x + h * v1, v1)
+                                    } else {
+                                        (x + h * v, v + h * a)
+                                    }
+                                },
+                            )
+                        }
+                    };
                     let bits = |p: &[DVec3]| -> Vec<[u64; 3]> {
                         p.iter().map(|p| p.to_array().map(f64::to_bits)).collect()
                     };
                     (bad, bits(&state.x), bits(&state.v))
                 })
             };
-            for symplectic in [true, false] {
-                let expected = step(1, None, symplectic);
+            for integrator in integrators {
+                let expected = step(1, None, integrator);
                 assert_eq!(expected.0.is_some(), blow_up, "{resolutions:?}");
                 for threads in 1..=7 {
                     for &isa in &isas {
-                        let got = step(threads, Some(isa), symplectic);
+                        let got = step(threads, Some(isa), integrator);
                         let what = format!("{resolutions:?} {isa:?} {threads} threads");
-                        assert!(got == expected, "{what}, symplectic {symplectic}");
+                        assert!(got == expected, "{what}, {integrator:?}");
                     }
                 }
             }
