@@ -10,7 +10,7 @@
 use glam::DVec3;
 use softbody_scene::{Model, State};
 
-use super::{Passes, finish};
+use super::{Passes, Stage};
 use crate::body_contact::PairForces;
 use crate::forces::acceleration_with;
 use crate::pipeline::pass;
@@ -115,24 +115,21 @@ impl Rk4 {
             std::mem::swap(&mut self.stage_v, next_v);
         }
         // k4 at y + h k3, and the new state.
-        let (xs, vs) = (&self.stage_x[..], &self.stage_v[..]);
         let (sum_x, sum_v) = (&self.sum_x[..], &self.sum_v[..]);
-        let bad = pass(
-            plan,
-            kernel,
-            model,
-            (xs, vs),
-            (&mut next_x[..], &mut next_v[..]),
-            |i, springs, (xn, vn)| {
-                let f = springs + pairs.force(model, i, xs, vs);
-                let a = acceleration_with(model, surfaces, i, xs[i], vs[i], f);
-                let sx = sum_x[i] + 1.0 * vs[i];
+        let last = Stage {
+            scene: (model, surfaces, pairs),
+            input: (&self.stage_x[..], &self.stage_v[..]),
+            start: (x, v),
+            last: true,
+            update: |i: usize, _, vs, a| {
+                let sx = sum_x[i] + 1.0 * vs;
                 let sv = sum_v[i] + 1.0 * a;
-                *xn = x[i] + h / 6.0 * sx;
-                *vn = v[i] + h / 6.0 * sv;
-                finish(model, surfaces, i, (x[i], v[i]), xn, vn)
+                (x[i] + h / 6.0 * sx, v[i] + h / 6.0 * sv)
             },
-        );
+        };
+        // Particle by particle: by rows, with its four arrays read by index, the stage was
+        // slower (7.0–7.8 against 7.3–7.8 M particle-steps/s at 46³, one thread).
+        let bad = last.pass((plan, kernel, None), (&mut next_x[..], &mut next_v[..]));
         self.passes.swap_into(state);
         bad
     }
