@@ -467,7 +467,8 @@ impl Chunks<'_> {
 /// update would, and take no lane that update would find not finite.
 pub(crate) trait RowUpdate<O: Outputs>: Sync {
     /// Updates the lanes of `row` that it can into `out` (the chunk's outputs, in which the
-    /// row's first particle is at `at`), and sets `todo[i]` to whether it leaves lane i to the per-particle update.
+    /// row's first particle is at `at`), and sets `todo[i]` to whether it leaves lane i to the
+    /// per-particle update.
     fn row(&self, row: &Row<'_>, out: &mut O::Chunk, at: usize, todo: &mut [bool]);
 }
 
