@@ -38,6 +38,7 @@
 //! sticks.
 
 pub mod cg;
+pub mod lattice;
 pub mod multigrid;
 pub mod system;
 

@@ -27,6 +27,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use softbody_scene::{Adjacency, Model};
 
+use super::lattice::{LatticeProduct, block, inverse_length, transverse};
 use crate::body_contact::{PENALTY_IMPLICIT, Partners, penalty_law};
 use crate::forces::PARTICLE_CHUNK;
 use crate::spring_forces::{self, gather, gather_block};
@@ -52,6 +53,8 @@ pub struct System {
     pub inv_diag: Vec<DMat3>,
     /// The pairs of bodies in contact, when the model has contact between bodies.
     pub pairs: Option<PairBlocks>,
+    /// The product without a spring list, on a model of cuboids.
+    pub lattice: Option<LatticeProduct>,
 }
 
 /// The pairs' share of the system: the step's pairs and their adjacency (copied from the
@@ -135,6 +138,7 @@ impl System {
             diag: vec![DMat3::IDENTITY; n],
             inv_diag: vec![DMat3::IDENTITY; n],
             pairs: model.contact.enabled().then(PairBlocks::default),
+            lattice: LatticeProduct::new(model),
         }
     }
 
@@ -149,6 +153,10 @@ impl System {
             + vec_bytes(&self.diag)
             + vec_bytes(&self.inv_diag)
             + self.pairs.as_ref().map_or(0, PairBlocks::memory_bytes)
+            + self
+                .lattice
+                .as_ref()
+                .map_or(0, LatticeProduct::memory_bytes)
     }
 
     /// Linearises at (x, v), with the pairs of bodies in contact `partners` (given exactly when
@@ -165,6 +173,9 @@ impl System {
         let h = model.simulation.dt;
         if let (Some(blocks), Some(partners)) = (self.pairs.as_mut(), partners) {
             blocks.assemble(model, partners, x, v);
+        }
+        if let Some(lattice) = self.lattice.as_mut() {
+            lattice.linearise(x);
         }
         let springs = model.springs();
         // Per spring: its force f_s and its stiffness product y_s = K_s (v_a − v_b); store
@@ -188,20 +199,13 @@ impl System {
                     let (ks, kd, rest) =
                         (springs.stiffness[s], springs.damping[s], springs.rest[s]);
                     let d = x[a] - x[bb];
-                    let len = d.length();
-                    let dir = if len > 0.0 { d / len } else { DVec3::ZERO };
-                    let alpha = if len > 0.0 {
-                        (1.0 - rest / len).max(0.0)
-                    } else {
-                        0.0
-                    };
+                    let inv_len = inverse_length(d);
+                    (u[k], beta[k], gamma[k]) = block(d, inv_len, rest, (h * kd, h * h * ks));
+                    let (dir, alpha) = (u[k], transverse(inv_len, rest));
                     let w = v[a] - v[bb];
                     let y = ks * (1.0 - alpha) * dir.dot(w) * dir + ks * alpha * w;
                     let f = spring_forces::spring_force(x[a], x[bb], v[a], v[bb], rest, ks, kd);
                     g[k] = f - h * y;
-                    u[k] = dir;
-                    beta[k] = h * kd + h * h * ks * (1.0 - alpha);
-                    gamma[k] = h * h * ks * alpha;
                 }
             });
         let sim = &model.simulation;
@@ -244,6 +248,23 @@ impl System {
         if let Some(pairs) = self.pairs.as_mut() {
             pairs.products(p);
         }
+        let pairs = self.pairs.as_ref();
+        match &self.lattice {
+            Some(lattice) => {
+                lattice.apply(&self.mass_diag, p, out);
+                if let Some(pairs) = pairs {
+                    out.par_iter_mut()
+                        .enumerate()
+                        .with_min_len(PARTICLE_CHUNK)
+                        .for_each(|(i, o)| *o += gather(&pairs.adjacency, &pairs.per_pair, i));
+                }
+            }
+            None => self.apply_springs(model, p, out),
+        }
+    }
+
+    /// out = A p by the spring list: z_s for each spring, then each particle's gather.
+    fn apply_springs(&mut self, model: &Model, p: &[DVec3], out: &mut [DVec3]) {
         let springs = model.springs();
         let (u, beta, gamma) = (&self.u, &self.beta, &self.gamma);
         assert!(springs.b.len() == springs.len() && u.len() == springs.len());
