@@ -278,6 +278,78 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
     }
 }
 
+/// A later solve of the same step computes again only the values of the nodes whose
+/// constraints changed: the preconditioner then gives the same bits as one prepared afresh
+/// for the new constraints (contacts made, released and switched between fixed and sliding,
+/// in the cube's bottom layer and inside it), and a system assembled again is prepared anew.
+#[test]
+fn a_second_solves_preconditioner_is_the_fresh_one() {
+    let (model, state) = deformed(12);
+    let n = model.len();
+    let mut system = System::new(&model);
+    let mut b = vec![DVec3::ZERO; n];
+    system.assemble(&model, None, &state.x, &state.v, &mut b);
+    let bottom = |i: usize| model.contact.lattice[i].unwrap()[1] == 0;
+    let first: Vec<Constraint> = (0..n)
+        .map(|i| match () {
+            _ if bottom(i) => Constraint::Normal(DVec3::Y),
+            _ if i % 97 == 0 => Constraint::Fixed,
+            _ => Constraint::Free,
+        })
+        .collect();
+    let mut second = first.clone();
+    for (i, s) in second.iter_mut().enumerate() {
+        match i % 11 {
+            0 if bottom(i) => *s = Constraint::Free,
+            1 if bottom(i) => *s = Constraint::Fixed,
+            2 => *s = Constraint::Normal(DVec3::new(0.6, 0.8, 0.0)),
+            _ => {}
+        }
+    }
+    let mut rng = Rng::new(9);
+    let r: Vec<DVec3> = (0..n).map(|i| second[i].filter(rng.vec(1.0))).collect();
+    let applied = |mg: &mut Multigrid| {
+        let mut z = vec![DVec3::ZERO; n];
+        mg.apply(&second, &r, &mut z);
+        z
+    };
+    let mut fresh = Multigrid::new(&model).unwrap();
+    fresh.prepare(&system, &model, &second);
+    let expected = applied(&mut fresh);
+    let mut incremental = Multigrid::new(&model).unwrap();
+    incremental.prepare(&system, &model, &first);
+    incremental.prepare(&system, &model, &second);
+    assert!(
+        applied(&mut incremental) == expected,
+        "the incremental values differ"
+    );
+    // A new assembly (other positions) is prepared anew, not from the old values.
+    let mut moved = state.clone();
+    moved.x.iter_mut().for_each(|x| *x *= 1.01);
+    system.assemble(&model, None, &moved.x, &moved.v, &mut b);
+    incremental.prepare(&system, &model, &second);
+    fresh.prepare(&system, &model, &first);
+    fresh.prepare(&system, &model, &second);
+    let mut afresh = Multigrid::new(&model).unwrap();
+    afresh.prepare(&system, &model, &second);
+    let expected = applied(&mut afresh);
+    assert!(
+        applied(&mut incremental) == expected,
+        "a new assembly kept old values"
+    );
+    assert!(applied(&mut fresh) == expected);
+    assert!(
+        expected
+            != applied(&mut {
+                let mut old = Multigrid::new(&model).unwrap();
+                let mut system = System::new(&model);
+                system.assemble(&model, None, &state.x, &state.v, &mut b);
+                old.prepare(&system, &model, &second);
+                old
+            })
+    );
+}
+
 /// Not a check, a measurement (`-- --ignored --nocapture`; set `SIZES`, e.g. `10,22,46`, and
 /// `PRECONDITIONERS`): CG iterations and solves per step over the first 120 steps (2 s: the
 /// fall, the impact, the settling) of `softbody bench`'s stiff cube (its bottom 0.5 m above

@@ -26,6 +26,7 @@ use rayon::prelude::*;
 use softbody_scene::Model;
 use softbody_scene::topology::OFFSETS;
 
+use crate::forces::PARTICLE_CHUNK;
 use crate::spring_forces::Isa;
 
 /// 1/ℓ of a spring of ends x_a − x_b = `d` (0 for a spring crushed to zero length, which
@@ -94,10 +95,18 @@ impl Body {
 #[derive(Debug)]
 pub struct LatticeProduct {
     bodies: Vec<Body>,
-    /// The positions of the linearisation.
-    x: Vec<DVec3>,
+    /// The positions of the linearisation, by axis.
+    x: Axes,
+    /// The vector of the product under way, by axis.
+    p: Axes,
+    /// The product's sums, by axis.
+    sums: Axes,
     isa: Isa,
 }
+
+/// One array per axis (structure of arrays: the product's loops load whole vectors of
+/// consecutive particles instead of shuffling x, y, z out of `DVec3`s).
+type Axes = [Vec<f64>; 3];
 
 impl LatticeProduct {
     /// For `model` when every body is a full lattice (a cuboid); `None` otherwise.
@@ -137,14 +146,20 @@ impl LatticeProduct {
             .collect();
         Some(LatticeProduct {
             bodies,
-            x: vec![DVec3::ZERO; model.len()],
+            x: axes(model.len()),
+            p: axes(model.len()),
+            sums: axes(model.len()),
             isa: Isa::detect(),
         })
     }
 
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
-        crate::vec_bytes(&self.x)
+        [&self.x, &self.p, &self.sums]
+            .iter()
+            .flat_map(|a| a.iter())
+            .map(crate::vec_bytes)
+            .sum::<u64>()
             + self
                 .bodies
                 .iter()
@@ -154,8 +169,7 @@ impl LatticeProduct {
 
     /// Linearises at the positions `x`: keeps them and each spring's 1/ℓ.
     pub fn linearise(&mut self, x: &[DVec3]) {
-        self.x.clear();
-        self.x.extend_from_slice(x);
+        split(x, &mut self.x);
         for body in &mut self.bodies {
             let [nx, ny, nz] = body.dims;
             let (first, offsets) = (body.first, &body.offsets);
@@ -178,33 +192,62 @@ impl LatticeProduct {
     }
 
     /// out = M(1 + h·drag) p + the springs' terms, with `mass_diag` the diagonal's mass part.
-    pub fn apply(&self, mass_diag: &[f64], p: &[DVec3], out: &mut [DVec3]) {
-        let x = &self.x[..];
+    pub fn apply(&mut self, mass_diag: &[f64], p: &[DVec3], out: &mut [DVec3]) {
+        split(p, &mut self.p);
+        let [x, p] = [&self.x, &self.p].map(|a| [&a[0][..], &a[1][..], &a[2][..]]);
+        let [sx, sy, sz] = &mut self.sums;
+        let isa = self.isa;
         for body in &self.bodies {
             let [nx, ny, _] = body.dims;
-            out[body.first..body.first + body.len()]
-                .par_chunks_mut(nx * ny)
+            let (range, plane) = (body.first..body.first + body.len(), nx * ny);
+            (sx[range.clone()].par_chunks_mut(plane))
+                .zip(sy[range.clone()].par_chunks_mut(plane))
+                .zip(sz[range.clone()].par_chunks_mut(plane))
+                .zip(out[range].par_chunks_mut(plane))
                 .enumerate()
-                .for_each(|(k, plane)| self.plane(body, (mass_diag, x, p), k, plane));
+                .for_each(|(k, (((sx, sy), sz), out))| {
+                    let sums = [sx, sy, sz];
+                    plane_of(isa, body, (mass_diag, x, p), k, sums, out)
+                });
         }
-    }
-
-    /// One plane's products, compiled for the widest vectors the CPU runs.
-    fn plane(&self, body: &Body, inputs: Inputs<'_>, k: usize, out: &mut [DVec3]) {
-        #[cfg(target_arch = "x86_64")]
-        match self.isa {
-            // SAFETY: the CPU has AVX-512F (`Isa::detect`).
-            Isa::Avx512 => return unsafe { plane_avx512(body, inputs, k, out) },
-            // SAFETY: the CPU has AVX2 (as above).
-            Isa::Avx2 => return unsafe { plane_avx2(body, inputs, k, out) },
-            Isa::Scalar => {}
-        }
-        plane_terms(body, inputs, k, out);
     }
 }
 
-/// The diagonal's mass part, the positions x and the vector p.
-type Inputs<'a> = (&'a [f64], &'a [DVec3], &'a [DVec3]);
+/// The diagonal's mass part, and the positions x and the vector p by axis.
+type Inputs<'a> = (&'a [f64], [&'a [f64]; 3], [&'a [f64]; 3]);
+
+/// An array per axis from `DVec3`s.
+fn split(v: &[DVec3], out: &mut Axes) {
+    let [x, y, z] = out;
+    (x, y, z, v)
+        .into_par_iter()
+        .with_min_len(PARTICLE_CHUNK)
+        .for_each(|(x, y, z, v)| (*x, *y, *z) = (v.x, v.y, v.z));
+}
+
+fn axes(n: usize) -> Axes {
+    std::array::from_fn(|_| vec![0.0; n])
+}
+
+/// One plane's products, compiled for the widest vectors the CPU runs.
+fn plane_of(
+    isa: Isa,
+    body: &Body,
+    inputs: Inputs<'_>,
+    k: usize,
+    sums: [&mut [f64]; 3],
+    out: &mut [DVec3],
+) {
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        // SAFETY: the CPU has AVX-512F (`Isa::detect`).
+        Isa::Avx512 => return unsafe { plane_avx512(body, inputs, k, sums, out) },
+        // SAFETY: the CPU has AVX2 (as above).
+        Isa::Avx2 => return unsafe { plane_avx2(body, inputs, k, sums, out) },
+        Isa::Scalar => {}
+    }
+    plane_terms(body, inputs, k, sums, out);
+}
 
 /// The i of row (j, k) whose spring of offset `delta` has its partner in the lattice.
 fn first_ends(delta: [isize; 3], dims: [usize; 3], j: usize, k: usize) -> Option<Range<usize>> {
@@ -221,8 +264,14 @@ fn first_ends(delta: [isize; 3], dims: [usize; 3], j: usize, k: usize) -> Option
 /// The CPU has AVX-512F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn plane_avx512(body: &Body, inputs: Inputs<'_>, k: usize, out: &mut [DVec3]) {
-    plane_terms(body, inputs, k, out);
+unsafe fn plane_avx512(
+    body: &Body,
+    inputs: Inputs<'_>,
+    k: usize,
+    sums: [&mut [f64]; 3],
+    out: &mut [DVec3],
+) {
+    plane_terms(body, inputs, k, sums, out);
 }
 
 /// [`plane_terms`] compiled for AVX2.
@@ -231,27 +280,42 @@ unsafe fn plane_avx512(body: &Body, inputs: Inputs<'_>, k: usize, out: &mut [DVe
 /// The CPU has AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn plane_avx2(body: &Body, inputs: Inputs<'_>, k: usize, out: &mut [DVec3]) {
-    plane_terms(body, inputs, k, out);
+unsafe fn plane_avx2(
+    body: &Body,
+    inputs: Inputs<'_>,
+    k: usize,
+    sums: [&mut [f64]; 3],
+    out: &mut [DVec3],
+) {
+    plane_terms(body, inputs, k, sums, out);
 }
 
-/// Plane k of the product into `out` (the plane's): the mass term, then per offset the springs
-/// the plane's particles start, then those they end.
+/// Plane k of the product into `out` (the plane's), summed in `sums` (the plane's): the mass
+/// term, then per offset the springs the plane's particles start, then those they end.
 ///
 /// Each offset runs over the whole plane in one loop, long enough to vectorise without
 /// remainders mattering: where a particle has no spring of the offset (its partner would lie
 /// beyond the lattice's edge in i or j, so the loop pairs it with a particle of another row),
-/// its stored 1/ℓ is 0, and [`block`] gives u = 0 and γ = 0, so z = 0 and the term adds
-/// nothing. Only partners outside the body are cut off, by the run's ends.
+/// its stored 1/ℓ is 0, which makes z = 0 ([`product`]). Only partners outside the body are
+/// cut off, by the run's ends.
 #[inline(always)]
-fn plane_terms(body: &Body, (mass_diag, x, p): Inputs<'_>, k: usize, out: &mut [DVec3]) {
+fn plane_terms(
+    body: &Body,
+    (mass_diag, x, p): Inputs<'_>,
+    k: usize,
+    mut sums: [&mut [f64]; 3],
+    out: &mut [DVec3],
+) {
     let [nx, ny, nz] = body.dims.map(|d| d as isize);
     let (first, n) = (body.first, body.len() as isize);
     let q0 = (nx * ny) * k as isize;
     let q1 = q0 + nx * ny;
     let plane = first + q0 as usize..first + q1 as usize;
-    for ((o, m), p) in out.iter_mut().zip(&mass_diag[plane.clone()]).zip(&p[plane]) {
-        *o = *m * *p;
+    for (sum, p) in sums.iter_mut().zip(p) {
+        let (sum, p, m) = (&mut sum[..], &p[plane.clone()], &mass_diag[plane.clone()]);
+        for t in 0..sum.len() {
+            sum[t] = m[t] * p[t];
+        }
     }
     let k = k as isize;
     for (s, inv) in body
@@ -262,59 +326,69 @@ fn plane_terms(body: &Body, (mass_diag, x, p): Inputs<'_>, k: usize, out: &mut [
         let dk = s.delta[2];
         // The particles t of the plane whose partner t + step (first ends) or t − step
         // (second ends) lies in the body.
-        for (sign, present) in [
-            (1, (0..nz).contains(&(k + dk))),
-            (-1, (0..nz).contains(&(k - dk))),
-        ] {
-            if !present {
+        for sign in [1, -1] {
+            if !(0..nz).contains(&(k + sign * dk)) {
                 continue;
             }
             let step = sign * s.step;
             let (t0, t1) = (q0.max(-step), q1.min(n - step));
             let run = (t0 - q0) as usize..(t1 - q0) as usize;
             let (t, u) = (first + t0 as usize, (first as isize + t0 + step) as usize);
+            let [sx, sy, sz] = &mut sums;
+            let sums = [&mut sx[run.clone()], &mut sy[run.clone()], &mut sz[run]];
+            let (x0, x1) = (x.map(|a| &a[t..]), x.map(|a| &a[u..]));
+            let (p0, p1) = (p.map(|a| &a[t..]), p.map(|a| &a[u..]));
             if sign > 0 {
-                let inv = &inv[t0 as usize..];
-                terms::<true>(
-                    &mut out[run],
-                    (&x[t..], &x[u..]),
-                    (&p[t..], &p[u..]),
-                    inv,
-                    s,
-                );
+                terms::<true>(sums, (x0, x1), (p0, p1), &inv[t0 as usize..], s);
             } else {
-                let inv = &inv[(t0 + step) as usize..];
-                terms::<false>(
-                    &mut out[run],
-                    (&x[u..], &x[t..]),
-                    (&p[u..], &p[t..]),
-                    inv,
-                    s,
-                );
+                terms::<false>(sums, (x1, x0), (p1, p0), &inv[(t0 + step) as usize..], s);
             }
         }
     }
+    for (t, o) in out.iter_mut().enumerate() {
+        *o = DVec3::new(sums[0][t], sums[1][t], sums[2][t]);
+    }
 }
 
-/// out ± z_s for a run of springs of one offset (+ at first ends): z_s = B_s (p_a − p_b).
+/// z_s = B_s w for a spring at d = x_a − x_b with 1/ℓ `inv_len` and w = p_a − p_b: with
+/// u = d/ℓ, β(u·w)u + γ w = β (d·w)/ℓ² d + γ w ([`block`]'s β, γ; z = 0 where 1/ℓ = 0).
+#[inline(always)]
+fn product(d: DVec3, w: DVec3, inv_len: f64, s: &Offset) -> DVec3 {
+    let (hkd, h2ks) = s.coefficients;
+    let alpha = transverse(inv_len, s.rest);
+    let (beta, gamma) = (hkd + h2ks * (1.0 - alpha), h2ks * alpha);
+    (beta * inv_len * inv_len * d.dot(w)) * d + gamma * w
+}
+
+/// sums ± z_s for a run of springs of one offset (+ at first ends).
 #[inline(always)]
 fn terms<const FIRST: bool>(
-    out: &mut [DVec3],
-    (xa, xb): (&[DVec3], &[DVec3]),
-    (pa, pb): (&[DVec3], &[DVec3]),
+    sums: [&mut [f64]; 3],
+    (xa, xb): ([&[f64]; 3], [&[f64]; 3]),
+    (pa, pb): ([&[f64]; 3], [&[f64]; 3]),
     inv_len: &[f64],
     s: &Offset,
 ) {
-    let n = out.len();
-    let (xa, xb, pa, pb, inv_len) = (&xa[..n], &xb[..n], &pa[..n], &pb[..n], &inv_len[..n]);
+    let n = sums[0].len();
+    let [sx, sy, sz] = sums.map(|a| &mut a[..n]);
+    let [xa, xb, pa, pb] = [xa, xb, pa, pb].map(|v| v.map(|a| &a[..n]));
+    let inv_len = &inv_len[..n];
     for t in 0..n {
-        let (u, beta, gamma) = block(xa[t] - xb[t], inv_len[t], s.rest, s.coefficients);
-        let w = pa[t] - pb[t];
-        let z = beta * u.dot(w) * u + gamma * w;
+        let d = DVec3::new(
+            xa[0][t] - xb[0][t],
+            xa[1][t] - xb[1][t],
+            xa[2][t] - xb[2][t],
+        );
+        let w = DVec3::new(
+            pa[0][t] - pb[0][t],
+            pa[1][t] - pb[1][t],
+            pa[2][t] - pb[2][t],
+        );
+        let z = product(d, w, inv_len[t], s);
         if FIRST {
-            out[t] += z;
+            (sx[t], sy[t], sz[t]) = (sx[t] + z.x, sy[t] + z.y, sz[t] + z.z);
         } else {
-            out[t] -= z;
+            (sx[t], sy[t], sz[t]) = (sx[t] - z.x, sy[t] - z.y, sz[t] - z.z);
         }
     }
 }

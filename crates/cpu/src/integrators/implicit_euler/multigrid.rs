@@ -150,6 +150,8 @@ struct Level {
     cols: Vec<u32>,
     /// Row of each entry.
     rows: Vec<u32>,
+    /// The entry (column, row) of each entry (the pattern is symmetric).
+    transpose: Vec<u32>,
     /// Each entry's sources: on the first coarse level `2·spring + side` (side 1 when the
     /// row's node holds the spring's second end; on a diagonal entry the springs inside the
     /// node), below it the finer level's entries.
@@ -194,6 +196,14 @@ impl Level {
             offsets[i + 1] += offsets[i];
         }
         let entries = cols.len();
+        let transpose = (0..entries)
+            .map(|e| {
+                let (r, c) = (rows[e] as usize, cols[e]);
+                let row = &cols[offsets[c as usize] as usize..offsets[c as usize + 1] as usize];
+                let k = row.binary_search(&(r as u32)).expect("a symmetric pattern");
+                offsets[c as usize] + k as u32
+            })
+            .collect();
         let zeros = || vec![DVec3::ZERO; nodes];
         Level {
             members: members(&parent, nodes),
@@ -201,6 +211,7 @@ impl Level {
             offsets,
             cols,
             rows,
+            transpose,
             sources,
             values: vec![DMat3::ZERO; entries],
             smoother: vec![DMat3::ZERO; nodes],
@@ -222,6 +233,7 @@ impl Level {
             + vec_bytes(&self.offsets)
             + vec_bytes(&self.cols)
             + vec_bytes(&self.rows)
+            + vec_bytes(&self.transpose)
             + self.sources.memory_bytes()
             + vec_bytes(&self.values)
             + vec_bytes(&self.smoother)
@@ -301,6 +313,9 @@ pub struct Multigrid {
     direct: Direct,
     /// Fine level: (S D S + I − S)⁻¹ times ω per particle.
     fine_smoother: Vec<DMat3>,
+    /// What the values were computed for: the system's assembly ([`System::assembly`]) and the
+    /// constraints.
+    prepared: Option<(u64, Vec<Constraint>)>,
 }
 
 /// S_x M S_y.
@@ -329,6 +344,38 @@ fn filtered(s: Constraint, d: DMat3) -> DMat3 {
         Constraint::Fixed => DMat3::IDENTITY,
         Constraint::Normal(n) => sandwich(s, d, s) + outer(n, 1.0),
     }
+}
+
+/// Entry (row, col) of the first coarse level, from the members of the row's node and the
+/// entry's sources: on the diagonal Σ_{a∈A} (S_a D_a S_a + I − S_a) − Σ (S_a B_s S_b + S_b B_s S_a)
+/// over the springs inside A, off it −Σ S_x B_s S_y over the springs from A to B.
+fn first_level_entry(
+    (row, col): (u32, u32),
+    (members, sources): (&[u32], &[u32]),
+    (constraints, diag, springs): (&[Constraint], &[DMat3], &softbody_scene::Springs),
+    block: &impl Fn(usize) -> DMat3,
+) -> DMat3 {
+    let mut sum = DMat3::ZERO;
+    if row == col {
+        for &a in members {
+            let a = a as usize;
+            sum += filtered(constraints[a], diag[a]);
+        }
+        for &code in sources {
+            let s = (code >> 1) as usize;
+            let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+            let m = sandwich(constraints[a], block(s), constraints[b]);
+            sum -= m + m.transpose();
+        }
+    } else {
+        for &code in sources {
+            let s = (code >> 1) as usize;
+            let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+            let (x, y) = if code & 1 == 0 { (a, b) } else { (b, a) };
+            sum -= sandwich(constraints[x], block(s), constraints[y]);
+        }
+    }
+    sum
 }
 
 impl Multigrid {
@@ -376,6 +423,7 @@ impl Multigrid {
             levels,
             direct: Direct::Sweeps,
             fine_smoother: vec![DMat3::ZERO; n],
+            prepared: None,
         })
     }
 
@@ -398,86 +446,129 @@ impl Multigrid {
     }
 
     /// Computes the levels' values for the system `system` (assembled) under `constraints`.
+    ///
+    /// An entry's value depends only on the constraints of the particles its row's and
+    /// column's nodes hold, so after the first solve of a step (the same assembly) only the
+    /// entries of nodes holding a particle whose constraint changed are computed again: the
+    /// active set's later rounds change a few contacts. The values are the same bits as when
+    /// computed afresh. Each level's entries below the diagonal are the transposes of those
+    /// above it (Pᵀ Â P is symmetric), so only the upper half is summed.
     pub fn prepare(&mut self, system: &System, model: &Model, constraints: &[Constraint]) {
+        // The fine particles whose constraint changed since the values were computed (`None`:
+        // every value is computed).
+        let changed: Option<Vec<bool>> = match &self.prepared {
+            Some((assembly, old)) if *assembly == system.assembly() => {
+                let changed: Vec<bool> =
+                    (old.iter().zip(constraints)).map(|(a, b)| a != b).collect();
+                if !changed.contains(&true) {
+                    return;
+                }
+                Some(changed)
+            }
+            _ => None,
+        };
         let (diag, inv_diag) = (&system.diag, &system.inv_diag);
         let omega = OMEGA;
+        let fresh = |i: usize| changed.as_ref().is_none_or(|c| c[i]);
         self.fine_smoother
             .par_iter_mut()
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, m)| {
-                *m = omega
-                    * match constraints[i] {
-                        Constraint::Free => inv_diag[i],
-                        s => filtered(s, diag[i]).inverse(),
-                    };
+                if fresh(i) {
+                    *m = omega
+                        * match constraints[i] {
+                            Constraint::Free => inv_diag[i],
+                            s => filtered(s, diag[i]).inverse(),
+                        };
+                }
             });
+        // Per level, its nodes holding a changed particle.
+        let mut marks: Option<Vec<bool>> = changed.as_ref().map(|changed| {
+            let mut marks = vec![false; self.levels[0].len()];
+            for (i, _) in changed.iter().enumerate().filter(|(_, c)| **c) {
+                marks[self.levels[0].parent[i] as usize] = true;
+            }
+            marks
+        });
         let springs = model.springs();
         let (u, beta, gamma) = (&system.u, &system.beta, &system.gamma);
         let block = |s: usize| outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
-        let first = &mut self.levels[0];
-        let (rows, cols, sources, members) =
-            (&first.rows, &first.cols, &first.sources, &first.members);
-        first
-            .values
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(ROW_CHUNK)
-            .for_each(|(e, value)| {
-                let (row, col) = (rows[e], cols[e]);
-                let mut sum = DMat3::ZERO;
-                if row == col {
-                    for &a in members.of(row as usize) {
-                        let a = a as usize;
-                        sum += filtered(constraints[a], diag[a]);
-                    }
-                    for &code in sources.of(e) {
-                        let s = (code >> 1) as usize;
-                        let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
-                        let m = sandwich(constraints[a], block(s), constraints[b]);
-                        sum -= m + m.transpose();
-                    }
-                } else {
-                    for &code in sources.of(e) {
-                        let s = (code >> 1) as usize;
-                        let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
-                        let (x, y) = if code & 1 == 0 { (a, b) } else { (b, a) };
-                        sum -= sandwich(constraints[x], block(s), constraints[y]);
-                    }
-                }
-                *value = sum;
-            });
-        for k in 1..self.levels.len() {
+        for k in 0..self.levels.len() {
             let (finer, coarser) = self.levels.split_at_mut(k);
-            let (finer, level) = (&finer[k - 1], &mut coarser[0]);
-            let sources = &level.sources;
+            let level = &mut coarser[0];
+            if k > 0 {
+                marks = marks.map(|finer_marks| {
+                    let mut marks = vec![false; level.len()];
+                    for (node, _) in finer_marks.iter().enumerate().filter(|(_, m)| **m) {
+                        marks[level.parent[node] as usize] = true;
+                    }
+                    marks
+                });
+            }
+            let (rows, cols, sources, members) =
+                (&level.rows, &level.cols, &level.sources, &level.members);
+            let stale = |e: usize| {
+                let (r, c) = (rows[e] as usize, cols[e] as usize);
+                marks.as_ref().is_none_or(|m| m[r] || m[c])
+            };
+            let finer = finer.last();
             level
                 .values
                 .par_iter_mut()
                 .enumerate()
                 .with_min_len(ROW_CHUNK)
                 .for_each(|(e, value)| {
+                    let (row, col) = (rows[e], cols[e]);
+                    if row > col || !stale(e) {
+                        return;
+                    }
+                    let Some(finer) = finer else {
+                        *value = first_level_entry(
+                            (row, col),
+                            (members.of(row as usize), sources.of(e)),
+                            (constraints, diag, springs),
+                            &block,
+                        );
+                        return;
+                    };
                     *value = sources
                         .of(e)
                         .iter()
                         .fold(DMat3::ZERO, |sum, &f| sum + finer.values[f as usize]);
                 });
-        }
-        for level in &mut self.levels {
-            let (offsets, cols, values) = (&level.offsets, &level.cols, &level.values);
+            for e in 0..level.values.len() {
+                if rows[e] > cols[e] && stale(e) {
+                    level.values[e] = level.values[level.transpose[e] as usize].transpose();
+                }
+            }
+            let (offsets, values) = (&level.offsets, &level.values);
+            let marks = marks.as_ref();
             level
                 .smoother
                 .par_iter_mut()
                 .enumerate()
                 .with_min_len(ROW_CHUNK)
                 .for_each(|(row, m)| {
+                    if marks.is_some_and(|marks| !marks[row]) {
+                        return;
+                    }
                     let e = (offsets[row]..offsets[row + 1])
                         .find(|&e| cols[e as usize] as usize == row)
                         .expect("every row has its diagonal entry");
                     *m = omega * values[e as usize].inverse();
                 });
         }
-        self.direct = factor(self.levels.last().unwrap());
+        if marks.is_none_or(|m| m.contains(&true)) {
+            self.direct = factor(self.levels.last().unwrap());
+        }
+        match &mut self.prepared {
+            Some((assembly, old)) => {
+                *assembly = system.assembly();
+                old.copy_from_slice(constraints);
+            }
+            None => self.prepared = Some((system.assembly(), constraints.to_vec())),
+        }
     }
 
     /// z = S·MG·S r for a filtered r (the preconditioner of the filtered CG):
@@ -487,6 +578,7 @@ impl Multigrid {
             levels,
             direct,
             fine_smoother,
+            ..
         } = self;
         let first = &mut levels[0];
         restrict(&first.members, r, &mut first.rhs);

@@ -55,6 +55,8 @@ pub struct System {
     pub pairs: Option<PairBlocks>,
     /// The product without a spring list, on a model of cuboids.
     pub lattice: Option<LatticeProduct>,
+    /// Assemblies so far.
+    assembly: u64,
 }
 
 /// The pairs' share of the system: the step's pairs and their adjacency (copied from the
@@ -139,6 +141,7 @@ impl System {
             inv_diag: vec![DMat3::IDENTITY; n],
             pairs: model.contact.enabled().then(PairBlocks::default),
             lattice: LatticeProduct::new(model),
+            assembly: 0,
         }
     }
 
@@ -171,6 +174,7 @@ impl System {
         b: &mut [DVec3],
     ) {
         let h = model.simulation.dt;
+        self.assembly += 1;
         if let (Some(blocks), Some(partners)) = (self.pairs.as_mut(), partners) {
             blocks.assemble(model, partners, x, v);
         }
@@ -243,13 +247,19 @@ impl System {
             });
     }
 
+    /// Which assembly the system holds (a count): what was computed from it stays valid while
+    /// this does not change.
+    pub fn assembly(&self) -> u64 {
+        self.assembly
+    }
+
     /// out = A p.
     pub fn apply(&mut self, model: &Model, p: &[DVec3], out: &mut [DVec3]) {
         if let Some(pairs) = self.pairs.as_mut() {
             pairs.products(p);
         }
         let pairs = self.pairs.as_ref();
-        match &self.lattice {
+        match &mut self.lattice {
             Some(lattice) => {
                 lattice.apply(&self.mass_diag, p, out);
                 if let Some(pairs) = pairs {
