@@ -369,7 +369,7 @@ fn iterations_per_step_of_the_benchmark_run() {
             let seconds = started.elapsed().as_secs_f64();
             let st = solver.statistics();
             println!(
-                "{n}³ {p}: {:.1} CG iterations and {:.2} solves per step, {:.1} steps/s",
+                "{n}³ {p}: {:.1} CG iterations and {:.2} solves per step, {:.2} steps/s",
                 st.cg_iterations as f64 / 120.0,
                 st.cg_solves as f64 / 120.0,
                 120.0 / seconds

@@ -430,7 +430,7 @@ where
 /// Asks for `ahead` in the cache: the row update waited on the masses' loads at 100³ (with
 /// the prefetch two rows ahead, +4–8% on one thread, BENCHMARKS.md).
 #[inline]
-fn prefetch<T>(ahead: Option<&[T]>) {
+pub(crate) fn prefetch<T>(ahead: Option<&[T]>) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};

@@ -27,6 +27,7 @@ use softbody_scene::Model;
 use softbody_scene::topology::OFFSETS;
 
 use crate::forces::PARTICLE_CHUNK;
+use crate::integrators::prefetch;
 use crate::spring_forces::Isa;
 
 /// 1/ℓ of a spring of ends x_a − x_b = `d` (0 for a spring crushed to zero length, which
@@ -290,14 +291,18 @@ unsafe fn plane_avx2(
     plane_terms(body, inputs, k, sums, out);
 }
 
-/// Plane k of the product into `out` (the plane's), summed in `sums` (the plane's): the mass
-/// term, then per offset the springs the plane's particles start, then those they end.
+/// Plane k of the product into `out` (the plane's), summed in `sums` (the plane's): per
+/// particle the mass term, then per offset the spring it starts, then the one it ends.
 ///
-/// Each offset runs over the whole plane in one loop, long enough to vectorise without
-/// remainders mattering: where a particle has no spring of the offset (its partner would lie
-/// beyond the lattice's edge in i or j, so the loop pairs it with a particle of another row),
-/// its stored 1/ℓ is 0, which makes z = 0 ([`product`]). Only partners outside the body are
-/// cut off, by the run's ends.
+/// Where every offset's partners of the whole plane lie in the body (all but the planes
+/// nearest the body's faces), the plane runs in groups of [`LANES`] consecutive particles that
+/// keep their own positions, p and sums in registers through all offsets ([`fused_terms`]).
+/// Elsewhere each offset runs over the plane in its own loop, its run cut where partners leave
+/// the body. Both give each particle the same terms in the same order, so the same bits.
+///
+/// Either way a loop pairs particles at a constant index step, so near the lattice's edges in
+/// i or j it pairs a particle with one of another row: there the particle has no spring of the
+/// offset, its stored 1/ℓ is 0, which makes z = 0 ([`product`]).
 #[inline(always)]
 fn plane_terms(
     body: &Body,
@@ -310,6 +315,35 @@ fn plane_terms(
     let (first, n) = (body.first, body.len() as isize);
     let q0 = (nx * ny) * k as isize;
     let q1 = q0 + nx * ny;
+    let k = k as isize;
+    let inv = |o: usize| &body.inv_len[o * n as usize..(o + 1) * n as usize];
+    // Per offset and side (first ends, second ends): the run of the plane's particles whose
+    // partner lies in the body, if the partner's plane exists.
+    let runs = |s: &Offset| {
+        [1, -1].map(|sign| {
+            let step = sign * s.step;
+            (0..nz)
+                .contains(&(k + sign * s.delta[2]))
+                .then(|| (q0.max(-step), q1.min(n - step)))
+        })
+    };
+    let whole = body.offsets.iter().all(|s| runs(s) == [Some((q0, q1)); 2]);
+    if whole {
+        let plane = (q1 - q0) as usize;
+        let g = first + q0 as usize;
+        let groups = plane / LANES * LANES;
+        for t in (0..groups).step_by(LANES) {
+            let sums = fused_terms::<LANES>(body, (mass_diag, x, p), g + t, q0 as usize + t);
+            for (l, o) in out[t..t + LANES].iter_mut().enumerate() {
+                *o = DVec3::new(sums[0][l], sums[1][l], sums[2][l]);
+            }
+        }
+        for t in groups..plane {
+            let sums = fused_terms::<1>(body, (mass_diag, x, p), g + t, q0 as usize + t);
+            out[t] = DVec3::new(sums[0][0], sums[1][0], sums[2][0]);
+        }
+        return;
+    }
     let plane = first + q0 as usize..first + q1 as usize;
     for (sum, p) in sums.iter_mut().zip(p) {
         let (sum, p, m) = (&mut sum[..], &p[plane.clone()], &mass_diag[plane.clone()]);
@@ -317,37 +351,78 @@ fn plane_terms(
             sum[t] = m[t] * p[t];
         }
     }
-    let k = k as isize;
-    for (s, inv) in body
-        .offsets
-        .iter()
-        .zip(body.inv_len.chunks_exact(n as usize))
-    {
-        let dk = s.delta[2];
-        // The particles t of the plane whose partner t + step (first ends) or t − step
-        // (second ends) lies in the body.
-        for sign in [1, -1] {
-            if !(0..nz).contains(&(k + sign * dk)) {
-                continue;
-            }
-            let step = sign * s.step;
-            let (t0, t1) = (q0.max(-step), q1.min(n - step));
+    for (o, s) in body.offsets.iter().enumerate() {
+        for (side, run) in runs(s).into_iter().enumerate() {
+            let Some((t0, t1)) = run else { continue };
+            let step = if side == 0 { s.step } else { -s.step };
             let run = (t0 - q0) as usize..(t1 - q0) as usize;
             let (t, u) = (first + t0 as usize, (first as isize + t0 + step) as usize);
             let [sx, sy, sz] = &mut sums;
             let sums = [&mut sx[run.clone()], &mut sy[run.clone()], &mut sz[run]];
             let (x0, x1) = (x.map(|a| &a[t..]), x.map(|a| &a[u..]));
             let (p0, p1) = (p.map(|a| &a[t..]), p.map(|a| &a[u..]));
-            if sign > 0 {
-                terms::<true>(sums, (x0, x1), (p0, p1), &inv[t0 as usize..], s);
+            if side == 0 {
+                terms::<true>(sums, (x0, x1), (p0, p1), &inv(o)[t0 as usize..], s);
             } else {
-                terms::<false>(sums, (x1, x0), (p1, p0), &inv[(t0 + step) as usize..], s);
+                terms::<false>(sums, (x1, x0), (p1, p0), &inv(o)[(t0 + step) as usize..], s);
             }
         }
     }
     for (t, o) in out.iter_mut().enumerate() {
         *o = DVec3::new(sums[0][t], sums[1][t], sums[2][t]);
     }
+}
+
+/// Particles per group of [`fused_terms`]: one 512-bit vector of f64.
+const LANES: usize = 8;
+
+/// How far ahead [`fused_terms`] prefetches, in particles.
+const AHEAD: usize = 8 * LANES;
+
+/// The sums of the `L` particles from `g` (model index; `q` within the body), every offset's
+/// partners in the body: the mass term, then per offset the spring each starts and the one it
+/// ends — [`plane_terms`]'s per-offset loops' terms, in their order.
+#[inline(always)]
+fn fused_terms<const L: usize>(
+    body: &Body,
+    (mass_diag, x, p): Inputs<'_>,
+    g: usize,
+    q: usize,
+) -> [[f64; L]; 3] {
+    let lanes = |a: &[f64], at: usize| -> [f64; L] { a[at..at + L].try_into().unwrap() };
+    let (xo, po) = (x.map(|a| lanes(a, g)), p.map(|a| lanes(a, g)));
+    let m = lanes(mass_diag, g);
+    let mut sums: [[f64; L]; 3] = std::array::from_fn(|c| std::array::from_fn(|l| m[l] * po[c][l]));
+    let n = body.len();
+    for (s, inv) in body.offsets.iter().zip(body.inv_len.chunks_exact(n)) {
+        let (b, a) = (
+            g.wrapping_add_signed(s.step),
+            g.wrapping_add_signed(-s.step),
+        );
+        let (xb, pb, inv_b) = (
+            x.map(|v| lanes(v, b)),
+            p.map(|v| lanes(v, b)),
+            lanes(inv, q),
+        );
+        let (xa, pa) = (x.map(|v| lanes(v, a)), p.map(|v| lanes(v, a)));
+        let inv_a = lanes(inv, q.wrapping_add_signed(-s.step));
+        // 1/ℓ of the springs the particles start stream from memory on large bodies (their
+        // second ends' were read one or two planes before), and a group's sixteen streams
+        // are more than the hardware prefetchers follow.
+        prefetch(inv.get(q + AHEAD..q + AHEAD + 1));
+        for l in 0..L {
+            let at = |v: &[[f64; L]; 3]| DVec3::new(v[0][l], v[1][l], v[2][l]);
+            let z = product(at(&xo) - at(&xb), at(&po) - at(&pb), inv_b[l], s);
+            for c in 0..3 {
+                sums[c][l] += z[c];
+            }
+            let z = product(at(&xa) - at(&xo), at(&pa) - at(&po), inv_a[l], s);
+            for c in 0..3 {
+                sums[c][l] -= z[c];
+            }
+        }
+    }
+    sums
 }
 
 /// z_s = B_s w for a spring at d = x_a − x_b with 1/ℓ `inv_len` and w = p_a − p_b: with
