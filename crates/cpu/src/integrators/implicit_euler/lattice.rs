@@ -338,9 +338,9 @@ fn plane_terms(
                 *o = DVec3::new(sums[0][l], sums[1][l], sums[2][l]);
             }
         }
-        for t in groups..plane {
+        for (t, o) in out.iter_mut().enumerate().skip(groups) {
             let sums = fused_terms::<1>(body, (mass_diag, x, p), g + t, q0 as usize + t);
-            out[t] = DVec3::new(sums[0][0], sums[1][0], sums[2][0]);
+            *o = DVec3::new(sums[0][0], sums[1][0], sums[2][0]);
         }
         return;
     }
