@@ -147,7 +147,7 @@ impl Stepper {
         let kernel = |p: &Passes| p.plan.kernel_name();
         match self {
             Stepper::ImplicitEuler(s) => Statistics {
-                kernel: "matrix-free",
+                kernel: s.kernel_name(),
                 ..s.statistics.clone()
             },
             Stepper::ExplicitEuler(p) | Stepper::SymplecticEuler(p) => Statistics {

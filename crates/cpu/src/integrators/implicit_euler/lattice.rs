@@ -3,21 +3,24 @@
 //! (A p)_i = m_i(1 + h·drag) p_i + Σ_{springs (i, b)} z_s − Σ_{springs (a, i)} z_s,
 //! z_s = B_s (p_a − p_b), B_s = β uuᵀ + γ I,
 //!
-//! the matrix of [`super::system`], each spring's block recomputed by [`block`] from the
-//! positions and the spring's 1/ℓ (the one value per spring stored at the step's start).
+//! the matrix of [`super::system`], each spring's block recomputed from the positions and the
+//! spring's 1/ℓ, the one value per spring stored at the step's start (`block` here is the one
+//! definition of u, β, γ, which the assembly uses too).
 //!
 //! Why: the per-spring product writes z_s for every spring and gathers it back through the
-//! adjacency, and reads u, β, γ and both ends' indices: about 200 B per spring and product, so
-//! the 46³ cube's 1.5 M springs stream some 300 MB through memory for each of its ~100
-//! products a step. Here a product reads the positions, p and one f64 per spring (1/ℓ), about
-//! 180 B per particle, and each block is computed twice (once per end) in a few
-//! multiply-adds — the square root and division were paid once, in [`LatticeProduct::linearise`].
+//! adjacency, and reads u, β, γ and both ends' indices: about 150 B per spring and product,
+//! so the 46³ cube's 1.5 M springs stream ~220 MB through memory for each of its ~95
+//! products a step. Here a product reads the positions and p (one array per axis), and 1/ℓ:
+//! about 200 B per particle, and each block costs a few multiply-adds at each of its two ends;
+//! the square root and the division were paid once, in [`LatticeProduct::linearise`].
+//! 46³: 0.83 → 0.38 s a step (BENCHMARKS.md).
 //!
 //! Both ends of a spring compute z_s in the same operations from the same inputs
 //! (d = x_a − x_b, 1/ℓ, p_a − p_b), so their terms are exact negatives and the matrix is
-//! exactly symmetric, as CG needs. A particle's sum runs in a fixed order (the body's offsets
-//! in [`OFFSETS`] order, each as first end then as second end), so the bits do not depend on
-//! the thread count; they differ from the per-spring product's in rounding only.
+//! exactly symmetric, as CG needs. A particle's sum runs in a fixed order (the mass term, then
+//! the body's offsets in [`OFFSETS`] order, each as first end then as second end), so the bits
+//! do not depend on the thread count; they differ from the per-spring product's in rounding
+//! only.
 
 use std::ops::Range;
 

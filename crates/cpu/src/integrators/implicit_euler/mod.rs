@@ -152,6 +152,15 @@ impl ImplicitEuler {
             + vec_bytes(&self.sticking)
     }
 
+    /// How the system's products are computed: `matrix-free-lattice` on cuboids
+    /// ([`lattice`]), `matrix-free` by the spring list.
+    pub fn kernel_name(&self) -> &'static str {
+        match self.system.lattice {
+            Some(_) => "matrix-free-lattice",
+            None => "matrix-free",
+        }
+    }
+
     /// What the next step starts from besides the state: the warm start Δv and who touches
     /// and sticks.
     pub fn history(&self) -> History {

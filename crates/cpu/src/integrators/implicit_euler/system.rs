@@ -13,7 +13,9 @@
 //! h·drag·m I to each diagonal block.
 //!
 //! A product A p is a per-spring pass (z_s = B_s (p_a − p_b)) and a per-particle gather, the
-//! same scheme as the spring forces, so it is deterministic for any thread count.
+//! same scheme as the spring forces, so it is deterministic for any thread count. On a model
+//! of cuboids it is [`LatticeProduct`]'s instead: per particle over the lattice offsets, each
+//! block recomputed from the positions and the spring's stored 1/ℓ, no spring list read.
 //!
 //! Pairs of bodies in contact at the start of the step ([`Partners`]) enter the same way, as
 //! springs along their normal n that only push: with the penalty F n on a (F > 0,
