@@ -53,6 +53,14 @@ fn deformed(n: u32) -> (Model, State) {
     (model, state)
 }
 
+/// The step's system of `model` at `state`.
+fn assembled(model: &Model, state: &State) -> System {
+    let mut system = System::new(model);
+    let mut b = vec![DVec3::ZERO; model.len()];
+    system.assemble(model, None, &state.x, &state.v, &mut b);
+    system
+}
+
 /// One solve of the deformed cube's system from a zero start, every particle free but the
 /// bottom layer's, which slide on the ground (`Normal(y)`) with a prescribed Δv_y.
 fn solve_once(
@@ -242,9 +250,7 @@ fn multigrid_steps_have_the_same_bits_on_any_thread_count() {
 fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
     let (model, state) = deformed(12);
     let n = model.len();
-    let mut system = System::new(&model);
-    let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, None, &state.x, &state.v, &mut b);
+    let system = assembled(&model, &state);
     let mut rng = Rng::new(5);
     let constraints: Vec<Constraint> = (0..n)
         .map(|i| match i % 7 {
@@ -286,9 +292,7 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
 fn a_second_solves_preconditioner_is_the_fresh_one() {
     let (model, state) = deformed(12);
     let n = model.len();
-    let mut system = System::new(&model);
-    let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, None, &state.x, &state.v, &mut b);
+    let mut system = assembled(&model, &state);
     let bottom = |i: usize| model.contact.lattice[i].unwrap()[1] == 0;
     let first: Vec<Constraint> = (0..n)
         .map(|i| match () {
@@ -326,6 +330,7 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
     // A new assembly (other positions) is prepared anew, not from the old values.
     let mut moved = state.clone();
     moved.x.iter_mut().for_each(|x| *x *= 1.01);
+    let mut b = vec![DVec3::ZERO; n];
     system.assemble(&model, None, &moved.x, &moved.v, &mut b);
     incremental.prepare(&system, &model, &second);
     fresh.prepare(&system, &model, &first);
