@@ -139,14 +139,11 @@ impl Plan {
         Plan::with_route(model, route)
     }
 
-    /// Whether every body of `model` is a full lattice (a cuboid). A mesh body's masked
-    /// lattice would make the stencil work at its empty points too: the sweep is faster
+    /// Whether the stencil applies: every body is a cuboid ([`all_cuboids`]). A mesh body's
+    /// masked lattice would make the stencil work at its empty points too: the sweep is faster
     /// there (ARCHITECTURE.md, issue 12).
     fn stencil_applies(model: &Model) -> bool {
-        let lattices = model.lattices();
-        !lattices.is_empty()
-            && lattices.len() == model.bodies.len()
-            && lattices.iter().all(|l| l.mask.is_none())
+        all_cuboids(model)
     }
 
     /// The plan of `model` for the current rayon pool by `route`; panics if it does not apply.
@@ -673,6 +670,15 @@ where
         bad
     };
     ctx.chunks::<O>(0, k, sums, outputs, &leaf)
+}
+
+/// Whether every body of `model` is a full lattice (a cuboid): then the lattice kernels (the
+/// stencil, implicit Euler's lattice product) take the whole model.
+pub(crate) fn all_cuboids(model: &Model) -> bool {
+    let lattices = model.lattices();
+    !lattices.is_empty()
+        && lattices.len() == model.bodies.len()
+        && lattices.iter().all(|l| l.mask.is_none())
 }
 
 #[cfg(test)]

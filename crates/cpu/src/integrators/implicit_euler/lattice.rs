@@ -31,6 +31,7 @@ use softbody_scene::topology::OFFSETS;
 
 use crate::forces::PARTICLE_CHUNK;
 use crate::integrators::prefetch;
+use crate::pipeline::all_cuboids;
 use crate::spring_forces::Isa;
 
 /// 1/ℓ of a spring of ends x_a − x_b = `d` (0 for a spring crushed to zero length, which
@@ -85,7 +86,8 @@ struct Body {
     dims: [usize; 3],
     offsets: Vec<Offset>,
     /// 1/ℓ of each spring at the step's start, offset after offset, each indexed by its first
-    /// end within the body (entries whose partner lies outside the lattice are unused).
+    /// end within the body; 0 where the offset's partner lies outside the lattice (never
+    /// written: the products' loops read these entries and must get z = 0 from them).
     inv_len: Vec<f64>,
 }
 
@@ -115,16 +117,11 @@ type Axes = [Vec<f64>; 3];
 impl LatticeProduct {
     /// For `model` when every body is a full lattice (a cuboid); `None` otherwise.
     pub fn new(model: &Model) -> Option<LatticeProduct> {
-        let lattices = model.lattices();
-        let cuboids = !lattices.is_empty()
-            && lattices.len() == model.bodies.len()
-            && lattices.iter().all(|l| l.mask.is_none());
-        if !cuboids {
+        if !all_cuboids(model) {
             return None;
         }
         let h = model.simulation.dt;
-        let bodies = lattices
-            .iter()
+        let bodies = (model.lattices().iter())
             .map(|l| {
                 let dims = l.dims.map(|d| d as usize);
                 let offsets: Vec<Offset> = (l.springs.iter())
