@@ -8,10 +8,13 @@
 //
 // A solve, as the host encodes it (system.wgsl provides A p):
 //
-//   cg_start:     Δv = S Δv + z                       (warm start from the last solve)
+//   cg_start:     Δv = S Δv + z                       (warm start from the last solve);
+//                 partials of wᵀP⁻¹w for the weight's impulse w = S h m g (in cᵀq's half,
+//                 unused until the first iteration)
 //   apply(Δv) → q = A Δv
 //   cg_residual:  r = S(rhs − q), c = S P⁻¹ r;  partials of (Sb)ᵀP⁻¹(Sb) and rᵀc
-//   cg_begin:     δ₀, δ; scale = max(δ₀, δ); target = tol²·scale; done = !(δ > target)
+//   cg_begin:     δ₀, δ, δ_w; scale = max(δ₀, δ, δ_w); target = tol²·scale;
+//                 done = !(δ > target)
 //   then per iteration, while not done:
 //   apply(c) → q = A c
 //   cg_curvature: q = S q;  partials of cᵀq
@@ -44,7 +47,7 @@
 struct CgScalars {
     // rᵀP⁻¹r of the current residual.
     delta: f32,
-    // max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀): what the residual is relative to.
+    // max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀, wᵀP⁻¹w): what the residual is relative to.
     scale: f32,
     // tol²·scale.
     target_delta: f32,
@@ -83,6 +86,7 @@ const DISPATCH_WORDS: u32 = 12u;
 @group(0) @binding(9) var<storage, read_write> partials: array<vec2<f32>>;
 @group(0) @binding(10) var<storage, read_write> scalars: CgScalars;
 @group(0) @binding(11) var<storage, read_write> dispatch: array<u32, DISPATCH_WORDS>;
+@group(0) @binding(12) var<storage, read> mass: array<vec2<f32>>;
 
 // S_i p: the free part of p.
 fn free_part(i: u32, p: vec3<f32>) -> vec3<f32> {
@@ -173,10 +177,13 @@ fn finish(done: bool) {
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cg_start(id: Invocation) {
     let i = thread_of(id);
-    if i >= params.n_particles {
-        return;
+    var weight = vec2<f32>(0.0);
+    if i < params.n_particles {
+        dv[i] = vec4_of(free_part(i, dv[i].xyz) + z[i].xyz);
+        let w = free_part(i, mass[i].x * (params.dt * params.gravity));
+        weight.x = dot(w, free_part(i, precondition(i, w)));
     }
-    dv[i] = vec4_of(free_part(i, dv[i].xyz) + z[i].xyz);
+    write_partial(id, weight, CURVATURE);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -197,12 +204,14 @@ fn cg_residual(id: Invocation) {
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cg_begin(id: Invocation) {
     let sums = sum_in_order(id.local, DELTA);
+    let weight = sum_in_order(id.local, CURVATURE).x;
     if id.local != 0u {
         return;
     }
     let delta = sums.y;
-    // Relative to the larger of the right-hand side and the warm start's residual (see the CPU).
-    let scale = max(sums.x, delta);
+    // Relative to the largest of the right-hand side, the warm start's residual and the
+    // weight's impulse (see the CPU: a body at rest has S·b ≈ 0).
+    let scale = max(max(sums.x, delta), weight);
     let target_delta = scalars.tolerance * scalars.tolerance * scale;
     scalars.delta = delta;
     scalars.scale = scale;

@@ -8,7 +8,8 @@
 //
 // - `implicit_candidates` (after assembly): the particle's nearest surface by the predicted
 //   φ + h v·N among those with φ < reach = ε + h(2|v| + h|g|) (the first on ties), or none.
-//   A candidate with φ + h v·N < ε is activated: target normal velocity v_n' = −φ/h, on a fresh
+//   A candidate with φ + h v·N < ε (plus `resting_slack` if it was touching at the end of the
+//   last step) is activated: target normal velocity v_n' = −φ/h, on a fresh
 //   impact (not touching at the end of the last step) max(−φ/h, k_r·max(−v_n, 0)); normal
 //   impulse estimate λ_n = max(m(v_n' − v_n) − b·N, 0); friction direction −v_t/|v_t|; it sticks
 //   if the surface has Coulomb friction μ > 0 and (it stuck at the end of the last step or
@@ -81,6 +82,18 @@ const STICK_SLACK: f32 = 1e-5;
 @group(0) @binding(9) var<storage, read_write> constraints: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> z: array<vec4<f32>>;
 @group(0) @binding(11) var<storage, read_write> changed: atomic<u32>;
+
+// softbody_scene::implicit::RESTING_ULPS, and f32's machine epsilon.
+const RESTING_ULPS: f32 = 64.0;
+const F32_EPSILON: f32 = 1.1920929e-7;
+
+// softbody_scene::implicit::resting_slack in f32: how far above ε a particle that touched at the
+// end of the last step may be predicted and still be activated, the rounding of x and h v (a
+// particle at rest on a surface is predicted at ε = 0 up to that rounding).
+fn resting_slack(xi: vec3<f32>, vi: vec3<f32>, h: f32) -> f32 {
+    let a = abs(xi);
+    return RESTING_ULPS * F32_EPSILON * (max(a.x, max(a.y, a.z)) + h * length(vi));
+}
 
 fn mode_of(c: Candidate) -> u32 {
     return c.state & CANDIDATE_MODE_MASK;
@@ -163,10 +176,12 @@ fn implicit_candidates(id: Invocation) {
     if surface.friction_model == FRICTION_VISCOUS {
         c.state |= CANDIDATE_VISCOUS;
     }
+    var slack = 0.0;
     if last == MODE_STICK || last == MODE_SLIP {
         c.state |= CANDIDATE_TOUCHING;
+        slack = resting_slack(xi, vi, h);
     }
-    if best_predicted < eps {
+    if best_predicted < eps + slack {
         c = activate(c, vi, mass[i].x, b[i].xyz, last == MODE_STICK);
     }
     candidates[i] = c;

@@ -613,6 +613,19 @@ fn wgsl_const(stage: Stage, name: &str) -> f64 {
     }
 }
 
+/// The activation slack of a resting contact counts the CPU's units of rounding, in f32's.
+#[test]
+fn resting_slack_matches_the_cpu() {
+    assert_eq!(
+        wgsl_const(Stage::ImplicitEuler, "RESTING_ULPS"),
+        softbody_scene::implicit::RESTING_ULPS
+    );
+    assert_eq!(
+        wgsl_const(Stage::ImplicitEuler, "F32_EPSILON"),
+        f64::from(f32::EPSILON)
+    );
+}
+
 /// The indirect dispatch slots the host dispatches from are those the scalar kernels write, and
 /// the constraint codes the host uploads are the shaders'.
 #[test]

@@ -11,6 +11,24 @@ pub const CG_MAX_ITERATIONS: u32 = 2000;
 /// Solves per step at most while the contact active set changes.
 pub const ACTIVE_SET_ROUNDS: u32 = 8;
 
+/// How far, in units of the precision's rounding (ε_mach·(|x|∞ + h|v|)), a particle touching a
+/// surface at the end of the last step may be predicted above ε and still be activated
+/// ([`resting_slack`]).
+pub const RESTING_ULPS: f64 = 64.0;
+
+/// The activation slack of a particle that touched a surface at the end of the last step, at
+/// x with velocity v, for a step h and the precision's machine epsilon `epsilon`.
+///
+/// A contact lands its particle exactly on the surface (v_n' = −φ/h), so a particle at rest on
+/// it starts the next step with φ + h v·N = 0 up to the rounding of x and h v. Tested against
+/// ε = 0 without slack, that rounding decides whether the contact is made before the first
+/// solve or only after it, step by step at random: a body at rest would be solved twice a step,
+/// the first time falling freely. Past the rounding the test is the same.
+#[inline]
+pub fn resting_slack(x: DVec3, v: DVec3, h: f64, epsilon: f64) -> f64 {
+    RESTING_ULPS * epsilon * (x.abs().max_element() + h * v.length())
+}
+
 /// The velocity constraint of one particle during a solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Constraint {

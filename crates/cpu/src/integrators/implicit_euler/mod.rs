@@ -11,7 +11,9 @@
 //! Contact and friction live inside the solve, as velocity constraints (Baraff and Witkin's
 //! constraint filtering), because explicit contact forces or position projections pump energy
 //! into a stiff body at large steps. A particle that reaches a surface within the step
-//! (φ + h v·N < ε, the surface with the smallest such value) becomes a contact with a target
+//! (φ + h v·N < ε, the surface with the smallest such value; for a particle touching at the end
+//! of the last step, below ε plus the rounding of x and h v: [`resting_slack`]) becomes a
+//! contact with a target
 //! normal velocity v_n' = −φ/h, which lands it on the surface without moving positions; on a
 //! fresh impact the target is max(−φ/h, k_r·(−v_n)), the restitution law. A contact either
 //! - sticks: all of Δv is prescribed, v' = v_n' N; or
@@ -44,6 +46,7 @@ pub mod system;
 
 use glam::DVec3;
 use rayon::prelude::*;
+use softbody_scene::implicit::resting_slack;
 pub use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
 use softbody_scene::{FrictionModel, History, Model, State, Statistics, StepError, Timings};
 
@@ -319,7 +322,12 @@ impl ImplicitEuler {
                     released: false,
                     settled: false,
                 };
-                if contact.phi + h * v.dot(contact.normal) < eps {
+                let slack = if self.touching[i] {
+                    resting_slack(x, v, h, f64::EPSILON)
+                } else {
+                    0.0
+                };
+                if contact.phi + h * v.dot(contact.normal) < eps + slack {
                     self.activate(
                         model,
                         &surfaces[surface],
