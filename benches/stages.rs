@@ -1,7 +1,8 @@
 //! The stages of a CPU step, one by one, on the standard benchmark cube (`softbody::benchmark`),
 //! all cores: the spring pass and the per-particle gather, the contact forces, one step of each
-//! integrator, and one conjugate-gradient solve of implicit Euler. Regressions in one stage show
-//! here even when the whole step hides them.
+//! integrator, one conjugate-gradient solve of implicit Euler, and the parts of implicit Euler's
+//! step on the stiff cube (assembly, a product A p, the multigrid's values and one application).
+//! Regressions in one stage show here even when the whole step hides them.
 //!
 //! `cargo bench --bench stages`; `cargo bench --bench stages -- spring` for one group.
 
@@ -10,6 +11,7 @@ use glam::DVec3;
 use softbody::benchmark::{STIFFNESS, cube, dt_max_symplectic};
 use softbody::cpu::contact::contact_force;
 use softbody::cpu::integrators::implicit_euler::cg::{self, Constraint, Scratch};
+use softbody::cpu::integrators::implicit_euler::multigrid::Multigrid;
 use softbody::cpu::integrators::implicit_euler::system::System;
 use softbody::cpu::spring_forces::{self, Kernel};
 use softbody::terrain::Surface;
@@ -157,5 +159,47 @@ fn cg_solve(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, springs, contact, steps, cg_solve);
+/// Implicit Euler's parts on the stiff cube (k_s = 1e4, dt = 1/60 s) a few steps into
+/// its fall, 22³ and 46³: the assembly of the step's system, one product A p, the multigrid's
+/// values (`prepare`, every entry, as at a step's first solve) and one multigrid application.
+fn implicit_parts(c: &mut Criterion) {
+    let mut group = c.benchmark_group("implicit");
+    group.sample_size(20);
+    for n in [22u32, 46] {
+        let scene = cube(n, 1e4, Integrator::ImplicitEuler, 1.0 / 60.0);
+        let mut solver = softbody::open(&scene, Backend::Cpu, None).expect("CPU solver");
+        solver.advance(5).expect("stable");
+        let state = solver.state().expect("state").clone();
+        let model = Model::build(&scene).0;
+        let size = format!("{n}^3");
+        group.throughput(Throughput::Elements(model.len() as u64));
+        let mut system = System::new(&model);
+        let mut b = vec![DVec3::ZERO; model.len()];
+        group.bench_function(BenchmarkId::new("assemble", &size), |bench| {
+            bench.iter(|| system.assemble(&model, None, &state.x, &state.v, &mut b))
+        });
+        let p = state.v.clone();
+        let mut out = vec![DVec3::ZERO; model.len()];
+        group.bench_function(BenchmarkId::new("product", &size), |bench| {
+            bench.iter(|| system.apply(&model, &p, &mut out))
+        });
+        let constraints = vec![Constraint::Free; model.len()];
+        let mut mg = Multigrid::new(&model).expect("a lattice");
+        group.bench_function(BenchmarkId::new("multigrid-prepare", &size), |bench| {
+            // A fresh hierarchy each time: a prepared one skips what did not change.
+            bench.iter_batched_ref(
+                || Multigrid::new(&model).expect("a lattice"),
+                |mg| mg.prepare(&system, &model, &constraints),
+                criterion::BatchSize::LargeInput,
+            )
+        });
+        mg.prepare(&system, &model, &constraints);
+        group.bench_function(BenchmarkId::new("multigrid-apply", &size), |bench| {
+            bench.iter(|| mg.apply(&constraints, &b, &mut out))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, springs, contact, steps, cg_solve, implicit_parts);
 criterion_main!(benches);

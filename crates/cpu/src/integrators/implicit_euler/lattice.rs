@@ -467,3 +467,63 @@ fn terms<const FIRST: bool>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+    use softbody_scene::{Integrator, Model, SpringParams};
+    use softbody_testkit::Rng;
+    use softbody_testkit::scenes::*;
+
+    use super::LatticeProduct;
+    use crate::spring_forces::Isa;
+
+    /// Every vector path of the product gives the scalar path's bits: cuboids whose planes take
+    /// the grouped loop (with a remainder of fewer than eight particles) and cuboids too thin
+    /// for it, two bodies side by side, springs stretched and compressed.
+    #[test]
+    fn every_isa_gives_the_scalar_bits() {
+        let params = SpringParams {
+            stiffness: 400.0,
+            damping: 0.8,
+        };
+        for dims in [[9, 7, 8], [12, 5, 6], [3, 2, 11], [17, 6, 5]] {
+            let cube = |name: &str, at: f64| {
+                let mut body = cuboid_body(cuboid(
+                    DVec3::splat(0.4),
+                    dims,
+                    DVec3::new(at, 1.0, 0.0),
+                    2.0,
+                    params,
+                ));
+                body.name = name.into();
+                body
+            };
+            let sim = simulation(Integrator::ImplicitEuler, 0.01);
+            let (model, mut state) =
+                Model::build(&scene(sim, vec![cube("a", 0.0), cube("b", 1.0)], vec![]));
+            let mut rng = Rng::new(3);
+            let mass_diag: Vec<f64> = (0..model.len()).map(|_| 0.05 + rng.unit()).collect();
+            state.x.iter_mut().for_each(|x| *x += rng.vec(0.03));
+            let p: Vec<DVec3> = (0..model.len()).map(|_| rng.vec(1.0)).collect();
+            let product = |isa: Isa| {
+                let mut lattice = LatticeProduct::new(&model).expect("cuboids");
+                lattice.isa = isa;
+                lattice.linearise(&state.x);
+                let mut out = vec![DVec3::NAN; model.len()];
+                lattice.apply(&mass_diag, &p, &mut out);
+                out.iter()
+                    .flat_map(|v| v.to_array())
+                    .map(f64::to_bits)
+                    .collect::<Vec<_>>()
+            };
+            let scalar = product(Isa::Scalar);
+            for isa in [Isa::Avx2, Isa::Avx512]
+                .into_iter()
+                .filter(|isa| isa.runs())
+            {
+                assert!(product(isa) == scalar, "{dims:?}: {isa:?} differs");
+            }
+        }
+    }
+}
