@@ -184,11 +184,11 @@ fn implicit_parts(c: &mut Criterion) {
             bench.iter(|| system.apply(&model, &p, &mut out))
         });
         let constraints = vec![Constraint::Free; model.len()];
-        let mut mg = Multigrid::new(&model).expect("a lattice");
+        let mut mg = Multigrid::new(&model, &system).expect("a lattice");
         group.bench_function(BenchmarkId::new("multigrid-prepare", &size), |bench| {
             // A fresh hierarchy each time: a prepared one skips what did not change.
             bench.iter_batched_ref(
-                || Multigrid::new(&model).expect("a lattice"),
+                || Multigrid::new(&model, &system).expect("a lattice"),
                 |mg| mg.prepare(&system, &model, &constraints),
                 criterion::BatchSize::LargeInput,
             )

@@ -109,7 +109,7 @@ fn multigrid_iterations_do_not_grow_with_the_size() {
     let mut iterations = Vec::new();
     for n in [10u32, 22, 46] {
         let (model, state) = deformed(n);
-        let mut mg = Multigrid::new(&model).expect("a lattice");
+        let mut mg = Multigrid::new(&model, &System::new(&model)).expect("a lattice");
         let (dv, outcome, seconds) = solve_once(&model, &state, Some(&mut mg));
         assert!(
             outcome.relative_residual <= CG_TOLERANCE,
@@ -259,7 +259,7 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
             _ => Constraint::Free,
         })
         .collect();
-    let mut mg = Multigrid::new(&model).unwrap();
+    let mut mg = Multigrid::new(&model, &system).unwrap();
     mg.prepare(&system, &model, &constraints);
     let dot = |a: &[DVec3], b: &[DVec3]| a.iter().zip(b).map(|(a, b)| a.dot(*b)).sum::<f64>();
     let norm = |a: &[DVec3]| dot(a, a).sqrt();
@@ -317,10 +317,10 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
         mg.apply(&second, &r, &mut z);
         z
     };
-    let mut fresh = Multigrid::new(&model).unwrap();
+    let mut fresh = Multigrid::new(&model, &system).unwrap();
     fresh.prepare(&system, &model, &second);
     let expected = applied(&mut fresh);
-    let mut incremental = Multigrid::new(&model).unwrap();
+    let mut incremental = Multigrid::new(&model, &system).unwrap();
     incremental.prepare(&system, &model, &first);
     incremental.prepare(&system, &model, &second);
     assert!(
@@ -335,7 +335,7 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
     incremental.prepare(&system, &model, &second);
     fresh.prepare(&system, &model, &first);
     fresh.prepare(&system, &model, &second);
-    let mut afresh = Multigrid::new(&model).unwrap();
+    let mut afresh = Multigrid::new(&model, &system).unwrap();
     afresh.prepare(&system, &model, &second);
     let expected = applied(&mut afresh);
     assert!(
@@ -346,7 +346,7 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
     assert!(
         expected
             != applied(&mut {
-                let mut old = Multigrid::new(&model).unwrap();
+                let mut old = Multigrid::new(&model, &system).unwrap();
                 let mut system = System::new(&model);
                 system.assemble(&model, None, &state.x, &state.v, &mut b);
                 old.prepare(&system, &model, &second);

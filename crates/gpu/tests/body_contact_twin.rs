@@ -662,8 +662,6 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let mut sys = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
     sys.assemble(&model, Some(contact.partners()), &state.x, &state.v, &mut b);
-    // The springs' g_s = f_s − h K_s (v_a − v_b), before the product overwrites them.
-    let per_spring = sys.per_spring.clone();
     let mut ap = vec![DVec3::ZERO; n];
     sys.apply(&model, &p, &mut ap);
 
@@ -673,8 +671,8 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let sim = &model.simulation;
     let (h, kappa) = (sim.dt, softbody_scene::model::penalty(sim.integrator));
     let blocks = sys.pairs.as_ref().ok_or("the CPU's system has no pairs")?;
-    let mut b_scale = rhs_scale(&model, &state.v, &per_spring);
-    let mut ap_scale = product_scale(&model, &sys, &p);
+    let mut b_scale = rhs_scale(&model, &state.x, &state.v);
+    let mut ap_scale = product_scale(&model, &p);
     let (mut pushing, mut pulling) = (0, 0);
     for (k, &[i, j]) in blocks.ends.iter().enumerate() {
         let (i, j) = (i as usize, j as usize);

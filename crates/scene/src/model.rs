@@ -47,8 +47,10 @@ pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
 /// stencils, no list: see [`Model`]) under the explicit `integrator`, in the limit of large
 /// bodies: 44 B of the model (masses 16, the contact arrays 28) and 48 B per state it keeps
 /// (the state and the passes' second state; midpoint one stage state more, RK4 two). `None` for
-/// implicit Euler, whose system lists the springs. `crates/cpu/tests/lean.rs` holds the solver
-/// to it.
+/// implicit Euler: on cuboids its system lists no springs either, but it keeps 1/ℓ per spring,
+/// CG's vectors and the multigrid's levels (its first level's sources name each spring twice):
+/// about 1.4 kB per particle (BENCHMARKS.md), under [`estimated_bytes`]' figure.
+/// `crates/cpu/tests/lean.rs` holds the solver to it.
 pub fn lean_bytes_per_particle(integrator: crate::Integrator) -> Option<u64> {
     use crate::Integrator::*;
     let states = match integrator {

@@ -42,15 +42,23 @@ friction = 0.3
 restitution = 0.0
 "#;
 
-/// The springs' share of the scale of implicit Euler's right-hand side at each particle, which
-/// the GPU's b is compared against: h(m|g| + drag·m|v_i| + Σ_{s ∋ i} |g_s|), with g_s the
-/// per-spring terms of the CPU's assembly (`System::per_spring` right after `assemble`).
-pub fn rhs_scale(
-    model: &softbody_scene::Model,
-    v: &[glam::DVec3],
-    per_spring: &[glam::DVec3],
-) -> Vec<f64> {
+/// The scale of implicit Euler's right-hand side at each particle, which the GPU's b is
+/// compared against: h(m|g| + drag·m|v_i| + Σ_{s ∋ i} (|f_s| + h k_s|v_a − v_b|)), a bound of
+/// the sum of the magnitudes of its terms (g_s = f_s − h K_s (v_a − v_b), ‖K_s‖ ≤ k_s), from the
+/// model's springs alone (the CPU's assembly keeps no per-spring terms on lattices).
+pub fn rhs_scale(model: &softbody_scene::Model, x: &[glam::DVec3], v: &[glam::DVec3]) -> Vec<f64> {
     let sim = &model.simulation;
+    let sp = model.springs();
+    let terms: Vec<f64> = (0..sp.len())
+        .map(|s| {
+            let (a, b) = (sp.a[s] as usize, sp.b[s] as usize);
+            let (ks, kd) = (sp.stiffness[s], sp.damping[s]);
+            let f = softbody_cpu::spring_forces::spring_force(
+                x[a], x[b], v[a], v[b], sp.rest[s], ks, kd,
+            );
+            f.length() + sim.dt * ks * (v[a] - v[b]).length()
+        })
+        .collect();
     (0..model.len())
         .map(|i| {
             let m = model.mass[i];
@@ -58,21 +66,19 @@ pub fn rhs_scale(
                 .adjacency()
                 .of(i)
                 .iter()
-                .map(|&e| per_spring[(e >> 1) as usize].length())
+                .map(|&e| terms[(e >> 1) as usize])
                 .sum();
             sim.dt * (m * sim.gravity.length() + sim.drag * m * v[i].length() + springs)
         })
         .collect()
 }
 
-/// The springs' share of the scale of the product A p at each particle:
-/// m(1 + h·drag)|p_i| + Σ_{s ∋ i} (β_s + γ_s)(|p_a| + |p_b|).
-pub fn product_scale(
-    model: &softbody_scene::Model,
-    sys: &softbody_cpu::integrators::implicit_euler::system::System,
-    p: &[glam::DVec3],
-) -> Vec<f64> {
-    let sp = model.springs();
+/// The scale of the product A p at each particle:
+/// m(1 + h·drag)|p_i| + Σ_{s ∋ i} (β_s + γ_s)(|p_a| + |p_b|), where β_s + γ_s = h k_d + h² k_s
+/// whatever the spring's state.
+pub fn product_scale(model: &softbody_scene::Model, p: &[glam::DVec3]) -> Vec<f64> {
+    let sim = &model.simulation;
+    let (h, sp) = (sim.dt, model.springs());
     (0..model.len())
         .map(|i| {
             let springs: f64 = model
@@ -81,11 +87,11 @@ pub fn product_scale(
                 .iter()
                 .map(|&e| {
                     let s = (e >> 1) as usize;
-                    (sys.beta[s] + sys.gamma[s])
+                    (h * sp.damping[s] + h * h * sp.stiffness[s])
                         * (p[sp.a[s] as usize].length() + p[sp.b[s] as usize].length())
                 })
                 .sum();
-            sys.mass_diag[i] * p[i].length() + springs
+            model.mass[i] * (1.0 + h * sim.drag) * p[i].length() + springs
         })
         .collect()
 }

@@ -1,30 +1,35 @@
-//! The system's product on models of cuboids, particle by particle, without a spring list:
+//! The step's system on models of cuboids, particle by particle, without a spring list: the
+//! product
 //!
 //! (A p)_i = m_i(1 + h·drag) p_i + Σ_{springs (i, b)} z_s − Σ_{springs (a, i)} z_s,
 //! z_s = B_s (p_a − p_b), B_s = β uuᵀ + γ I,
 //!
-//! the matrix of [`super::system`], each spring's block recomputed from the positions and the
-//! spring's 1/ℓ, the one value per spring stored at the step's start (`block` here is the one
-//! definition of u, β, γ, which the assembly uses too).
+//! the springs' shares of the assembly, per particle Σ_{(i, b)} g_s − Σ_{(a, i)} g_s with
+//! g_s = f_s − h K_s (v_a − v_b) (the right-hand side's) and Σ B_s over its springs (the
+//! diagonal block's), and single blocks B_s for the multigrid's first coarse level
+//! ([`LatticeSystem::block`]): the matrix of [`super::system`], each spring's block recomputed
+//! from the positions and the spring's 1/ℓ, the one value per spring stored at the step's start
+//! (`block` here is the one definition of u, β, γ, which the spring list's assembly uses too).
 //!
 //! Why: the per-spring product writes z_s for every spring and gathers it back through the
 //! adjacency, and reads u, β, γ and both ends' indices: about 150 B per spring and product,
 //! so the 46³ cube's 1.5 M springs stream ~220 MB through memory for each of its ~95
 //! products a step. Here a product reads the positions and p (one array per axis), and 1/ℓ:
 //! about 200 B per particle, and each block costs a few multiply-adds at each of its two ends;
-//! the square root and the division were paid once, in [`LatticeProduct::linearise`].
-//! 46³: 0.83 → 0.38 s a step (BENCHMARKS.md).
+//! the square root and the division were paid once, in [`LatticeSystem::linearise`].
+//! 46³: 0.83 → 0.38 s a step (BENCHMARKS.md). The assembly likewise keeps no per-spring
+//! arrays (the spring list's holds 64 B per spring: u, β, γ, and g_s).
 //!
-//! Both ends of a spring compute z_s in the same operations from the same inputs
-//! (d = x_a − x_b, 1/ℓ, p_a − p_b), so their terms are exact negatives and the matrix is
-//! exactly symmetric, as CG needs. A particle's sum runs in a fixed order (the mass term, then
-//! the body's offsets in [`OFFSETS`] order, each as first end then as second end), so the bits
-//! do not depend on the thread count; they differ from the per-spring product's in rounding
-//! only.
+//! Both ends of a spring compute its term in the same operations from the same inputs
+//! (d = x_a − x_b, 1/ℓ, p_a − p_b or v_a − v_b), so their terms are exact negatives (z_s, g_s)
+//! or equal (B_s), and the matrix is exactly symmetric, as CG needs. A particle's sums run in
+//! a fixed order (its own term, then the body's offsets in [`OFFSETS`] order, each as first end
+//! then as second end), so the bits do not depend on the thread count; they differ from the
+//! spring list's in rounding only.
 
 use std::ops::Range;
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use softbody_scene::Model;
 use softbody_scene::topology::OFFSETS;
@@ -33,6 +38,8 @@ use crate::forces::PARTICLE_CHUNK;
 use crate::integrators::prefetch;
 use crate::pipeline::all_cuboids;
 use crate::spring_forces::Isa;
+
+use super::system::outer;
 
 /// 1/ℓ of a spring of ends x_a − x_b = `d` (0 for a spring crushed to zero length, which
 /// [`block`] then gives no direction and no transverse stiffness).
@@ -75,6 +82,8 @@ struct Offset {
     /// The partner's index minus the particle's.
     step: isize,
     rest: f64,
+    /// (k_s, k_d).
+    parameters: (f64, f64),
     /// (h k_d, h² k_s).
     coefficients: (f64, f64),
 }
@@ -87,7 +96,7 @@ struct Body {
     offsets: Vec<Offset>,
     /// 1/ℓ of each spring at the step's start, offset after offset, each indexed by its first
     /// end within the body; 0 where the offset's partner lies outside the lattice (never
-    /// written: the products' loops read these entries and must get z = 0 from them).
+    /// written: the loops read these entries and must get zero terms from them).
     inv_len: Vec<f64>,
 }
 
@@ -97,26 +106,51 @@ impl Body {
     }
 }
 
-/// The lattice product's data: per body its lattice and per spring 1/ℓ.
+/// The springs' sums of one particle in the assembly: Σ± g_s and the upper half of Σ B_s.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SpringSums {
+    /// Σ_{(i, b)} g_s − Σ_{(a, i)} g_s, g_s = f_s − h K_s (v_a − v_b).
+    pub force: DVec3,
+    /// Σ B_s: xx, yy, zz, xy, xz, yz.
+    pub block: [f64; 6],
+}
+
+impl SpringSums {
+    /// Σ B_s as a matrix.
+    pub fn block(&self) -> DMat3 {
+        let [xx, yy, zz, xy, xz, yz] = self.block;
+        DMat3::from_cols(
+            DVec3::new(xx, xy, xz),
+            DVec3::new(xy, yy, yz),
+            DVec3::new(xz, yz, zz),
+        )
+    }
+}
+
+/// The system's data on the lattices: per body its lattice and per spring 1/ℓ.
 #[derive(Debug)]
-pub struct LatticeProduct {
+pub struct LatticeSystem {
     bodies: Vec<Body>,
     /// The positions of the linearisation, by axis.
     x: Axes,
-    /// The vector of the product under way, by axis.
+    /// The vector of the product (or the velocities of the assembly) under way, by axis.
     p: Axes,
-    /// The product's sums, by axis.
-    sums: Axes,
+    /// The springs' sums of the last assembly, per particle.
+    sums: Vec<SpringSums>,
     isa: Isa,
 }
 
-/// One array per axis (structure of arrays: the product's loops load whole vectors of
-/// consecutive particles instead of shuffling x, y, z out of `DVec3`s).
+/// One array per axis (structure of arrays: the loops load whole vectors of consecutive
+/// particles instead of shuffling x, y, z out of `DVec3`s).
 type Axes = [Vec<f64>; 3];
 
-impl LatticeProduct {
+/// Bits of a spring code ([`LatticeSystem::for_each_spring`]) that hold its offset.
+const OFFSET_BITS: u32 = 4;
+const _: () = assert!(OFFSETS.len() <= 1 << OFFSET_BITS);
+
+impl LatticeSystem {
     /// For `model` when every body is a full lattice (a cuboid); `None` otherwise.
-    pub fn new(model: &Model) -> Option<LatticeProduct> {
+    pub fn new(model: &Model) -> Option<LatticeSystem> {
         if !all_cuboids(model) {
             return None;
         }
@@ -132,6 +166,7 @@ impl LatticeProduct {
                             delta,
                             step: delta[0] + nx * (delta[1] + ny * delta[2]),
                             rest: s.rest,
+                            parameters: (s.stiffness, s.damping),
                             coefficients: (h * s.damping, h * h * s.stiffness),
                         }
                     })
@@ -145,22 +180,23 @@ impl LatticeProduct {
                 }
             })
             .collect();
-        Some(LatticeProduct {
+        Some(LatticeSystem {
             bodies,
             x: axes(model.len()),
             p: axes(model.len()),
-            sums: axes(model.len()),
+            sums: vec![SpringSums::default(); model.len()],
             isa: Isa::detect(),
         })
     }
 
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
-        [&self.x, &self.p, &self.sums]
+        [&self.x, &self.p]
             .iter()
             .flat_map(|a| a.iter())
             .map(crate::vec_bytes)
             .sum::<u64>()
+            + crate::vec_bytes(&self.sums)
             + self
                 .bodies
                 .iter()
@@ -192,30 +228,197 @@ impl LatticeProduct {
         }
     }
 
+    /// Computes the springs' sums of the assembly at the linearisation's positions and the
+    /// velocities `v`, per particle ([`LatticeSystem::sums`]).
+    pub fn assemble(&mut self, v: &[DVec3], h: f64) {
+        split(v, &mut self.p);
+        let mut sums = std::mem::take(&mut self.sums);
+        self.traverse(&Assembly { h }, &mut sums, |t| SpringSums {
+            force: DVec3::new(t[0], t[1], t[2]),
+            block: [t[3], t[4], t[5], t[6], t[7], t[8]],
+        });
+        self.sums = sums;
+    }
+
+    /// The springs' sums of the last assembly, per particle.
+    pub fn sums(&self) -> &[SpringSums] {
+        &self.sums
+    }
+
     /// out = M(1 + h·drag) p + the springs' terms, with `mass_diag` the diagonal's mass part.
     pub fn apply(&mut self, mass_diag: &[f64], p: &[DVec3], out: &mut [DVec3]) {
         split(p, &mut self.p);
-        let [x, p] = [&self.x, &self.p].map(|a| [&a[0][..], &a[1][..], &a[2][..]]);
-        let [sx, sy, sz] = &mut self.sums;
+        let p = [&self.p[0][..], &self.p[1][..], &self.p[2][..]];
+        let term = Product { mass_diag, p };
+        self.traverse(&term, out, |t| DVec3::new(t[0], t[1], t[2]));
+    }
+
+    /// Sums `term` per particle over the lattices, the second field the one in `self.p`, and
+    /// writes each particle's sums through `emit` into `out`.
+    fn traverse<T: Term<K>, const K: usize, O: Send>(
+        &self,
+        term: &T,
+        out: &mut [O],
+        emit: impl Fn([f64; K]) -> O + Sync,
+    ) {
+        let [x, y] = [&self.x, &self.p].map(|a| [&a[0][..], &a[1][..], &a[2][..]]);
         let isa = self.isa;
         for body in &self.bodies {
             let [nx, ny, _] = body.dims;
-            let (range, plane) = (body.first..body.first + body.len(), nx * ny);
-            (sx[range.clone()].par_chunks_mut(plane))
-                .zip(sy[range.clone()].par_chunks_mut(plane))
-                .zip(sz[range.clone()].par_chunks_mut(plane))
-                .zip(out[range].par_chunks_mut(plane))
+            let range = body.first..body.first + body.len();
+            out[range]
+                .par_chunks_mut(nx * ny)
                 .enumerate()
-                .for_each(|(k, (((sx, sy), sz), out))| {
-                    let sums = [sx, sy, sz];
-                    plane_of(isa, body, (mass_diag, x, p), k, sums, out)
-                });
+                .for_each(|(k, out)| plane_of(isa, body, term, (x, y), k, out, &emit));
         }
+    }
+
+    /// Calls `f(code, a, b)` for every spring (a, b) of the lattices, bodies and offsets in
+    /// order, each offset's springs by their first end; `code` names the spring for
+    /// [`LatticeSystem::ends`] and [`LatticeSystem::block`], below 2³¹. `None` when the model
+    /// has more particles than such codes hold (2²⁷).
+    pub fn for_each_spring(&self, mut f: impl FnMut(u32, usize, usize)) -> Option<()> {
+        // A code with a bit to spare (the multigrid's sources add a side bit).
+        let particles = self.x[0].len();
+        if particles > (u32::MAX >> (OFFSET_BITS + 1)) as usize {
+            return None;
+        }
+        for body in &self.bodies {
+            let [nx, ny, nz] = body.dims;
+            for (o, s) in body.offsets.iter().enumerate() {
+                for (j, k) in (0..nz).flat_map(|k| (0..ny).map(move |j| (j, k))) {
+                    let Some(run) = first_ends(s.delta, body.dims, j, k) else {
+                        continue;
+                    };
+                    for i in run {
+                        let a = body.first + i + nx * (j + ny * k);
+                        let code = (a as u32) << OFFSET_BITS | o as u32;
+                        f(code, a, a.wrapping_add_signed(s.step));
+                    }
+                }
+            }
+        }
+        Some(())
+    }
+
+    /// The body, offset and first end of spring `code`.
+    #[inline(always)]
+    fn decode(&self, code: u32) -> (&Body, &Offset, usize) {
+        let a = (code >> OFFSET_BITS) as usize;
+        let body = match self.bodies.len() {
+            1 => &self.bodies[0],
+            _ => &self.bodies[self.bodies.partition_point(|b| b.first <= a) - 1],
+        };
+        (
+            body,
+            &body.offsets[(code & ((1 << OFFSET_BITS) - 1)) as usize],
+            a,
+        )
+    }
+
+    /// The ends (a, b) of spring `code`.
+    #[inline(always)]
+    pub fn ends(&self, code: u32) -> (usize, usize) {
+        let (_, s, a) = self.decode(code);
+        (a, a.wrapping_add_signed(s.step))
+    }
+
+    /// The block B_s of spring `code` at the linearisation.
+    #[inline(always)]
+    pub fn block(&self, code: u32) -> DMat3 {
+        let (body, s, a) = self.decode(code);
+        let b = a.wrapping_add_signed(s.step);
+        let o = (code & ((1 << OFFSET_BITS) - 1)) as usize;
+        let inv = body.inv_len[o * body.len() + (a - body.first)];
+        let x = &self.x;
+        let d = DVec3::new(x[0][a] - x[0][b], x[1][a] - x[1][b], x[2][a] - x[2][b]);
+        let (u, beta, gamma) = block(d, inv, s.rest, s.coefficients);
+        // Exactly symmetric, as the list's blocks are: (u_r u_c) β.
+        outer(u, beta) + DMat3::from_diagonal(DVec3::splat(gamma))
     }
 }
 
-/// The diagonal's mass part, and the positions x and the vector p by axis.
-type Inputs<'a> = (&'a [f64], [&'a [f64]; 3], [&'a [f64]; 3]);
+/// What a traversal sums per particle: `K` components a spring, the first [`Term::ODD`] added
+/// at its first end and subtracted at its second (equal and opposite: products, forces), the
+/// rest added at both (the diagonal blocks).
+trait Term<const K: usize>: Sync {
+    const ODD: usize;
+
+    /// The own terms of the `L` particles from i, where their sums start.
+    fn start<const L: usize>(&self, i: usize) -> [[f64; L]; K];
+
+    /// The spring's term at d = x_a − x_b, w = y_a − y_b (y the traversal's second field) and
+    /// 1/ℓ; every component zero where 1/ℓ = 0 (a spring the lattice does not have, or one
+    /// crushed to zero length).
+    fn spring(&self, d: DVec3, w: DVec3, inv_len: f64, s: &Offset) -> [f64; K];
+}
+
+/// The product A p: the mass term, then ± z_s.
+struct Product<'a> {
+    mass_diag: &'a [f64],
+    p: [&'a [f64]; 3],
+}
+
+impl Term<3> for Product<'_> {
+    const ODD: usize = 3;
+
+    #[inline(always)]
+    fn start<const L: usize>(&self, i: usize) -> [[f64; L]; 3] {
+        let m: &[f64; L] = self.mass_diag[i..i + L].try_into().unwrap();
+        self.p.map(|p| {
+            let p: &[f64; L] = p[i..i + L].try_into().unwrap();
+            std::array::from_fn(|l| m[l] * p[l])
+        })
+    }
+
+    #[inline(always)]
+    fn spring(&self, d: DVec3, w: DVec3, inv_len: f64, s: &Offset) -> [f64; 3] {
+        product(d, w, inv_len, s).to_array()
+    }
+}
+
+/// The assembly's spring terms: ± g_s = f_s − h K_s (v_a − v_b), then B_s's upper half.
+struct Assembly {
+    h: f64,
+}
+
+impl Term<9> for Assembly {
+    const ODD: usize = 3;
+
+    #[inline(always)]
+    fn start<const L: usize>(&self, _: usize) -> [[f64; L]; 9] {
+        [[0.0; L]; 9]
+    }
+
+    /// With u = d/ℓ and ℓ = (d·d)/ℓ (no square root: 1/ℓ is the linearisation's),
+    /// f = −(k_s(ℓ − r) + k_d (u·w)) u, the spring force of [`spring_force`] on a;
+    /// K w = k_s(1 − α)(u·w) u + k_s α w; B = β uuᵀ + γ I ([`block`]).
+    ///
+    /// [`spring_force`]: crate::spring_forces::spring_force
+    #[inline(always)]
+    fn spring(&self, d: DVec3, w: DVec3, inv_len: f64, s: &Offset) -> [f64; 9] {
+        let (ks, kd) = s.parameters;
+        let (u, beta, gamma) = block(d, inv_len, s.rest, s.coefficients);
+        let alpha = transverse(inv_len, s.rest);
+        let len = d.dot(d) * inv_len;
+        let uw = u.dot(w);
+        let f = -(ks * (len - s.rest) + kd * uw) * u;
+        let kw = (ks * (1.0 - alpha) * uw) * u + (ks * alpha) * w;
+        let g = f - self.h * kw;
+        let bu = beta * u;
+        [
+            g.x,
+            g.y,
+            g.z,
+            bu.x * u.x + gamma,
+            bu.y * u.y + gamma,
+            bu.z * u.z + gamma,
+            bu.x * u.y,
+            bu.x * u.z,
+            bu.y * u.z,
+        ]
+    }
+}
 
 /// An array per axis from `DVec3`s.
 fn split(v: &[DVec3], out: &mut Axes) {
@@ -230,24 +433,28 @@ fn axes(n: usize) -> Axes {
     std::array::from_fn(|_| vec![0.0; n])
 }
 
-/// One plane's products, compiled for the widest vectors the CPU runs.
-fn plane_of(
+/// The positions and the second field by axis.
+type Fields<'a> = ([&'a [f64]; 3], [&'a [f64]; 3]);
+
+/// One plane's sums, compiled for the widest vectors the CPU runs.
+fn plane_of<T: Term<K>, const K: usize, O>(
     isa: Isa,
     body: &Body,
-    inputs: Inputs<'_>,
+    term: &T,
+    fields: Fields<'_>,
     k: usize,
-    sums: [&mut [f64]; 3],
-    out: &mut [DVec3],
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
 ) {
     #[cfg(target_arch = "x86_64")]
     match isa {
         // SAFETY: the CPU has AVX-512F (`Isa::detect`).
-        Isa::Avx512 => return unsafe { plane_avx512(body, inputs, k, sums, out) },
+        Isa::Avx512 => return unsafe { plane_avx512(body, term, fields, k, out, emit) },
         // SAFETY: the CPU has AVX2 (as above).
-        Isa::Avx2 => return unsafe { plane_avx2(body, inputs, k, sums, out) },
+        Isa::Avx2 => return unsafe { plane_avx2(body, term, fields, k, out, emit) },
         Isa::Scalar => {}
     }
-    plane_terms(body, inputs, k, sums, out);
+    plane_terms(body, term, fields, k, out, emit);
 }
 
 /// The i of row (j, k) whose spring of offset `delta` has its partner in the lattice.
@@ -265,14 +472,15 @@ fn first_ends(delta: [isize; 3], dims: [usize; 3], j: usize, k: usize) -> Option
 /// The CPU has AVX-512F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn plane_avx512(
+unsafe fn plane_avx512<T: Term<K>, const K: usize, O>(
     body: &Body,
-    inputs: Inputs<'_>,
+    term: &T,
+    fields: Fields<'_>,
     k: usize,
-    sums: [&mut [f64]; 3],
-    out: &mut [DVec3],
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
 ) {
-    plane_terms(body, inputs, k, sums, out);
+    plane_terms(body, term, fields, k, out, emit);
 }
 
 /// [`plane_terms`] compiled for AVX2.
@@ -281,35 +489,37 @@ unsafe fn plane_avx512(
 /// The CPU has AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn plane_avx2(
+unsafe fn plane_avx2<T: Term<K>, const K: usize, O>(
     body: &Body,
-    inputs: Inputs<'_>,
+    term: &T,
+    fields: Fields<'_>,
     k: usize,
-    sums: [&mut [f64]; 3],
-    out: &mut [DVec3],
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
 ) {
-    plane_terms(body, inputs, k, sums, out);
+    plane_terms(body, term, fields, k, out, emit);
 }
 
-/// Plane k of the product into `out` (the plane's), summed in `sums` (the plane's): per
-/// particle the mass term, then per offset the spring it starts, then the one it ends.
+/// Plane k's sums into `out` (the plane's): per particle its own term, then per offset the
+/// spring it starts, then the one it ends.
 ///
 /// Where every offset's partners of the whole plane lie in the body (all but the planes
 /// nearest the body's faces), the plane runs in groups of [`LANES`] consecutive particles that
-/// keep their own positions, p and sums in registers through all offsets ([`fused_terms`]).
+/// keep their own fields and sums in registers through all offsets ([`group_terms`]).
 /// Elsewhere each offset runs over the plane in its own loop, its run cut where partners leave
 /// the body. Both give each particle the same terms in the same order, so the same bits.
 ///
 /// Either way a loop pairs particles at a constant index step, so near the lattice's edges in
 /// i or j it pairs a particle with one of another row: there the particle has no spring of the
-/// offset, its stored 1/ℓ is 0, which makes z = 0 ([`product`]).
+/// offset, its stored 1/ℓ is 0, which makes the term zero ([`Term::spring`]).
 #[inline(always)]
-fn plane_terms(
+fn plane_terms<T: Term<K>, const K: usize, O>(
     body: &Body,
-    (mass_diag, x, p): Inputs<'_>,
+    term: &T,
+    (x, y): Fields<'_>,
     k: usize,
-    mut sums: [&mut [f64]; 3],
-    out: &mut [DVec3],
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
 ) {
     let [nx, ny, nz] = body.dims.map(|d| d as isize);
     let (first, n) = (body.first, body.len() as isize);
@@ -327,28 +537,29 @@ fn plane_terms(
                 .then(|| (q0.max(-step), q1.min(n - step)))
         })
     };
+    let plane = (q1 - q0) as usize;
     let whole = body.offsets.iter().all(|s| runs(s) == [Some((q0, q1)); 2]);
     if whole {
-        let plane = (q1 - q0) as usize;
         let g = first + q0 as usize;
         let groups = plane / LANES * LANES;
         for t in (0..groups).step_by(LANES) {
-            let sums = fused_terms::<LANES>(body, (mass_diag, x, p), g + t, q0 as usize + t);
+            let sums = group_terms::<T, K, LANES>(body, term, (x, y), g + t, q0 as usize + t);
             for (l, o) in out[t..t + LANES].iter_mut().enumerate() {
-                *o = DVec3::new(sums[0][l], sums[1][l], sums[2][l]);
+                *o = emit(std::array::from_fn(|c| sums[c][l]));
             }
         }
         for (t, o) in out.iter_mut().enumerate().skip(groups) {
-            let sums = fused_terms::<1>(body, (mass_diag, x, p), g + t, q0 as usize + t);
-            *o = DVec3::new(sums[0][0], sums[1][0], sums[2][0]);
+            let sums = group_terms::<T, K, 1>(body, term, (x, y), g + t, q0 as usize + t);
+            *o = emit(sums.map(|c| c[0]));
         }
         return;
     }
-    let plane = first + q0 as usize..first + q1 as usize;
-    for (sum, p) in sums.iter_mut().zip(p) {
-        let (sum, p, m) = (&mut sum[..], &p[plane.clone()], &mass_diag[plane.clone()]);
-        for t in 0..sum.len() {
-            sum[t] = m[t] * p[t];
+    // The plane's sums by component.
+    let mut sums = vec![0.0; K * plane];
+    for t in 0..plane {
+        let start = term.start::<1>(first + q0 as usize + t);
+        for c in 0..K {
+            sums[c * plane + t] = start[c][0];
         }
     }
     for (o, s) in body.offsets.iter().enumerate() {
@@ -357,54 +568,55 @@ fn plane_terms(
             let step = if side == 0 { s.step } else { -s.step };
             let run = (t0 - q0) as usize..(t1 - q0) as usize;
             let (t, u) = (first + t0 as usize, (first as isize + t0 + step) as usize);
-            let [sx, sy, sz] = &mut sums;
-            let sums = [&mut sx[run.clone()], &mut sy[run.clone()], &mut sz[run]];
-            let (x0, x1) = (x.map(|a| &a[t..]), x.map(|a| &a[u..]));
-            let (p0, p1) = (p.map(|a| &a[t..]), p.map(|a| &a[u..]));
+            let mut parts = sums.chunks_exact_mut(plane);
+            let sums: [&mut [f64]; K] =
+                std::array::from_fn(|_| &mut parts.next().unwrap()[run.clone()]);
             if side == 0 {
-                terms::<true>(sums, (x0, x1), (p0, p1), &inv(o)[t0 as usize..], s);
+                let inv = &inv(o)[t0 as usize..];
+                run_terms::<T, K, true>(term, sums, (x, y), (t, u), inv, s);
             } else {
-                terms::<false>(sums, (x1, x0), (p1, p0), &inv(o)[(t0 + step) as usize..], s);
+                let inv = &inv(o)[(t0 + step) as usize..];
+                run_terms::<T, K, false>(term, sums, (x, y), (u, t), inv, s);
             }
         }
     }
     for (t, o) in out.iter_mut().enumerate() {
-        *o = DVec3::new(sums[0][t], sums[1][t], sums[2][t]);
+        *o = emit(std::array::from_fn(|c| sums[c * plane + t]));
     }
 }
 
-/// Particles per group of [`fused_terms`]: one 512-bit vector of f64.
+/// Particles per group of [`group_terms`]: one 512-bit vector of f64.
 const LANES: usize = 8;
 
-/// How far ahead [`fused_terms`] prefetches, in particles.
+/// How far ahead [`group_terms`] prefetches, in particles.
 const AHEAD: usize = 8 * LANES;
 
 /// The sums of the `L` particles from `g` (model index; `q` within the body), every offset's
-/// partners in the body: the mass term, then per offset the spring each starts and the one it
-/// ends — [`plane_terms`]'s per-offset loops' terms, in their order.
+/// partners in the body: their own terms, then per offset the spring each starts and the one
+/// it ends — [`plane_terms`]'s per-offset loops' terms, in their order.
 #[inline(always)]
-fn fused_terms<const L: usize>(
+fn group_terms<T: Term<K>, const K: usize, const L: usize>(
     body: &Body,
-    (mass_diag, x, p): Inputs<'_>,
+    term: &T,
+    (x, y): Fields<'_>,
     g: usize,
     q: usize,
-) -> [[f64; L]; 3] {
+) -> [[f64; L]; K] {
     let lanes = |a: &[f64], at: usize| -> [f64; L] { a[at..at + L].try_into().unwrap() };
-    let (xo, po) = (x.map(|a| lanes(a, g)), p.map(|a| lanes(a, g)));
-    let m = lanes(mass_diag, g);
-    let mut sums: [[f64; L]; 3] = std::array::from_fn(|c| std::array::from_fn(|l| m[l] * po[c][l]));
+    let (xo, yo) = (x.map(|a| lanes(a, g)), y.map(|a| lanes(a, g)));
+    let mut sums = term.start::<L>(g);
     let n = body.len();
     for (s, inv) in body.offsets.iter().zip(body.inv_len.chunks_exact(n)) {
         let (b, a) = (
             g.wrapping_add_signed(s.step),
             g.wrapping_add_signed(-s.step),
         );
-        let (xb, pb, inv_b) = (
+        let (xb, yb, inv_b) = (
             x.map(|v| lanes(v, b)),
-            p.map(|v| lanes(v, b)),
+            y.map(|v| lanes(v, b)),
             lanes(inv, q),
         );
-        let (xa, pa) = (x.map(|v| lanes(v, a)), p.map(|v| lanes(v, a)));
+        let (xa, ya) = (x.map(|v| lanes(v, a)), y.map(|v| lanes(v, a)));
         let inv_a = lanes(inv, q.wrapping_add_signed(-s.step));
         // 1/ℓ of the springs the particles start stream from memory on large bodies (their
         // second ends' were read one or two planes before), and a group's sixteen streams
@@ -412,17 +624,50 @@ fn fused_terms<const L: usize>(
         prefetch(inv.get(q + AHEAD..q + AHEAD + 1));
         for l in 0..L {
             let at = |v: &[[f64; L]; 3]| DVec3::new(v[0][l], v[1][l], v[2][l]);
-            let z = product(at(&xo) - at(&xb), at(&po) - at(&pb), inv_b[l], s);
-            for c in 0..3 {
+            let z = term.spring(at(&xo) - at(&xb), at(&yo) - at(&yb), inv_b[l], s);
+            for c in 0..K {
                 sums[c][l] += z[c];
             }
-            let z = product(at(&xa) - at(&xo), at(&pa) - at(&po), inv_a[l], s);
-            for c in 0..3 {
-                sums[c][l] -= z[c];
+            let z = term.spring(at(&xa) - at(&xo), at(&ya) - at(&yo), inv_a[l], s);
+            for c in 0..K {
+                if c < T::ODD {
+                    sums[c][l] -= z[c];
+                } else {
+                    sums[c][l] += z[c];
+                }
             }
         }
     }
     sums
+}
+
+/// The terms of the `L` springs of offset `s` from first ends `a` to second ends `b` (model
+/// indices, `L` consecutive each) in the fields, their 1/ℓ the first `L` of `inv_len`.
+#[inline(always)]
+fn spring_terms<T: Term<K>, const K: usize, const L: usize>(
+    term: &T,
+    (x, y): Fields<'_>,
+    (a, b): (usize, usize),
+    inv_len: &[f64],
+    s: &Offset,
+) -> [[f64; L]; K] {
+    let lanes = |v: &[f64], at: usize| -> [f64; L] { v[at..at + L].try_into().unwrap() };
+    let (xa, xb, ya, yb) = (
+        x.map(|v| lanes(v, a)),
+        x.map(|v| lanes(v, b)),
+        y.map(|v| lanes(v, a)),
+        y.map(|v| lanes(v, b)),
+    );
+    let inv = lanes(inv_len, 0);
+    let mut out = [[0.0; L]; K];
+    for l in 0..L {
+        let at = |v: &[[f64; L]; 3]| DVec3::new(v[0][l], v[1][l], v[2][l]);
+        let z = term.spring(at(&xa) - at(&xb), at(&ya) - at(&yb), inv[l], s);
+        for c in 0..K {
+            out[c][l] = z[c];
+        }
+    }
+    out
 }
 
 /// z_s = B_s w for a spring at d = x_a − x_b with 1/ℓ `inv_len` and w = p_a − p_b: with
@@ -435,35 +680,39 @@ fn product(d: DVec3, w: DVec3, inv_len: f64, s: &Offset) -> DVec3 {
     (beta * inv_len * inv_len * d.dot(w)) * d + gamma * w
 }
 
-/// sums ± z_s for a run of springs of one offset (+ at first ends).
+/// The sums of a run of springs of one offset, from first ends `a` to second ends `b` (model
+/// indices of the run's first spring), added at the first ends if `FIRST`, else at the second.
 #[inline(always)]
-fn terms<const FIRST: bool>(
-    sums: [&mut [f64]; 3],
-    (xa, xb): ([&[f64]; 3], [&[f64]; 3]),
-    (pa, pb): ([&[f64]; 3], [&[f64]; 3]),
+fn run_terms<T: Term<K>, const K: usize, const FIRST: bool>(
+    term: &T,
+    sums: [&mut [f64]; K],
+    fields: Fields<'_>,
+    (a, b): (usize, usize),
     inv_len: &[f64],
     s: &Offset,
 ) {
     let n = sums[0].len();
-    let [sx, sy, sz] = sums.map(|a| &mut a[..n]);
-    let [xa, xb, pa, pb] = [xa, xb, pa, pb].map(|v| v.map(|a| &a[..n]));
-    let inv_len = &inv_len[..n];
-    for t in 0..n {
-        let d = DVec3::new(
-            xa[0][t] - xb[0][t],
-            xa[1][t] - xb[1][t],
-            xa[2][t] - xb[2][t],
-        );
-        let w = DVec3::new(
-            pa[0][t] - pb[0][t],
-            pa[1][t] - pb[1][t],
-            pa[2][t] - pb[2][t],
-        );
-        let z = product(d, w, inv_len[t], s);
-        if FIRST {
-            (sx[t], sy[t], sz[t]) = (sx[t] + z.x, sy[t] + z.y, sz[t] + z.z);
-        } else {
-            (sx[t], sy[t], sz[t]) = (sx[t] - z.x, sy[t] - z.y, sz[t] - z.z);
+    let mut sums = sums.map(|sum| &mut sum[..n]);
+    let mut add = |t: usize, z: &[f64], c: usize| {
+        for (sum, z) in sums[c][t..t + z.len()].iter_mut().zip(z) {
+            if FIRST || c >= T::ODD {
+                *sum += z;
+            } else {
+                *sum -= z;
+            }
+        }
+    };
+    let groups = n / LANES * LANES;
+    for t in (0..groups).step_by(LANES) {
+        let z = spring_terms::<T, K, LANES>(term, fields, (a + t, b + t), &inv_len[t..], s);
+        for (c, z) in z.iter().enumerate() {
+            add(t, z, c);
+        }
+    }
+    for t in groups..n {
+        let z = spring_terms::<T, K, 1>(term, fields, (a + t, b + t), &inv_len[t..], s);
+        for (c, z) in z.iter().enumerate() {
+            add(t, z, c);
         }
     }
 }
@@ -475,7 +724,7 @@ mod tests {
     use softbody_testkit::Rng;
     use softbody_testkit::scenes::*;
 
-    use super::LatticeProduct;
+    use super::LatticeSystem;
     use crate::spring_forces::Isa;
 
     /// Every vector path of the product gives the scalar path's bits: cuboids whose planes take
@@ -507,7 +756,7 @@ mod tests {
             state.x.iter_mut().for_each(|x| *x += rng.vec(0.03));
             let p: Vec<DVec3> = (0..model.len()).map(|_| rng.vec(1.0)).collect();
             let product = |isa: Isa| {
-                let mut lattice = LatticeProduct::new(&model).expect("cuboids");
+                let mut lattice = LatticeSystem::new(&model).expect("cuboids");
                 lattice.isa = isa;
                 lattice.linearise(&state.x);
                 let mut out = vec![DVec3::NAN; model.len()];

@@ -112,8 +112,9 @@ impl ImplicitEuler {
     pub fn new(model: &Model) -> ImplicitEuler {
         let n = model.len();
         let zeros = || vec![DVec3::ZERO; n];
+        let system = System::new(model);
         let multigrid = match model.simulation.preconditioner {
-            softbody_scene::Preconditioner::Multigrid => Multigrid::new(model),
+            softbody_scene::Preconditioner::Multigrid => Multigrid::new(model, &system),
             softbody_scene::Preconditioner::BlockJacobi => None,
         };
         let statistics = Statistics {
@@ -125,7 +126,7 @@ impl ImplicitEuler {
             ..Statistics::default()
         };
         ImplicitEuler {
-            system: System::new(model),
+            system,
             multigrid,
             scratch: Scratch::new(n),
             b: zeros(),

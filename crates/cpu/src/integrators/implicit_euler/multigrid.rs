@@ -64,6 +64,7 @@ use rayon::prelude::*;
 use softbody_scene::Model;
 
 use super::cg::Constraint;
+use super::lattice::LatticeSystem;
 use super::system::{System, outer};
 use crate::forces::PARTICLE_CHUNK;
 
@@ -154,7 +155,7 @@ struct Level {
     transpose: Vec<u32>,
     /// Each entry's sources: on the first coarse level `2·spring + side` (side 1 when the
     /// row's node holds the spring's second end; on a diagonal entry the springs inside the
-    /// node), below it the finer level's entries.
+    /// node; `spring` a [`Springs`] code), below it the finer level's entries.
     sources: Rows,
     /// The blocks.
     values: Vec<DMat3>,
@@ -316,6 +317,49 @@ pub struct Multigrid {
     /// What the values were computed for: the system's assembly ([`System::assembly`]) and the
     /// constraints.
     prepared: Option<(u64, Vec<Constraint>)>,
+    /// Whether the first level's sources name springs by [`LatticeSystem`] codes (else by their
+    /// index in the spring list).
+    lattice: bool,
+}
+
+/// The springs the first coarse level sums, by the codes of its sources: the spring list's
+/// indices with the blocks of the list's assembly, or the lattices' codes with the blocks
+/// recomputed from the linearisation ([`LatticeSystem::block`]: the lean route keeps no
+/// per-spring block).
+enum Springs<'a> {
+    List {
+        springs: &'a softbody_scene::Springs,
+        u: &'a [DVec3],
+        beta: &'a [f64],
+        gamma: &'a [f64],
+    },
+    Lattice(&'a LatticeSystem),
+}
+
+impl Springs<'_> {
+    /// The ends (a, b) of spring `code`.
+    #[inline(always)]
+    fn ends(&self, code: u32) -> (usize, usize) {
+        match self {
+            Springs::List { springs, .. } => {
+                let s = code as usize;
+                (springs.a[s] as usize, springs.b[s] as usize)
+            }
+            Springs::Lattice(lattice) => lattice.ends(code),
+        }
+    }
+
+    /// B_s of spring `code`.
+    #[inline(always)]
+    fn block(&self, code: u32) -> DMat3 {
+        match self {
+            Springs::List { u, beta, gamma, .. } => {
+                let s = code as usize;
+                outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]))
+            }
+            Springs::Lattice(lattice) => lattice.block(code),
+        }
+    }
 }
 
 /// S_x M S_y.
@@ -352,8 +396,8 @@ fn filtered(s: Constraint, d: DMat3) -> DMat3 {
 fn first_level_entry(
     (row, col): (u32, u32),
     (members, sources): (&[u32], &[u32]),
-    (constraints, diag, springs): (&[Constraint], &[DMat3], &softbody_scene::Springs),
-    block: &impl Fn(usize) -> DMat3,
+    (constraints, diag): (&[Constraint], &[DMat3]),
+    springs: &Springs<'_>,
 ) -> DMat3 {
     let mut sum = DMat3::ZERO;
     if row == col {
@@ -362,26 +406,37 @@ fn first_level_entry(
             sum += filtered(constraints[a], diag[a]);
         }
         for &code in sources {
-            let s = (code >> 1) as usize;
-            let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
-            let m = sandwich(constraints[a], block(s), constraints[b]);
-            sum -= m + m.transpose();
+            let (a, b) = springs.ends(code >> 1);
+            let block = springs.block(code >> 1);
+            sum -= match (constraints[a], constraints[b]) {
+                // B_s is symmetric: S B S + (S B S)ᵀ = 2B between free particles.
+                (Constraint::Free, Constraint::Free) => block + block,
+                (sa, sb) => {
+                    let m = sandwich(sa, block, sb);
+                    m + m.transpose()
+                }
+            };
         }
     } else {
         for &code in sources {
-            let s = (code >> 1) as usize;
-            let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+            let (a, b) = springs.ends(code >> 1);
             let (x, y) = if code & 1 == 0 { (a, b) } else { (b, a) };
-            sum -= sandwich(constraints[x], block(s), constraints[y]);
+            let block = springs.block(code >> 1);
+            sum -= match (constraints[x], constraints[y]) {
+                (Constraint::Free, Constraint::Free) => block,
+                (sx, sy) => sandwich(sx, block, sy),
+            };
         }
     }
     sum
 }
 
 impl Multigrid {
-    /// The hierarchy of `model`, or `None` when some particle has no lattice coordinates (a
-    /// `particles` body) or the model is empty.
-    pub fn new(model: &Model) -> Option<Multigrid> {
+    /// The hierarchy of `model` for its step's `system` (whose route, the spring list or the
+    /// lattices, names the springs), or `None` when some particle has no lattice coordinates (a
+    /// `particles` body), the model is empty, or it has more particles than the lattices'
+    /// spring codes hold (2²⁷).
+    pub fn new(model: &Model, system: &System) -> Option<Multigrid> {
         let n = model.len();
         if n == 0 {
             return None;
@@ -391,17 +446,25 @@ impl Multigrid {
             .collect::<Option<_>>()?;
         let (parent, mut keys) = aggregate(&keys);
         let m = keys.len();
-        let springs = model.springs();
         let mut triples: Vec<(u32, u32, u32)> = (0..m as u32).map(|a| (a, a, u32::MAX)).collect();
-        triples.reserve(2 * springs.len());
-        for s in 0..springs.len() {
-            let (a, b) = (parent[springs.a[s] as usize], parent[springs.b[s] as usize]);
-            let code = 2 * s as u32;
+        triples.reserve(2 * model.spring_count());
+        let mut push = |spring: u32, a: usize, b: usize| {
+            let (a, b) = (parent[a], parent[b]);
+            let code = 2 * spring;
             if a == b {
                 triples.push((a, a, code));
             } else {
                 triples.push((a, b, code));
                 triples.push((b, a, code + 1));
+            }
+        };
+        match &system.lattice {
+            Some(lattice) => lattice.for_each_spring(&mut push)?,
+            None => {
+                let springs = model.springs();
+                for s in 0..springs.len() {
+                    push(s as u32, springs.a[s] as usize, springs.b[s] as usize);
+                }
             }
         }
         let mut levels = vec![Level::new(parent, m, triples)];
@@ -424,6 +487,7 @@ impl Multigrid {
             direct: Direct::Sweeps,
             fine_smoother: vec![DMat3::ZERO; n],
             prepared: None,
+            lattice: system.lattice.is_some(),
         })
     }
 
@@ -491,9 +555,20 @@ impl Multigrid {
             }
             marks
         });
-        let springs = model.springs();
-        let (u, beta, gamma) = (&system.u, &system.beta, &system.gamma);
-        let block = |s: usize| outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
+        let springs = match &system.lattice {
+            Some(lattice) => Springs::Lattice(lattice),
+            None => Springs::List {
+                springs: model.springs(),
+                u: &system.u,
+                beta: &system.beta,
+                gamma: &system.gamma,
+            },
+        };
+        assert_eq!(
+            self.lattice,
+            system.lattice.is_some(),
+            "a multigrid prepared for a system of the other route"
+        );
         for k in 0..self.levels.len() {
             let (finer, coarser) = self.levels.split_at_mut(k);
             let level = &mut coarser[0];
@@ -527,8 +602,8 @@ impl Multigrid {
                         *value = first_level_entry(
                             (row, col),
                             (members.of(row as usize), sources.of(e)),
-                            (constraints, diag, springs),
-                            &block,
+                            (constraints, diag),
+                            &springs,
                         );
                         return;
                     };

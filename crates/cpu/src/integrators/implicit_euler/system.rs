@@ -14,8 +14,10 @@
 //!
 //! A product A p is a per-spring pass (z_s = B_s (p_a − p_b)) and a per-particle gather, the
 //! same scheme as the spring forces, so it is deterministic for any thread count. On a model
-//! of cuboids it is [`LatticeProduct`]'s instead: per particle over the lattice offsets, each
-//! block recomputed from the positions and the spring's stored 1/ℓ, no spring list read.
+//! of cuboids the product and the springs' share of the assembly are [`LatticeSystem`]'s
+//! instead: per particle over the lattice offsets, each block recomputed from the positions
+//! and the spring's stored 1/ℓ, no spring list built or read (the per-spring arrays here stay
+//! empty).
 //!
 //! Pairs of bodies in contact at the start of the step ([`Partners`]) enter the same way, as
 //! springs along their normal n that only push: with the penalty F n on a (F > 0,
@@ -29,17 +31,18 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use softbody_scene::{Adjacency, Model};
 
-use super::lattice::{LatticeProduct, block, inverse_length, transverse};
+use super::lattice::{LatticeSystem, block, inverse_length, transverse};
 use crate::body_contact::{PENALTY_IMPLICIT, Partners, penalty_law};
 use crate::forces::PARTICLE_CHUNK;
 use crate::spring_forces::{self, gather, gather_block};
 
 const SPRING_CHUNK: usize = 4096;
 
-/// Per-spring data of the linearisation at the start of a step.
+/// The linearisation at the start of a step.
 #[derive(Debug, Default)]
 pub struct System {
-    /// Unit direction u of each spring.
+    /// Unit direction u of each spring (on the spring list's route; these per-spring arrays are
+    /// empty on the lattices').
     pub u: Vec<DVec3>,
     /// β of each spring.
     pub beta: Vec<f64>,
@@ -55,8 +58,8 @@ pub struct System {
     pub inv_diag: Vec<DMat3>,
     /// The pairs of bodies in contact, when the model has contact between bodies.
     pub pairs: Option<PairBlocks>,
-    /// The product without a spring list, on a model of cuboids.
-    pub lattice: Option<LatticeProduct>,
+    /// The product and the springs' sums without a spring list, on a model of cuboids.
+    pub lattice: Option<LatticeSystem>,
     /// Assemblies so far.
     assembly: u64,
 }
@@ -132,7 +135,13 @@ impl PairBlocks {
 impl System {
     /// Sized for `model`.
     pub fn new(model: &Model) -> System {
-        let (n, s) = (model.len(), model.springs().len());
+        let lattice = LatticeSystem::new(model);
+        let n = model.len();
+        let s = if lattice.is_some() {
+            0
+        } else {
+            model.springs().len()
+        };
         System {
             u: vec![DVec3::ZERO; s],
             beta: vec![0.0; s],
@@ -142,7 +151,7 @@ impl System {
             diag: vec![DMat3::IDENTITY; n],
             inv_diag: vec![DMat3::IDENTITY; n],
             pairs: model.contact.enabled().then(PairBlocks::default),
-            lattice: LatticeProduct::new(model),
+            lattice,
             assembly: 0,
         }
     }
@@ -158,10 +167,7 @@ impl System {
             + vec_bytes(&self.diag)
             + vec_bytes(&self.inv_diag)
             + self.pairs.as_ref().map_or(0, PairBlocks::memory_bytes)
-            + self
-                .lattice
-                .as_ref()
-                .map_or(0, LatticeProduct::memory_bytes)
+            + self.lattice.as_ref().map_or(0, LatticeSystem::memory_bytes)
     }
 
     /// Linearises at (x, v), with the pairs of bodies in contact `partners` (given exactly when
@@ -182,7 +188,57 @@ impl System {
         }
         if let Some(lattice) = self.lattice.as_mut() {
             lattice.linearise(x);
+            lattice.assemble(v, h);
+        } else {
+            self.assemble_springs(model, x, v);
         }
+        let sim = &model.simulation;
+        let (per_spring, u, beta, gamma) = (&self.per_spring, &self.u, &self.beta, &self.gamma);
+        let lattice = self.lattice.as_ref().map(LatticeSystem::sums);
+        // Σ± g_s and Σ B_s of particle i's springs.
+        let springs = |i: usize| match lattice {
+            Some(sums) => (sums[i].force, sums[i].block()),
+            None => {
+                let mut block = DMat3::ZERO;
+                for &e in model.adjacency().of(i) {
+                    let s = (e >> 1) as usize;
+                    block += outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
+                }
+                (gather(model.adjacency(), per_spring, i), block)
+            }
+        };
+        let pairs = self.pairs.as_ref();
+        b.par_iter_mut()
+            .zip(
+                self.mass_diag
+                    .par_iter_mut()
+                    .zip(self.diag.par_iter_mut().zip(self.inv_diag.par_iter_mut())),
+            )
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, (b, (md, (diag, inv))))| {
+                let m = model.mass[i];
+                let (force, springs_block) = springs(i);
+                let mut f = m * sim.gravity - sim.drag * m * v[i] + force;
+                *md = m * (1.0 + h * sim.drag);
+                let mut block = DMat3::from_diagonal(DVec3::splat(*md)) + springs_block;
+                if let Some(pairs) = pairs {
+                    f += gather(&pairs.adjacency, &pairs.per_pair, i);
+                    for &e in pairs.adjacency.of(i) {
+                        let p = (e >> 1) as usize;
+                        block += outer(pairs.n[p], pairs.beta[p]);
+                    }
+                }
+                *b = h * f;
+                *diag = block;
+                *inv = block.inverse();
+            });
+    }
+
+    /// The spring list's share of the assembly: per spring u, β, γ and
+    /// g_s = f_s − h K_s (v_a − v_b).
+    fn assemble_springs(&mut self, model: &Model, x: &[DVec3], v: &[DVec3]) {
+        let h = model.simulation.dt;
         let springs = model.springs();
         // Per spring: its force f_s and its stiffness product y_s = K_s (v_a − v_b); store
         // g_s = f_s − h y_s, so that b_i = h (gravity + drag + Σ± g_s) in one gather, since
@@ -213,39 +269,6 @@ impl System {
                     let f = spring_forces::spring_force(x[a], x[bb], v[a], v[bb], rest, ks, kd);
                     g[k] = f - h * y;
                 }
-            });
-        let sim = &model.simulation;
-        let per_spring = &self.per_spring;
-        let (u, beta, gamma) = (&self.u, &self.beta, &self.gamma);
-        let pairs = self.pairs.as_ref();
-        b.par_iter_mut()
-            .zip(
-                self.mass_diag
-                    .par_iter_mut()
-                    .zip(self.diag.par_iter_mut().zip(self.inv_diag.par_iter_mut())),
-            )
-            .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, (b, (md, (diag, inv))))| {
-                let m = model.mass[i];
-                let mut f = m * sim.gravity - sim.drag * m * v[i]
-                    + gather(model.adjacency(), per_spring, i);
-                *md = m * (1.0 + h * sim.drag);
-                let mut block = DMat3::from_diagonal(DVec3::splat(*md));
-                for &e in model.adjacency().of(i) {
-                    let s = (e >> 1) as usize;
-                    block += outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
-                }
-                if let Some(pairs) = pairs {
-                    f += gather(&pairs.adjacency, &pairs.per_pair, i);
-                    for &e in pairs.adjacency.of(i) {
-                        let p = (e >> 1) as usize;
-                        block += outer(pairs.n[p], pairs.beta[p]);
-                    }
-                }
-                *b = h * f;
-                *diag = block;
-                *inv = block.inverse();
             });
     }
 
