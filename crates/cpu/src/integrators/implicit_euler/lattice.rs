@@ -20,12 +20,15 @@
 //! 46³: 0.83 → 0.38 s a step (BENCHMARKS.md). The assembly likewise keeps no per-spring
 //! arrays (the spring list's holds 64 B per spring: u, β, γ, and g_s).
 //!
-//! Both ends of a spring compute its term in the same operations from the same inputs
+//! Both ends of a spring take its term from the same operations on the same inputs
 //! (d = x_a − x_b, 1/ℓ, p_a − p_b or v_a − v_b), so their terms are exact negatives (z_s, g_s)
-//! or equal (B_s), and the matrix is exactly symmetric, as CG needs. A particle's sums run in
-//! a fixed order (its own term, then the body's offsets in [`OFFSETS`] order, each as first end
-//! then as second end), so the bits do not depend on the thread count; they differ from the
-//! spring list's in rounding only.
+//! or equal (B_s), and the matrix is exactly symmetric, as CG needs. On a body's inner planes
+//! each term is computed once, at the spring's first end, and handed to its second through a
+//! ring per offset (`slab_terms`: the product 1.5× faster at 22³ and 46³); the planes
+//! nearest the faces compute it at both ends. A particle's sums run in a fixed order (its own
+//! term, then the body's offsets in [`OFFSETS`] order, each as first end then as second end),
+//! so the bits do not depend on the thread count or on which planes the slabs hold; they
+//! differ from the spring list's in rounding only.
 
 use std::ops::Range;
 
@@ -104,6 +107,32 @@ impl Body {
     fn len(&self) -> usize {
         self.dims.iter().product()
     }
+
+    /// The planes k whose every particle has every offset's partners, at +step and −step, in
+    /// the body's index range (as a particle of another row where its own spring is missing):
+    /// every plane but a few nearest the faces (k in 2..nz − 2 with bending or shear springs).
+    fn inner_planes(&self) -> Range<usize> {
+        let plane = (self.dims[0] * self.dims[1]) as isize;
+        let n = self.len() as isize;
+        let nz = self.dims[2];
+        let whole = |k: usize| {
+            let q0 = plane * k as isize;
+            self.offsets.iter().all(|s| {
+                let planes = 0..nz as isize;
+                planes.contains(&(k as isize + s.delta[2]))
+                    && planes.contains(&(k as isize - s.delta[2]))
+                    && q0 >= s.step.abs()
+                    && q0 + plane + s.step.abs() <= n
+            })
+        };
+        let start = (0..nz).find(|&k| whole(k)).unwrap_or(nz);
+        let end = (start..nz).find(|&k| !whole(k)).unwrap_or(nz);
+        debug_assert!(
+            (end..nz).all(|k| !whole(k)),
+            "the inner planes are contiguous"
+        );
+        start..end
+    }
 }
 
 /// The springs' sums of one particle in the assembly: Σ± g_s and the upper half of Σ B_s.
@@ -138,6 +167,9 @@ pub struct LatticeSystem {
     /// The springs' sums of the last assembly, per particle.
     sums: Vec<SpringSums>,
     isa: Isa,
+    /// Whether inner planes are swept in slabs, each spring's term computed once (else plane
+    /// by plane like the faces', computed at both ends: the tests' reference).
+    slabs: bool,
 }
 
 /// One array per axis (structure of arrays: the loops load whole vectors of consecutive
@@ -186,6 +218,7 @@ impl LatticeSystem {
             p: axes(model.len()),
             sums: vec![SpringSums::default(); model.len()],
             isa: Isa::detect(),
+            slabs: true,
         })
     }
 
@@ -254,7 +287,8 @@ impl LatticeSystem {
     }
 
     /// Sums `term` per particle over the lattices, the second field the one in `self.p`, and
-    /// writes each particle's sums through `emit` into `out`.
+    /// writes each particle's sums through `emit` into `out`: a body's planes nearest its faces
+    /// one by one ([`Work::Plane`]), its inner planes in one slab per thread ([`Work::Slab`]).
     fn traverse<T: Term<K>, const K: usize, O: Send>(
         &self,
         term: &T,
@@ -264,12 +298,40 @@ impl LatticeSystem {
         let [x, y] = [&self.x, &self.p].map(|a| [&a[0][..], &a[1][..], &a[2][..]]);
         let isa = self.isa;
         for body in &self.bodies {
-            let [nx, ny, _] = body.dims;
-            let range = body.first..body.first + body.len();
-            out[range]
-                .par_chunks_mut(nx * ny)
-                .enumerate()
-                .for_each(|(k, out)| plane_of(isa, body, term, (x, y), k, out, &emit));
+            let plane = body.dims[0] * body.dims[1];
+            let inner = match self.slabs {
+                true => body.inner_planes(),
+                false => 0..0,
+            };
+            let out = &mut out[body.first..body.first + body.len()];
+            let (below, rest) = out.split_at_mut(inner.start * plane);
+            let (middle, above) = rest.split_at_mut(inner.len() * plane);
+            let mut work: Vec<(Work, &mut [O])> = Vec::new();
+            work.extend(
+                below
+                    .chunks_mut(plane)
+                    .enumerate()
+                    .map(|(k, o)| (Work::Plane(k), o)),
+            );
+            let slabs = rayon::current_num_threads().clamp(1, inner.len().max(1));
+            let per_slab = inner.len().div_ceil(slabs).max(1);
+            work.extend(
+                middle
+                    .chunks_mut(per_slab * plane)
+                    .enumerate()
+                    .map(|(i, o)| {
+                        let start = inner.start + i * per_slab;
+                        (Work::Slab(start..start + o.len() / plane), o)
+                    }),
+            );
+            work.extend(
+                above
+                    .chunks_mut(plane)
+                    .enumerate()
+                    .map(|(k, o)| (Work::Plane(inner.end + k), o)),
+            );
+            work.into_par_iter()
+                .for_each(|(work, out)| work_of(isa, body, term, (x, y), work, out, &emit));
         }
     }
 
@@ -436,25 +498,81 @@ fn axes(n: usize) -> Axes {
 /// The positions and the second field by axis.
 type Fields<'a> = ([&'a [f64]; 3], [&'a [f64]; 3]);
 
-/// One plane's sums, compiled for the widest vectors the CPU runs.
-fn plane_of<T: Term<K>, const K: usize, O>(
+/// A piece of a body's traversal: one plane near its faces, or a slab of inner planes.
+#[derive(Debug, Clone)]
+enum Work {
+    Plane(usize),
+    Slab(Range<usize>),
+}
+
+/// A piece's sums, compiled for the widest vectors the CPU runs.
+fn work_of<T: Term<K>, const K: usize, O>(
     isa: Isa,
     body: &Body,
     term: &T,
     fields: Fields<'_>,
-    k: usize,
+    work: Work,
     out: &mut [O],
     emit: &impl Fn([f64; K]) -> O,
 ) {
     #[cfg(target_arch = "x86_64")]
     match isa {
         // SAFETY: the CPU has AVX-512F (`Isa::detect`).
-        Isa::Avx512 => return unsafe { plane_avx512(body, term, fields, k, out, emit) },
+        Isa::Avx512 => return unsafe { work_avx512(body, term, fields, work, out, emit) },
         // SAFETY: the CPU has AVX2 (as above).
-        Isa::Avx2 => return unsafe { plane_avx2(body, term, fields, k, out, emit) },
+        Isa::Avx2 => return unsafe { work_avx2(body, term, fields, work, out, emit) },
         Isa::Scalar => {}
     }
-    plane_terms(body, term, fields, k, out, emit);
+    work_terms(body, term, fields, work, out, emit);
+}
+
+/// [`work_terms`] compiled for AVX-512.
+///
+/// # Safety
+/// The CPU has AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn work_avx512<T: Term<K>, const K: usize, O>(
+    body: &Body,
+    term: &T,
+    fields: Fields<'_>,
+    work: Work,
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
+) {
+    work_terms(body, term, fields, work, out, emit);
+}
+
+/// [`work_terms`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU has AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn work_avx2<T: Term<K>, const K: usize, O>(
+    body: &Body,
+    term: &T,
+    fields: Fields<'_>,
+    work: Work,
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
+) {
+    work_terms(body, term, fields, work, out, emit);
+}
+
+#[inline(always)]
+fn work_terms<T: Term<K>, const K: usize, O>(
+    body: &Body,
+    term: &T,
+    fields: Fields<'_>,
+    work: Work,
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
+) {
+    match work {
+        Work::Plane(k) => plane_terms(body, term, fields, k, out, emit),
+        Work::Slab(planes) => slab_terms(body, term, fields, planes, out, emit),
+    }
 }
 
 /// The i of row (j, k) whose spring of offset `delta` has its partner in the lattice.
@@ -466,52 +584,14 @@ fn first_ends(delta: [isize; 3], dims: [usize; 3], j: usize, k: usize) -> Option
         .then(|| (-di).max(0) as usize..(nx - di.max(0)) as usize)
 }
 
-/// [`plane_terms`] compiled for AVX-512.
+/// Plane k's sums into `out` (the plane's), a plane near the body's faces: per particle its
+/// own term, then per offset the spring it starts, then the one it ends; each offset over the
+/// plane in its own loop, its run cut where partners leave the body. The inner planes'
+/// particles get the same terms in the same order, so the same bits, from [`slab_terms`].
 ///
-/// # Safety
-/// The CPU has AVX-512F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn plane_avx512<T: Term<K>, const K: usize, O>(
-    body: &Body,
-    term: &T,
-    fields: Fields<'_>,
-    k: usize,
-    out: &mut [O],
-    emit: &impl Fn([f64; K]) -> O,
-) {
-    plane_terms(body, term, fields, k, out, emit);
-}
-
-/// [`plane_terms`] compiled for AVX2.
-///
-/// # Safety
-/// The CPU has AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn plane_avx2<T: Term<K>, const K: usize, O>(
-    body: &Body,
-    term: &T,
-    fields: Fields<'_>,
-    k: usize,
-    out: &mut [O],
-    emit: &impl Fn([f64; K]) -> O,
-) {
-    plane_terms(body, term, fields, k, out, emit);
-}
-
-/// Plane k's sums into `out` (the plane's): per particle its own term, then per offset the
-/// spring it starts, then the one it ends.
-///
-/// Where every offset's partners of the whole plane lie in the body (all but the planes
-/// nearest the body's faces), the plane runs in groups of [`LANES`] consecutive particles that
-/// keep their own fields and sums in registers through all offsets ([`group_terms`]).
-/// Elsewhere each offset runs over the plane in its own loop, its run cut where partners leave
-/// the body. Both give each particle the same terms in the same order, so the same bits.
-///
-/// Either way a loop pairs particles at a constant index step, so near the lattice's edges in
-/// i or j it pairs a particle with one of another row: there the particle has no spring of the
-/// offset, its stored 1/ℓ is 0, which makes the term zero ([`Term::spring`]).
+/// A loop pairs particles at a constant index step, so near the lattice's edges in i or j it
+/// pairs a particle with one of another row: there the particle has no spring of the offset,
+/// its stored 1/ℓ is 0, which makes the term zero ([`Term::spring`]).
 #[inline(always)]
 fn plane_terms<T: Term<K>, const K: usize, O>(
     body: &Body,
@@ -538,22 +618,6 @@ fn plane_terms<T: Term<K>, const K: usize, O>(
         })
     };
     let plane = (q1 - q0) as usize;
-    let whole = body.offsets.iter().all(|s| runs(s) == [Some((q0, q1)); 2]);
-    if whole {
-        let g = first + q0 as usize;
-        let groups = plane / LANES * LANES;
-        for t in (0..groups).step_by(LANES) {
-            let sums = group_terms::<T, K, LANES>(body, term, (x, y), g + t, q0 as usize + t);
-            for (l, o) in out[t..t + LANES].iter_mut().enumerate() {
-                *o = emit(std::array::from_fn(|c| sums[c][l]));
-            }
-        }
-        for (t, o) in out.iter_mut().enumerate().skip(groups) {
-            let sums = group_terms::<T, K, 1>(body, term, (x, y), g + t, q0 as usize + t);
-            *o = emit(sums.map(|c| c[0]));
-        }
-        return;
-    }
     // The plane's sums by component.
     let mut sums = vec![0.0; K * plane];
     for t in 0..plane {
@@ -585,11 +649,143 @@ fn plane_terms<T: Term<K>, const K: usize, O>(
     }
 }
 
-/// Particles per group of [`group_terms`]: one 512-bit vector of f64.
+/// Particles per group of [`slab_terms`]: one 512-bit vector of f64.
 const LANES: usize = 8;
 
-/// How far ahead [`group_terms`] prefetches, in particles.
+/// How far ahead [`slab_terms`] prefetches, in particles.
 const AHEAD: usize = 8 * LANES;
+
+thread_local! {
+    /// [`slab_terms`]' rings, kept by each thread from one traversal to the next (a ring of the
+    /// 46³ cube's product is 0.6 MB, which a fresh allocation would map and fault in anew).
+    static RINGS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The sums of the inner planes `planes` into `out` (theirs), each spring's term computed once:
+/// swept in groups of [`LANES`] consecutive particles, every offset's partners in the body.
+/// A group computes the terms of the springs its particles start, adds them to its sums and
+/// keeps them in the offset's ring, from which the group `step` particles further on takes
+/// them for the springs its particles end: the terms that group would compute itself (the
+/// same operations on the same inputs), so the same bits as [`plane_terms`]' two computations
+/// and, in each particle's sums, the same order (its own term, then per offset the spring it
+/// starts and the one it ends). The springs that end in the slab's first `step` particles start
+/// before it and are computed first into the rings; the last particles, fewer than a group,
+/// compute both of their ends ([`group_terms`]).
+///
+/// A ring of offset o holds R_o ≥ step_o + [`LANES`] terms per component (a multiple of
+/// [`LANES`], so that writes, a group at a time from the slab's start, never wrap), and its
+/// first [`LANES`] slots again at its end, so that a group's read, which starts anywhere, is
+/// always one run: 11 planes' worth of terms for the stiff cube's 16 offsets.
+#[inline(always)]
+fn slab_terms<T: Term<K>, const K: usize, O>(
+    body: &Body,
+    term: &T,
+    (x, y): Fields<'_>,
+    planes: Range<usize>,
+    out: &mut [O],
+    emit: &impl Fn([f64; K]) -> O,
+) {
+    let (first, n) = (body.first, body.len());
+    let plane = body.dims[0] * body.dims[1];
+    let (q_s, q_e) = (planes.start * plane, planes.end * plane);
+    let offsets = &body.offsets;
+    // Per offset: the ring's length R and where its components start.
+    let lengths: Vec<usize> = offsets
+        .iter()
+        .map(|s| (s.step.unsigned_abs() + LANES).next_multiple_of(LANES))
+        .collect();
+    let bases: Vec<usize> = lengths
+        .iter()
+        .scan(0, |at, r| {
+            Some(std::mem::replace(at, *at + K * (r + LANES)))
+        })
+        .collect();
+    let total = bases
+        .last()
+        .map_or(0, |b| b + K * (lengths.last().unwrap() + LANES));
+    // Taken out of the thread's keeping for the sweep (a closure run by `LocalKey::with` would
+    // be compiled without the caller's target features).
+    let mut ring = RINGS.take();
+    if ring.len() < total {
+        ring.resize(total, 0.0);
+    }
+    {
+        let component = |o: usize, c: usize| bases[o] + c * (lengths[o] + LANES);
+        for (o, s) in offsets.iter().enumerate() {
+            let (step, r) = (s.step.unsigned_abs(), lengths[o]);
+            let inv = &body.inv_len[o * n..(o + 1) * n];
+            for q in q_s - step..q_s {
+                let z = spring_terms::<T, K, 1>(
+                    term,
+                    (x, y),
+                    (first + q, first + q + step),
+                    &inv[q..],
+                    s,
+                );
+                for c in 0..K {
+                    ring[component(o, c) + r - (q_s - q)] = z[c][0];
+                }
+            }
+        }
+        // Per offset: where the next group writes and reads in its ring.
+        let mut write = vec![0usize; offsets.len()];
+        let mut read: Vec<usize> = (offsets.iter().zip(&lengths))
+            .map(|(s, r)| r - s.step.unsigned_abs())
+            .collect();
+        let groups = q_s + (q_e - q_s) / LANES * LANES;
+        for q in (q_s..groups).step_by(LANES) {
+            let g = first + q;
+            let mut sums = term.start::<LANES>(g);
+            for (o, s) in offsets.iter().enumerate() {
+                let (step, r) = (s.step.unsigned_abs(), lengths[o]);
+                let inv = &body.inv_len[o * n..(o + 1) * n];
+                // 1/ℓ streams from memory on large bodies, and a group's sixteen streams are
+                // more than the hardware prefetchers follow.
+                prefetch(inv.get(q + AHEAD..q + AHEAD + 1));
+                let z = spring_terms::<T, K, LANES>(term, (x, y), (g, g + step), &inv[q..], s);
+                for c in 0..K {
+                    let at = component(o, c);
+                    ring[at + write[o]..at + write[o] + LANES].copy_from_slice(&z[c]);
+                    if write[o] == 0 {
+                        ring[at + r..at + r + LANES].copy_from_slice(&z[c]);
+                    }
+                    for l in 0..LANES {
+                        sums[c][l] += z[c][l];
+                    }
+                }
+                for (c, sum) in sums.iter_mut().enumerate() {
+                    let at = component(o, c) + read[o];
+                    for (sum, ended) in sum.iter_mut().zip(&ring[at..at + LANES]) {
+                        if c < T::ODD {
+                            *sum -= ended;
+                        } else {
+                            *sum += ended;
+                        }
+                    }
+                }
+                write[o] = if write[o] + LANES == r {
+                    0
+                } else {
+                    write[o] + LANES
+                };
+                read[o] = if read[o] + LANES >= r {
+                    read[o] + LANES - r
+                } else {
+                    read[o] + LANES
+                };
+            }
+            let out = &mut out[q - q_s..q - q_s + LANES];
+            for (l, o) in out.iter_mut().enumerate() {
+                *o = emit(std::array::from_fn(|c| sums[c][l]));
+            }
+        }
+        for q in groups..q_e {
+            let sums = group_terms::<T, K, 1>(body, term, (x, y), first + q, q);
+            out[q - q_s] = emit(sums.map(|c| c[0]));
+        }
+    }
+    RINGS.set(ring);
+}
 
 /// The sums of the `L` particles from `g` (model index; `q` within the body), every offset's
 /// partners in the body: their own terms, then per offset the spring each starts and the one
@@ -772,6 +968,66 @@ mod tests {
                 .filter(|isa| isa.runs())
             {
                 assert!(product(isa) == scalar, "{dims:?}: {isa:?} differs");
+            }
+        }
+    }
+
+    /// The inner planes' slabs, each spring's term computed once and handed from its first end
+    /// to its second through the rings, give the bits of every plane computing both ends, for
+    /// the product and the assembly, on 1–4 threads (other slabs, other ring starts): cuboids
+    /// with and without inner planes, a remainder after the last group, two bodies, springs
+    /// stretched and compressed.
+    #[test]
+    fn slabs_give_the_bits_of_both_ends_computed() {
+        let params = SpringParams {
+            stiffness: 400.0,
+            damping: 0.8,
+        };
+        for dims in [[9, 7, 13], [4, 3, 9], [3, 2, 5], [17, 6, 8]] {
+            let body = |name: &str, at: f64| {
+                let mut body = cuboid_body(cuboid(
+                    DVec3::splat(0.4),
+                    dims,
+                    DVec3::new(at, 1.0, 0.0),
+                    2.0,
+                    params,
+                ));
+                body.name = name.into();
+                body
+            };
+            let sim = simulation(Integrator::ImplicitEuler, 0.01);
+            let bodies = vec![body("a", 0.0), body("b", 1.0)];
+            let (model, mut state) = Model::build(&scene(sim, bodies, vec![]));
+            let mut rng = Rng::new(11);
+            let mass_diag: Vec<f64> = (0..model.len()).map(|_| 0.05 + rng.unit()).collect();
+            state.x.iter_mut().for_each(|x| *x += rng.vec(0.03));
+            state.v.iter_mut().for_each(|v| *v = rng.vec(1.0));
+            let p: Vec<DVec3> = (0..model.len()).map(|_| rng.vec(1.0)).collect();
+            let run = |slabs: bool, threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                pool.install(|| {
+                    let mut lattice = LatticeSystem::new(&model).expect("cuboids");
+                    lattice.slabs = slabs;
+                    lattice.linearise(&state.x);
+                    let mut out = vec![DVec3::NAN; model.len()];
+                    lattice.apply(&mass_diag, &p, &mut out);
+                    lattice.assemble(&state.v, 0.01);
+                    let sums = (lattice.sums().iter())
+                        .flat_map(|s| s.force.to_array().into_iter().chain(s.block));
+                    (out.iter().flat_map(|v| v.to_array()).chain(sums))
+                        .map(f64::to_bits)
+                        .collect::<Vec<_>>()
+                })
+            };
+            let reference = run(false, 1);
+            for threads in 1..=4 {
+                assert!(
+                    run(true, threads) == reference,
+                    "{dims:?}, {threads} threads"
+                );
             }
         }
     }
