@@ -151,22 +151,19 @@ pub fn solve(
     let mut iterations = 0;
     while delta > target && iterations < max_iterations {
         system.apply(model, c, q);
-        q.par_iter_mut()
-            .zip(constraints.par_iter())
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(q, s)| *q = s.filter(*q));
-        let cq = dot(c, q);
+        // q = S A c, filtered where it is read (no pass of its own).
+        let cq = chunked_sum(c.len(), |i| c[i].dot(constraints[i].filter(q[i])));
         if !(cq > 0.0 && cq.is_finite()) {
             break; // only reachable through round-off once the residual is at machine precision
         }
         let alpha = delta / cq;
         dv.par_iter_mut()
             .zip(r.par_iter_mut())
-            .zip(c.par_iter().zip(q.par_iter()))
+            .zip(c.par_iter().zip(q.par_iter().zip(constraints.par_iter())))
             .with_min_len(PARTICLE_CHUNK)
-            .for_each(|((dv, r), (c, q))| {
+            .for_each(|((dv, r), (c, (q, s)))| {
                 *dv += alpha * *c;
-                *r -= alpha * *q;
+                *r -= alpha * s.filter(*q);
             });
         precondition(r, p);
         let delta_new = dot(r, p);
