@@ -7,7 +7,7 @@
 //! the springs' shares of the assembly, per particle Σ_{(i, b)} g_s − Σ_{(a, i)} g_s with
 //! g_s = f_s − h K_s (v_a − v_b) (the right-hand side's) and Σ B_s over its springs (the
 //! diagonal block's), and single blocks B_s for the multigrid's first coarse level
-//! ([`LatticeSystem::block`]): the matrix of [`super::system`], each spring's block recomputed
+//! ([`LatticeSystem::spring`]): the matrix of [`super::system`], each spring's block recomputed
 //! from the positions and the spring's 1/ℓ, the one value per spring stored at the step's start
 //! (`block` here is the one definition of u, β, γ, which the spring list's assembly uses too).
 //!
@@ -337,7 +337,7 @@ impl LatticeSystem {
 
     /// Calls `f(code, a, b)` for every spring (a, b) of the lattices, bodies and offsets in
     /// order, each offset's springs by their first end; `code` names the spring for
-    /// [`LatticeSystem::ends`] and [`LatticeSystem::block`], below 2³¹. `None` when the model
+    /// [`LatticeSystem::spring`], below 2³¹. `None` when the model
     /// has more particles than such codes hold (2²⁷).
     pub fn for_each_spring(&self, mut f: impl FnMut(u32, usize, usize)) -> Option<()> {
         // A code with a bit to spare (the multigrid's sources add a side bit).
@@ -378,16 +378,9 @@ impl LatticeSystem {
         )
     }
 
-    /// The ends (a, b) of spring `code`.
+    /// The ends (a, b) of spring `code` and its block B_s at the linearisation.
     #[inline(always)]
-    pub fn ends(&self, code: u32) -> (usize, usize) {
-        let (_, s, a) = self.decode(code);
-        (a, a.wrapping_add_signed(s.step))
-    }
-
-    /// The block B_s of spring `code` at the linearisation.
-    #[inline(always)]
-    pub fn block(&self, code: u32) -> DMat3 {
+    pub fn spring(&self, code: u32) -> (usize, usize, DMat3) {
         let (body, s, a) = self.decode(code);
         let b = a.wrapping_add_signed(s.step);
         let o = (code & ((1 << OFFSET_BITS) - 1)) as usize;
@@ -396,7 +389,11 @@ impl LatticeSystem {
         let d = DVec3::new(x[0][a] - x[0][b], x[1][a] - x[1][b], x[2][a] - x[2][b]);
         let (u, beta, gamma) = block(d, inv, s.rest, s.coefficients);
         // Exactly symmetric, as the list's blocks are: (u_r u_c) β.
-        outer(u, beta) + DMat3::from_diagonal(DVec3::splat(gamma))
+        (
+            a,
+            b,
+            outer(u, beta) + DMat3::from_diagonal(DVec3::splat(gamma)),
+        )
     }
 }
 

@@ -324,7 +324,7 @@ pub struct Multigrid {
 
 /// The springs the first coarse level sums, by the codes of its sources: the spring list's
 /// indices with the blocks of the list's assembly, or the lattices' codes with the blocks
-/// recomputed from the linearisation ([`LatticeSystem::block`]: the lean route keeps no
+/// recomputed from the linearisation ([`LatticeSystem::spring`]: the lean route keeps no
 /// per-spring block).
 enum Springs<'a> {
     List {
@@ -337,27 +337,21 @@ enum Springs<'a> {
 }
 
 impl Springs<'_> {
-    /// The ends (a, b) of spring `code`.
+    /// The ends (a, b) of spring `code` and its block B_s.
     #[inline(always)]
-    fn ends(&self, code: u32) -> (usize, usize) {
+    fn spring(&self, code: u32) -> (usize, usize, DMat3) {
         match self {
-            Springs::List { springs, .. } => {
+            Springs::List {
+                springs,
+                u,
+                beta,
+                gamma,
+            } => {
                 let s = code as usize;
-                (springs.a[s] as usize, springs.b[s] as usize)
+                let block = outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
+                (springs.a[s] as usize, springs.b[s] as usize, block)
             }
-            Springs::Lattice(lattice) => lattice.ends(code),
-        }
-    }
-
-    /// B_s of spring `code`.
-    #[inline(always)]
-    fn block(&self, code: u32) -> DMat3 {
-        match self {
-            Springs::List { u, beta, gamma, .. } => {
-                let s = code as usize;
-                outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]))
-            }
-            Springs::Lattice(lattice) => lattice.block(code),
+            Springs::Lattice(lattice) => lattice.spring(code),
         }
     }
 }
@@ -406,8 +400,7 @@ fn first_level_entry(
             sum += filtered(constraints[a], diag[a]);
         }
         for &code in sources {
-            let (a, b) = springs.ends(code >> 1);
-            let block = springs.block(code >> 1);
+            let (a, b, block) = springs.spring(code >> 1);
             sum -= match (constraints[a], constraints[b]) {
                 // B_s is symmetric: S B S + (S B S)ᵀ = 2B between free particles.
                 (Constraint::Free, Constraint::Free) => block + block,
@@ -419,9 +412,8 @@ fn first_level_entry(
         }
     } else {
         for &code in sources {
-            let (a, b) = springs.ends(code >> 1);
+            let (a, b, block) = springs.spring(code >> 1);
             let (x, y) = if code & 1 == 0 { (a, b) } else { (b, a) };
-            let block = springs.block(code >> 1);
             sum -= match (constraints[x], constraints[y]) {
                 (Constraint::Free, Constraint::Free) => block,
                 (sx, sy) => sandwich(sx, block, sy),
