@@ -888,9 +888,8 @@ bending = { stiffness = 400.0, damping = 0.8 }
 
 /// The GPU's assembly (b, block-Jacobi inverse) and product A p against the CPU's `System` on
 /// the same input. Errors are relative to the scale of each quantity: b against
-/// h(m|g| + drag·m|v| + Σ(|f_s| + h k_s|v_a − v_b|)), A p against
-/// m(1 + h·drag)|p_i| + Σ(β + γ)(|p_a| + |p_b|), and each inverse block against its largest
-/// entry.
+/// h(m|g| + drag·m|v| + Σ|g_s|), A p against m(1 + h·drag)|p_i| + Σ(β + γ)(|p_a| + |p_b|), and
+/// each inverse block against its largest entry.
 fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     use softbody_cpu::integrators::implicit_euler::system::System;
     let (model, state) = implicit_cube();

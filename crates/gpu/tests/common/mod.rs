@@ -43,20 +43,27 @@ restitution = 0.0
 "#;
 
 /// The scale of implicit Euler's right-hand side at each particle, which the GPU's b is
-/// compared against: h(m|g| + drag·m|v_i| + Σ_{s ∋ i} (|f_s| + h k_s|v_a − v_b|)), a bound of
-/// the sum of the magnitudes of its terms (g_s = f_s − h K_s (v_a − v_b), ‖K_s‖ ≤ k_s), from the
-/// model's springs alone (the CPU's assembly keeps no per-spring terms on lattices).
+/// compared against: h(m|g| + drag·m|v_i| + Σ_{s ∋ i} |g_s|), with g_s = f_s − h K_s (v_a − v_b)
+/// the per-spring terms of the assembly (docs/physics.md), computed here from the model's springs
+/// (the CPU's assembly keeps no per-spring terms on lattices).
 pub fn rhs_scale(model: &softbody_scene::Model, x: &[glam::DVec3], v: &[glam::DVec3]) -> Vec<f64> {
     let sim = &model.simulation;
+    let h = sim.dt;
     let sp = model.springs();
     let terms: Vec<f64> = (0..sp.len())
         .map(|s| {
             let (a, b) = (sp.a[s] as usize, sp.b[s] as usize);
-            let (ks, kd) = (sp.stiffness[s], sp.damping[s]);
-            let f = softbody_cpu::spring_forces::spring_force(
-                x[a], x[b], v[a], v[b], sp.rest[s], ks, kd,
-            );
-            f.length() + sim.dt * ks * (v[a] - v[b]).length()
+            let (ks, kd, rest) = (sp.stiffness[s], sp.damping[s], sp.rest[s]);
+            let f = softbody_cpu::spring_forces::spring_force(x[a], x[b], v[a], v[b], rest, ks, kd);
+            // K w = k_s[(1 − α)(u·w)u + α w], α = max(0, 1 − r/ℓ).
+            let (d, w) = (x[a] - x[b], v[a] - v[b]);
+            let len = d.length();
+            let (u, alpha) = match len > 0.0 {
+                true => (d / len, (1.0 - rest / len).max(0.0)),
+                false => (glam::DVec3::ZERO, 0.0),
+            };
+            let kw = ks * ((1.0 - alpha) * u.dot(w) * u + alpha * w);
+            (f - h * kw).length()
         })
         .collect();
     (0..model.len())
@@ -68,7 +75,7 @@ pub fn rhs_scale(model: &softbody_scene::Model, x: &[glam::DVec3], v: &[glam::DV
                 .iter()
                 .map(|&e| terms[(e >> 1) as usize])
                 .sum();
-            sim.dt * (m * sim.gravity.length() + sim.drag * m * v[i].length() + springs)
+            h * (m * sim.gravity.length() + sim.drag * m * v[i].length() + springs)
         })
         .collect()
 }

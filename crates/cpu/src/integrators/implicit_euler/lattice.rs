@@ -913,41 +913,49 @@ fn run_terms<T: Term<K>, const K: usize, const FIRST: bool>(
 #[cfg(test)]
 mod tests {
     use glam::DVec3;
-    use softbody_scene::{Integrator, Model, SpringParams};
+    use softbody_scene::{Integrator, Model, SpringParams, State};
     use softbody_testkit::Rng;
     use softbody_testkit::scenes::*;
 
     use super::LatticeSystem;
     use crate::spring_forces::Isa;
 
-    /// Every vector path of the product gives the scalar path's bits: cuboids whose planes take
-    /// the grouped loop (with a remainder of fewer than eight particles) and cuboids too thin
-    /// for it, two bodies side by side, springs stretched and compressed.
-    #[test]
-    fn every_isa_gives_the_scalar_bits() {
+    /// Two cuboids of `dims` points side by side (springs stretched and compressed: positions
+    /// moved by up to 3 cm, velocities random), a diagonal's mass part and a vector p.
+    fn two_cuboids(dims: [u32; 3], seed: u64) -> (Model, State, Vec<f64>, Vec<DVec3>) {
         let params = SpringParams {
             stiffness: 400.0,
             damping: 0.8,
         };
+        let body = |name: &str, at: f64| {
+            let mut body = cuboid_body(cuboid(
+                DVec3::splat(0.4),
+                dims,
+                DVec3::new(at, 1.0, 0.0),
+                2.0,
+                params,
+            ));
+            body.name = name.into();
+            body
+        };
+        let sim = simulation(Integrator::ImplicitEuler, 0.01);
+        let bodies = vec![body("a", 0.0), body("b", 1.0)];
+        let (model, mut state) = Model::build(&scene(sim, bodies, vec![]));
+        let mut rng = Rng::new(seed);
+        let mass_diag: Vec<f64> = (0..model.len()).map(|_| 0.05 + rng.unit()).collect();
+        state.x.iter_mut().for_each(|x| *x += rng.vec(0.03));
+        state.v.iter_mut().for_each(|v| *v = rng.vec(1.0));
+        let p: Vec<DVec3> = (0..model.len()).map(|_| rng.vec(1.0)).collect();
+        (model, state, mass_diag, p)
+    }
+
+    /// Every vector path of the product gives the scalar path's bits: cuboids with inner planes
+    /// (swept in slabs, with a remainder of fewer than eight particles) and cuboids too thin
+    /// for them, two bodies side by side.
+    #[test]
+    fn every_isa_gives_the_scalar_bits() {
         for dims in [[9, 7, 8], [12, 5, 6], [3, 2, 11], [17, 6, 5]] {
-            let cube = |name: &str, at: f64| {
-                let mut body = cuboid_body(cuboid(
-                    DVec3::splat(0.4),
-                    dims,
-                    DVec3::new(at, 1.0, 0.0),
-                    2.0,
-                    params,
-                ));
-                body.name = name.into();
-                body
-            };
-            let sim = simulation(Integrator::ImplicitEuler, 0.01);
-            let (model, mut state) =
-                Model::build(&scene(sim, vec![cube("a", 0.0), cube("b", 1.0)], vec![]));
-            let mut rng = Rng::new(3);
-            let mass_diag: Vec<f64> = (0..model.len()).map(|_| 0.05 + rng.unit()).collect();
-            state.x.iter_mut().for_each(|x| *x += rng.vec(0.03));
-            let p: Vec<DVec3> = (0..model.len()).map(|_| rng.vec(1.0)).collect();
+            let (model, state, mass_diag, p) = two_cuboids(dims, 3);
             let product = |isa: Isa| {
                 let mut lattice = LatticeSystem::new(&model).expect("cuboids");
                 lattice.isa = isa;
@@ -972,34 +980,11 @@ mod tests {
     /// The inner planes' slabs, each spring's term computed once and handed from its first end
     /// to its second through the rings, give the bits of every plane computing both ends, for
     /// the product and the assembly, on 1–4 threads (other slabs, other ring starts): cuboids
-    /// with and without inner planes, a remainder after the last group, two bodies, springs
-    /// stretched and compressed.
+    /// with and without inner planes, a remainder after the last group, two bodies.
     #[test]
     fn slabs_give_the_bits_of_both_ends_computed() {
-        let params = SpringParams {
-            stiffness: 400.0,
-            damping: 0.8,
-        };
         for dims in [[9, 7, 13], [4, 3, 9], [3, 2, 5], [17, 6, 8]] {
-            let body = |name: &str, at: f64| {
-                let mut body = cuboid_body(cuboid(
-                    DVec3::splat(0.4),
-                    dims,
-                    DVec3::new(at, 1.0, 0.0),
-                    2.0,
-                    params,
-                ));
-                body.name = name.into();
-                body
-            };
-            let sim = simulation(Integrator::ImplicitEuler, 0.01);
-            let bodies = vec![body("a", 0.0), body("b", 1.0)];
-            let (model, mut state) = Model::build(&scene(sim, bodies, vec![]));
-            let mut rng = Rng::new(11);
-            let mass_diag: Vec<f64> = (0..model.len()).map(|_| 0.05 + rng.unit()).collect();
-            state.x.iter_mut().for_each(|x| *x += rng.vec(0.03));
-            state.v.iter_mut().for_each(|v| *v = rng.vec(1.0));
-            let p: Vec<DVec3> = (0..model.len()).map(|_| rng.vec(1.0)).collect();
+            let (model, state, mass_diag, p) = two_cuboids(dims, 11);
             let run = |slabs: bool, threads: usize| {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
