@@ -557,6 +557,7 @@ unsafe fn work_avx2<T: Term<K>, const K: usize, O>(
     work_terms(body, term, fields, work, out, emit);
 }
 
+/// A piece's sums: a plane near the faces by [`plane_terms`], a slab by [`slab_terms`].
 #[inline(always)]
 fn work_terms<T: Term<K>, const K: usize, O>(
     body: &Body,
