@@ -44,38 +44,40 @@ pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
 }
 
 /// What the CPU solver holds per particle for a model of cuboids only (springs kept as
-/// stencils, no list: see [`Model`]) under the explicit `integrator`, in the limit of large
-/// bodies: 44 B of the model (masses 16, the contact arrays 28) and 48 B per state it keeps
-/// (the state and the passes' second state; midpoint one stage state more, RK4 two). `None` for
-/// implicit Euler: on cuboids its system lists no springs either, but it keeps 1/ℓ per spring,
-/// CG's vectors and the multigrid's levels (its first level's sources name each spring twice):
-/// about 1.4 kB per particle (BENCHMARKS.md), under [`estimated_bytes`]' figure.
-/// `crates/cpu/tests/lean.rs` holds the solver to it.
-pub fn lean_bytes_per_particle(integrator: crate::Integrator) -> Option<u64> {
+/// stencils, no list: see [`Model`]) under `integrator`, in the limit of large bodies. The
+/// explicit integrators: 44 B of the model (masses 16, the contact arrays 28) and 48 B per
+/// state they keep (the state and the passes' second state; midpoint one stage state more,
+/// RK4 two). Implicit Euler lists no springs on cuboids either, but keeps its right-hand
+/// sides, CG's vectors, the diagonal blocks and their inverses, 1/ℓ per spring and the
+/// multigrid's levels (the first coarse level's 27 blocks per node, and its sources naming
+/// each spring twice): 1,340–1,388 B per particle on cubes from 22³ to 150³ (BENCHMARKS.md,
+/// "Memory"), so 1.5 kB. `crates/cpu/tests/lean.rs` holds the solver to it.
+///
+/// A GPU solver's host holds less (its device buffers are the device's), except on a software
+/// adapter, whose "device" memory is this machine's too; this is not counted.
+pub fn lean_bytes_per_particle(integrator: crate::Integrator) -> u64 {
     use crate::Integrator::*;
     let states = match integrator {
         ExplicitEuler | SymplecticEuler => 2,
         Midpoint => 3,
         Rk4 => 4,
-        ImplicitEuler => return None,
+        ImplicitEuler => return 1_500,
     };
-    Some(44 + 48 * states)
+    44 + 48 * states
 }
 
 /// Estimated bytes a solver needs for `scene` (saturating): [`lean_bytes_per_particle`] for
-/// one cuboid without self-contact under an explicit integrator (the stencil's slabs, a few
-/// planes per thread, covered by a quarter more), else [`estimated_bytes`].
+/// one cuboid without self-contact (a quarter more for the explicit stencil's slabs, a few
+/// planes per thread; implicit Euler's dense factor of its coarsest level, at most 2.9 MB
+/// whatever the size, is left out), else [`estimated_bytes`].
 pub fn estimated_scene_bytes(scene: &Scene) -> u64 {
     let particles = scene.particle_count();
-    let lean = match scene.bodies.as_slice() {
+    match scene.bodies.as_slice() {
         [body] if matches!(body.shape, BodyShape::Cuboid(_)) && !body.self_contact => {
-            lean_bytes_per_particle(scene.simulation.integrator)
+            let bytes = lean_bytes_per_particle(scene.simulation.integrator);
+            particles.saturating_mul(bytes + bytes / 4)
         }
-        _ => None,
-    };
-    match lean {
-        Some(bytes) => particles.saturating_mul(bytes + bytes / 4),
-        None => estimated_bytes(particles, scene.spring_counts().total()),
+        _ => estimated_bytes(particles, scene.spring_counts().total()),
     }
 }
 
