@@ -53,8 +53,9 @@ pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
 /// each spring twice): 1,340–1,388 B per particle on cubes from 22³ to 150³ (BENCHMARKS.md,
 /// "Memory"), so 1.5 kB. `crates/cpu/tests/lean.rs` holds the solver to it.
 ///
-/// A GPU solver's host holds less (its device buffers are the device's), except on a software
-/// adapter, whose "device" memory is this machine's too; this is not counted.
+/// The figure is the CPU solver's. A GPU solver's needs are not estimated: its host keeps the
+/// model and stages the uploads, and a software adapter's buffers are in this machine's memory
+/// too.
 pub fn lean_bytes_per_particle(integrator: crate::Integrator) -> u64 {
     use crate::Integrator::*;
     let states = match integrator {
