@@ -774,7 +774,6 @@ fn a_scene_beyond_the_address_space_limit_is_refused() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(0), "{stdout}");
     assert_eq!(
-
         entries(sb.path()),
         ["big.toml", "implicit.toml", "lean.toml"],
         "nothing written"
