@@ -384,7 +384,7 @@ fn a_cube_at_rest_is_solved_once_a_step_in_a_few_iterations() {
 /// Not a check, a measurement (`-- --ignored --nocapture`; set `SIZES`, e.g. `10,22,46`, and
 /// `PRECONDITIONERS`): CG iterations and solves per step over the first 120 steps (2 s: the
 /// fall, the impact, the settling) of `softbody bench`'s stiff cube (its bottom 0.5 m above
-/// the ground, k_s = 10⁴ N/m, h = 1/60 s), two threads, and the wall-clock steps per second.
+/// the ground, k_s = 10⁴ N/m, h = 1/60 s), two threads, the wall-clock steps per second and each stage's time a step.
 #[test]
 #[ignore]
 fn iterations_per_step_of_the_benchmark_run() {
@@ -405,6 +405,13 @@ fn iterations_per_step_of_the_benchmark_run() {
                 st.cg_solves as f64 / 120.0,
                 120.0 / seconds
             );
+            for (stage, t) in st.timings.iter() {
+                println!(
+                    "    {stage}: {:.2} ms a step ({} calls)",
+                    1e3 * t.seconds / 120.0,
+                    t.calls
+                );
+            }
         }
     }
 }
