@@ -382,36 +382,41 @@ pub struct Multigrid {
 }
 
 /// The springs the first coarse level sums, by the codes of its sources: the spring list's
-/// indices with the blocks of the list's assembly, or the lattices' codes with the blocks
-/// recomputed from the linearisation ([`LatticeSystem::spring`]: the lean route keeps no
-/// per-spring block).
-enum Springs<'a> {
-    List {
-        springs: &'a softbody_scene::Springs,
-        u: &'a [DVec3],
-        beta: &'a [f64],
-        gamma: &'a [f64],
-    },
-    Lattice(&'a LatticeSystem),
+/// indices with the blocks of the list's assembly ([`ListBlocks`]), or the lattices' codes with
+/// the blocks recomputed from the linearisation ([`LatticeSystem::spring`]: the lean route keeps
+/// no per-spring block). A trait, not an enum, so that each route's entries are compiled
+/// on their own.
+trait SpringBlocks: Sync {
+    /// The ends (a, b) of spring `code` and its block B_s.
+    fn spring(&self, code: u32) -> (usize, usize, DMat3);
 }
 
-impl Springs<'_> {
-    /// The ends (a, b) of spring `code` and its block B_s.
+/// The spring list's blocks, as its assembly left them.
+struct ListBlocks<'a> {
+    springs: &'a softbody_scene::Springs,
+    u: &'a [DVec3],
+    beta: &'a [f64],
+    gamma: &'a [f64],
+}
+
+impl SpringBlocks for ListBlocks<'_> {
     #[inline(always)]
     fn spring(&self, code: u32) -> (usize, usize, DMat3) {
-        match self {
-            Springs::List {
-                springs,
-                u,
-                beta,
-                gamma,
-            } => {
-                let s = code as usize;
-                let block = outer(u[s], beta[s]) + DMat3::from_diagonal(DVec3::splat(gamma[s]));
-                (springs.a[s] as usize, springs.b[s] as usize, block)
-            }
-            Springs::Lattice(lattice) => lattice.spring(code),
-        }
+        let s = code as usize;
+        let block =
+            outer(self.u[s], self.beta[s]) + DMat3::from_diagonal(DVec3::splat(self.gamma[s]));
+        (
+            self.springs.a[s] as usize,
+            self.springs.b[s] as usize,
+            block,
+        )
+    }
+}
+
+impl SpringBlocks for LatticeSystem {
+    #[inline(always)]
+    fn spring(&self, code: u32) -> (usize, usize, DMat3) {
+        LatticeSystem::spring(self, code)
     }
 }
 
@@ -450,7 +455,7 @@ fn first_level_entry(
     (row, col): (u32, u32),
     (members, sources): (&[u32], &[u32]),
     (constraints, diag): (&[Constraint], &[DMat3]),
-    springs: &Springs<'_>,
+    springs: &impl SpringBlocks,
 ) -> DMat3 {
     let mut sum = DMat3::ZERO;
     if row == col {
@@ -460,26 +465,70 @@ fn first_level_entry(
         }
         for &code in sources {
             let (a, b, block) = springs.spring(code >> 1);
-            sum -= match (constraints[a], constraints[b]) {
+            // A subtraction in each arm: a match that yields the block went through the stack.
+            match (constraints[a], constraints[b]) {
                 // B_s is symmetric: S B S + (S B S)ᵀ = 2B between free particles.
-                (Constraint::Free, Constraint::Free) => block + block,
+                (Constraint::Free, Constraint::Free) => sum -= block + block,
                 (sa, sb) => {
                     let m = sandwich(sa, block, sb);
-                    m + m.transpose()
+                    sum -= m + m.transpose();
                 }
-            };
+            }
         }
     } else {
         for &code in sources {
             let (a, b, block) = springs.spring(code >> 1);
             let (x, y) = if code & 1 == 0 { (a, b) } else { (b, a) };
-            sum -= match (constraints[x], constraints[y]) {
-                (Constraint::Free, Constraint::Free) => block,
-                (sx, sy) => sandwich(sx, block, sy),
-            };
+            match (constraints[x], constraints[y]) {
+                (Constraint::Free, Constraint::Free) => sum -= block,
+                (sx, sy) => sum -= sandwich(sx, block, sy),
+            }
         }
     }
     sum
+}
+
+/// A level's pattern, to compute its values: each entry above the diagonal (or on it) whose
+/// value is `stale`.
+struct Entries<'a, F> {
+    rows: &'a [u32],
+    cols: &'a [u32],
+    sources: &'a Rows,
+    members: &'a Rows,
+    stale: &'a F,
+}
+
+impl<F: Fn(usize) -> bool + Sync> Entries<'_, F> {
+    /// values[e] = value(e) for the stale entries with row ≤ column.
+    fn fill(&self, values: &mut [DMat3], value: impl Fn(usize) -> DMat3 + Sync) {
+        values
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(ROW_CHUNK)
+            .for_each(|(e, v)| {
+                if self.rows[e] <= self.cols[e] && (self.stale)(e) {
+                    *v = value(e);
+                }
+            });
+    }
+
+    /// The first coarse level's values ([`first_level_entry`]).
+    fn first_level(
+        &self,
+        values: &mut [DMat3],
+        fine: (&[Constraint], &[DMat3]),
+        springs: &impl SpringBlocks,
+    ) {
+        self.fill(values, |e| {
+            let (row, col) = (self.rows[e], self.cols[e]);
+            first_level_entry(
+                (row, col),
+                (self.members.of(row as usize), self.sources.of(e)),
+                fine,
+                springs,
+            )
+        });
+    }
 }
 
 impl Multigrid {
@@ -606,15 +655,6 @@ impl Multigrid {
             }
             marks
         });
-        let springs = match &system.lattice {
-            Some(lattice) => Springs::Lattice(lattice),
-            None => Springs::List {
-                springs: model.springs(),
-                u: &system.u,
-                beta: &system.beta,
-                gamma: &system.gamma,
-            },
-        };
         assert_eq!(
             self.lattice,
             system.lattice.is_some(),
@@ -638,31 +678,30 @@ impl Multigrid {
                 let (r, c) = (rows[e] as usize, cols[e] as usize);
                 marks.as_ref().is_none_or(|m| m[r] || m[c])
             };
-            let finer = finer.last();
-            level
-                .values
-                .par_iter_mut()
-                .enumerate()
-                .with_min_len(ROW_CHUNK)
-                .for_each(|(e, value)| {
-                    let (row, col) = (rows[e], cols[e]);
-                    if row > col || !stale(e) {
-                        return;
-                    }
-                    let Some(finer) = finer else {
-                        *value = first_level_entry(
-                            (row, col),
-                            (members.of(row as usize), sources.of(e)),
-                            (constraints, diag),
-                            &springs,
-                        );
-                        return;
+            let entries = Entries {
+                rows,
+                cols,
+                sources,
+                members,
+                stale: &stale,
+            };
+            let values = &mut level.values;
+            match (finer.last(), &system.lattice) {
+                (Some(finer), _) => entries.fill(values, |e| {
+                    (sources.of(e).iter())
+                        .fold(DMat3::ZERO, |sum, &f| sum + finer.values[f as usize])
+                }),
+                (None, Some(lattice)) => entries.first_level(values, (constraints, diag), lattice),
+                (None, None) => {
+                    let springs = ListBlocks {
+                        springs: model.springs(),
+                        u: &system.u,
+                        beta: &system.beta,
+                        gamma: &system.gamma,
                     };
-                    *value = sources
-                        .of(e)
-                        .iter()
-                        .fold(DMat3::ZERO, |sum, &f| sum + finer.values[f as usize]);
-                });
+                    entries.first_level(values, (constraints, diag), &springs)
+                }
+            }
             for e in 0..level.values.len() {
                 if rows[e] > cols[e] && stale(e) {
                     level.values[e] = level.values[level.transpose[e] as usize].transpose();
