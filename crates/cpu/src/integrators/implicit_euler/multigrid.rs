@@ -328,7 +328,7 @@ unsafe fn row_residual_avx2(rhs: DVec3, values: &[DMat3], cols: &[u32], x: &[DVe
     let mut sum = _mm256_setr_pd(rhs.x, rhs.y, rhs.z, 0.0);
     for (m, &c) in values.iter().zip(cols) {
         let p = (m as *const DMat3).cast::<f64>();
-        let x = x[c as usize];
+        let v = x[c as usize];
         // SAFETY: `DMat3` is `repr(C)`, its nine f64 column after column; the loads read
         // elements 0–3, 3–6 and 5–8 of them.
         let (c0, c1, c2) = unsafe {
@@ -341,10 +341,10 @@ unsafe fn row_residual_avx2(rhs: DVec3, values: &[DMat3], cols: &[u32], x: &[DVe
         };
         let product = _mm256_add_pd(
             _mm256_add_pd(
-                _mm256_mul_pd(c0, _mm256_set1_pd(x.x)),
-                _mm256_mul_pd(c1, _mm256_set1_pd(x.y)),
+                _mm256_mul_pd(c0, _mm256_set1_pd(v.x)),
+                _mm256_mul_pd(c1, _mm256_set1_pd(v.y)),
             ),
-            _mm256_mul_pd(c2, _mm256_set1_pd(x.z)),
+            _mm256_mul_pd(c2, _mm256_set1_pd(v.z)),
         );
         sum = _mm256_sub_pd(sum, product);
     }
