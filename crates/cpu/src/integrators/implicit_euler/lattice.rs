@@ -38,7 +38,6 @@ use softbody_scene::Model;
 use softbody_scene::topology::OFFSETS;
 
 use crate::forces::PARTICLE_CHUNK;
-use crate::integrators::prefetch;
 use crate::pipeline::all_cuboids;
 use crate::spring_forces::Isa;
 
@@ -650,8 +649,9 @@ fn plane_terms<T: Term<K>, const K: usize, O>(
 /// Particles per group of [`slab_terms`]: one 512-bit vector of f64.
 const LANES: usize = 8;
 
-/// How far ahead [`slab_terms`] prefetches, in particles.
-const AHEAD: usize = 8 * LANES;
+/// Particles per chunk of [`slab_terms`]: the chunk's sums (K per particle) stay in L1 while
+/// every offset passes over them.
+const CHUNK: usize = 32 * LANES;
 
 thread_local! {
     /// [`slab_terms`]' rings, kept by each thread from one traversal to the next (a ring of the
@@ -659,21 +659,24 @@ thread_local! {
     static RINGS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// The sums of the inner planes `planes` into `out` (theirs), each spring's term computed once:
-/// swept in groups of [`LANES`] consecutive particles, every offset's partners in the body.
-/// A group computes the terms of the springs its particles start, adds them to its sums and
-/// keeps them in the offset's ring, from which the group `step` particles further on takes
-/// them for the springs its particles end: the terms that group would compute itself (the
-/// same operations on the same inputs), so the same bits as [`plane_terms`]' two computations
-/// and, in each particle's sums, the same order (its own term, then per offset the spring it
-/// starts and the one it ends). The springs that end in the slab's first `step` particles start
-/// before it and are computed first into the rings; the last particles, fewer than a group,
-/// compute both of their ends ([`group_terms`]).
+/// The sums of the inner planes `planes` into `out` (theirs), each spring's term computed once,
+/// every offset's partners in the body. The slab is swept in chunks of [`CHUNK`] consecutive
+/// particles, and each chunk offset by offset: first the terms of the springs its particles
+/// start (each added to its first end's sum and kept in the offset's ring), then, from the
+/// ring, those of the springs they end, `step` particles earlier — the terms those particles
+/// would compute themselves (the same operations on the same inputs), so the same bits as
+/// [`plane_terms`]' two computations and, in each particle's sums, the same order (its own
+/// term, then per offset the spring it starts and the one it ends). The springs that end in
+/// the slab's first `step` particles start before it and are computed first into the rings.
 ///
-/// A ring of offset o holds R_o ≥ step_o + [`LANES`] terms per component (a multiple of
-/// [`LANES`], so that writes, a group at a time from the slab's start, never wrap), and its
-/// first [`LANES`] slots again at its end, so that a group's read, which starts anywhere, is
-/// always one run: 11 planes' worth of terms for the stiff cube's 16 offsets.
+/// Why offset by offset: each pass is a plain loop over consecutive particles with one
+/// partner step, which compiles to vector code without per-group bookkeeping (sweeping group
+/// by group, all offsets at each, took about 250 instructions per group and offset, most of
+/// them bounds checks and ring indices; the product at 22³ ran at one term every 10 cycles).
+///
+/// The term of the spring starting at particle q lies in slot (q − q_s) mod R of its offset's
+/// ring, R a multiple of [`CHUNK`] of at least step + [`CHUNK`]: a chunk's starts are one run
+/// of slots; its ends, slots (q − step − q_s) mod R, are at most two.
 #[inline(always)]
 fn slab_terms<T: Term<K>, const K: usize, O>(
     body: &Body,
@@ -687,154 +690,156 @@ fn slab_terms<T: Term<K>, const K: usize, O>(
     let plane = body.dims[0] * body.dims[1];
     let (q_s, q_e) = (planes.start * plane, planes.end * plane);
     let offsets = &body.offsets;
-    // Per offset: the ring's length R and where its components start.
-    let lengths: Vec<usize> = offsets
-        .iter()
-        .map(|s| (s.step.unsigned_abs() + LANES).next_multiple_of(LANES))
+    // Per offset: its partner step, its ring's length R and where its components start.
+    let steps: Vec<usize> = offsets.iter().map(|s| s.step.unsigned_abs()).collect();
+    let lengths: Vec<usize> = (steps.iter())
+        .map(|step| (step + CHUNK).next_multiple_of(CHUNK))
         .collect();
-    let bases: Vec<usize> = lengths
-        .iter()
-        .scan(0, |at, r| {
-            Some(std::mem::replace(at, *at + K * (r + LANES)))
-        })
+    let bases: Vec<usize> = (lengths.iter())
+        .scan(0, |at, r| Some(std::mem::replace(at, *at + K * r)))
         .collect();
-    let total = bases
-        .last()
-        .map_or(0, |b| b + K * (lengths.last().unwrap() + LANES));
+    let total = K * lengths.iter().sum::<usize>();
     // Taken out of the thread's keeping for the sweep (a closure run by `LocalKey::with` would
     // be compiled without the caller's target features).
     let mut ring = RINGS.take();
     if ring.len() < total {
         ring.resize(total, 0.0);
     }
-    {
-        let component = |o: usize, c: usize| bases[o] + c * (lengths[o] + LANES);
+    // A chunk's sums, component after component.
+    let mut sums = vec![0.0; K * CHUNK];
+    for (o, s) in offsets.iter().enumerate() {
+        let (step, r) = (steps[o], lengths[o]);
+        let inv = &body.inv_len[o * n..(o + 1) * n];
+        let ring = &mut ring[bases[o]..bases[o] + K * r];
+        for q in (q_s - step..q_s).step_by(CHUNK) {
+            let len = CHUNK.min(q_s - q);
+            let write = r - (q_s - q);
+            starts(
+                term,
+                (x, y),
+                (first + q, step),
+                &inv[q..q + len],
+                s,
+                (ring, write, r),
+            );
+        }
+    }
+    for c0 in (q_s..q_e).step_by(CHUNK) {
+        let len = CHUNK.min(q_e - c0);
+        let sums = &mut sums[..K * len];
+        for i in 0..len {
+            let own = term.start::<1>(first + c0 + i);
+            for c in 0..K {
+                sums[c * len + i] = own[c][0];
+            }
+        }
         for (o, s) in offsets.iter().enumerate() {
-            let (step, r) = (s.step.unsigned_abs(), lengths[o]);
+            let (step, r) = (steps[o], lengths[o]);
             let inv = &body.inv_len[o * n..(o + 1) * n];
-            for q in q_s - step..q_s {
-                let z = spring_terms::<T, K, 1>(
-                    term,
-                    (x, y),
-                    (first + q, first + q + step),
-                    &inv[q..],
-                    s,
-                );
-                for c in 0..K {
-                    ring[component(o, c) + r - (q_s - q)] = z[c][0];
+            let ring = &mut ring[bases[o]..bases[o] + K * r];
+            let write = (c0 - q_s) % r;
+            starts(
+                term,
+                (x, y),
+                (first + c0, step),
+                &inv[c0..c0 + len],
+                s,
+                (ring, write, r),
+            );
+            for c in 0..K {
+                let z = &ring[c * r + write..c * r + write + len];
+                add::<true>(&mut sums[c * len..(c + 1) * len], z);
+            }
+            // The ends' slots: from `read` to the ring's end, then on from its start.
+            let read = (c0 - q_s + r - step) % r;
+            let split = len.min(r - read);
+            for c in 0..K {
+                let (ring, sum) = (&ring[c * r..(c + 1) * r], &mut sums[c * len..(c + 1) * len]);
+                let (sum_a, sum_b) = sum.split_at_mut(split);
+                if c < T::ODD {
+                    add::<false>(sum_a, &ring[read..read + split]);
+                    add::<false>(sum_b, &ring[..len - split]);
+                } else {
+                    add::<true>(sum_a, &ring[read..read + split]);
+                    add::<true>(sum_b, &ring[..len - split]);
                 }
             }
         }
-        // Per offset: where the next group writes and reads in its ring.
-        let mut write = vec![0usize; offsets.len()];
-        let mut read: Vec<usize> = (offsets.iter().zip(&lengths))
-            .map(|(s, r)| r - s.step.unsigned_abs())
-            .collect();
-        let groups = q_s + (q_e - q_s) / LANES * LANES;
-        for q in (q_s..groups).step_by(LANES) {
-            let g = first + q;
-            let mut sums = term.start::<LANES>(g);
-            for (o, s) in offsets.iter().enumerate() {
-                let (step, r) = (s.step.unsigned_abs(), lengths[o]);
-                let inv = &body.inv_len[o * n..(o + 1) * n];
-                // 1/ℓ streams from memory on large bodies, and a group's sixteen streams are
-                // more than the hardware prefetchers follow.
-                prefetch(inv.get(q + AHEAD..q + AHEAD + 1));
-                let z = spring_terms::<T, K, LANES>(term, (x, y), (g, g + step), &inv[q..], s);
-                for c in 0..K {
-                    let at = component(o, c);
-                    ring[at + write[o]..at + write[o] + LANES].copy_from_slice(&z[c]);
-                    if write[o] == 0 {
-                        ring[at + r..at + r + LANES].copy_from_slice(&z[c]);
-                    }
-                    for l in 0..LANES {
-                        sums[c][l] += z[c][l];
-                    }
-                }
-                for (c, sum) in sums.iter_mut().enumerate() {
-                    let at = component(o, c) + read[o];
-                    let ended: &[f64; LANES] = ring[at..at + LANES].try_into().unwrap();
-                    // The sign chosen per component, outside the lanes' loop, which the
-                    // compiler then vectorises (with the test inside, the assembly's nine
-                    // components were summed lane by lane).
-                    *sum = if c < T::ODD {
-                        std::array::from_fn(|l| sum[l] - ended[l])
-                    } else {
-                        std::array::from_fn(|l| sum[l] + ended[l])
-                    };
-                }
-                write[o] = if write[o] + LANES == r {
-                    0
-                } else {
-                    write[o] + LANES
-                };
-                read[o] = if read[o] + LANES >= r {
-                    read[o] + LANES - r
-                } else {
-                    read[o] + LANES
-                };
-            }
-            let out = &mut out[q - q_s..q - q_s + LANES];
-            for (l, o) in out.iter_mut().enumerate() {
-                *o = emit(std::array::from_fn(|c| sums[c][l]));
-            }
-        }
-        for q in groups..q_e {
-            let sums = group_terms::<T, K, 1>(body, term, (x, y), first + q, q);
-            out[q - q_s] = emit(sums.map(|c| c[0]));
+        for (i, o) in out[c0 - q_s..c0 - q_s + len].iter_mut().enumerate() {
+            *o = emit(std::array::from_fn(|c| sums[c * len + i]));
         }
     }
     RINGS.set(ring);
 }
 
-/// The sums of the `L` particles from `g` (model index; `q` within the body), every offset's
-/// partners in the body: their own terms, then per offset the spring each starts and the one
-/// it ends — [`plane_terms`]'s per-offset loops' terms, in their order.
+/// The terms of the springs of offset `s` from first ends a, a + 1, … (model indices; one per
+/// entry of `inv_len`, their 1/ℓ) to second ends `step` further, into `out` = (ring, at, r)
+/// by component (K runs from `at`, r apart): [`spring_terms`]' terms, [`LANES`] springs at a
+/// time.
+///
+/// The lanes are read and written without a bounds check each (one check of the whole run
+/// first): with the checks, most of this loop's instructions were index comparisons.
 #[inline(always)]
-fn group_terms<T: Term<K>, const K: usize, const L: usize>(
-    body: &Body,
+fn starts<T: Term<K>, const K: usize>(
     term: &T,
     (x, y): Fields<'_>,
-    g: usize,
-    q: usize,
-) -> [[f64; L]; K] {
-    let lanes = |a: &[f64], at: usize| -> [f64; L] { a[at..at + L].try_into().unwrap() };
-    let (xo, yo) = (x.map(|a| lanes(a, g)), y.map(|a| lanes(a, g)));
-    let mut sums = term.start::<L>(g);
-    let n = body.len();
-    for (s, inv) in body.offsets.iter().zip(body.inv_len.chunks_exact(n)) {
-        let (b, a) = (
-            g.wrapping_add_signed(s.step),
-            g.wrapping_add_signed(-s.step),
-        );
-        let (xb, yb, inv_b) = (
-            x.map(|v| lanes(v, b)),
-            y.map(|v| lanes(v, b)),
-            lanes(inv, q),
-        );
-        let (xa, ya) = (x.map(|v| lanes(v, a)), y.map(|v| lanes(v, a)));
-        let inv_a = lanes(inv, q.wrapping_add_signed(-s.step));
-        // 1/ℓ of the springs the particles start stream from memory on large bodies (their
-        // second ends' were read one or two planes before), and a group's sixteen streams
-        // are more than the hardware prefetchers follow.
-        prefetch(inv.get(q + AHEAD..q + AHEAD + 1));
-        for l in 0..L {
-            let at = |v: &[[f64; L]; 3]| DVec3::new(v[0][l], v[1][l], v[2][l]);
-            let z = term.spring(at(&xo) - at(&xb), at(&yo) - at(&yb), inv_b[l], s);
+    (a, step): (usize, usize),
+    inv_len: &[f64],
+    s: &Offset,
+    (out, at, r): (&mut [f64], usize, usize),
+) {
+    let len = inv_len.len();
+    let fields: [&[f64]; 6] = [x[0], x[1], x[2], y[0], y[1], y[2]];
+    assert!(fields.iter().all(|v| v.len() >= a + step + len));
+    assert!(at + len <= r && out.len() >= K * r);
+    let groups = len / LANES * LANES;
+    for i in (0..groups).step_by(LANES) {
+        // SAFETY: i + LANES ≤ len, so the lanes read from a + i and a + i + step lie below
+        // a + step + len in every field, and those from i in `inv_len` below len; the lanes
+        // written from c·r + at + i lie below c·r + at + len ≤ K·r, in `out` (all asserted
+        // above).
+        let lane = |f: usize, at: usize| unsafe { *fields[f].get_unchecked(at) };
+        let inv: [f64; LANES] = unsafe { *inv_len.as_ptr().add(i).cast() };
+        let mut z = [[0.0; LANES]; K];
+        for l in 0..LANES {
+            let (p, q) = (a + i + l, a + i + l + step);
+            let d = DVec3::new(lane(0, p), lane(1, p), lane(2, p))
+                - DVec3::new(lane(0, q), lane(1, q), lane(2, q));
+            let w = DVec3::new(lane(3, p), lane(4, p), lane(5, p))
+                - DVec3::new(lane(3, q), lane(4, q), lane(5, q));
+            let t = term.spring(d, w, inv[l], s);
             for c in 0..K {
-                sums[c][l] += z[c];
-            }
-            let z = term.spring(at(&xa) - at(&xo), at(&ya) - at(&yo), inv_a[l], s);
-            for c in 0..K {
-                if c < T::ODD {
-                    sums[c][l] -= z[c];
-                } else {
-                    sums[c][l] += z[c];
-                }
+                z[c][l] = t[c];
             }
         }
+        for (c, z) in z.into_iter().enumerate() {
+            // SAFETY: as above.
+            unsafe {
+                out.as_mut_ptr()
+                    .add(c * r + at + i)
+                    .cast::<[f64; LANES]>()
+                    .write(z)
+            };
+        }
     }
-    sums
+    for i in groups..len {
+        let z = spring_terms::<T, K, 1>(term, (x, y), (a + i, a + i + step), &inv_len[i..], s);
+        for (c, z) in z.iter().enumerate() {
+            out[c * r + at + i] = z[0];
+        }
+    }
+}
+
+/// sum ± z, element by element (+ if `PLUS`).
+#[inline(always)]
+fn add<const PLUS: bool>(sum: &mut [f64], z: &[f64]) {
+    for (sum, z) in sum.iter_mut().zip(z) {
+        if PLUS {
+            *sum += z;
+        } else {
+            *sum -= z;
+        }
+    }
 }
 
 /// The terms of the `L` springs of offset `s` from first ends `a` to second ends `b` (model
@@ -986,7 +991,7 @@ mod tests {
     /// with and without inner planes, a remainder after the last group, two bodies.
     #[test]
     fn slabs_give_the_bits_of_both_ends_computed() {
-        for dims in [[9, 7, 13], [4, 3, 9], [3, 2, 5], [17, 6, 8]] {
+        for dims in [[9, 7, 13], [4, 3, 9], [3, 2, 5], [17, 6, 8], [20, 9, 10]] {
             let (model, state, mass_diag, p) = two_cuboids(dims, 11);
             let run = |slabs: bool, threads: usize| {
                 let pool = rayon::ThreadPoolBuilder::new()
