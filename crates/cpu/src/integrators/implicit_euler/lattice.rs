@@ -616,7 +616,7 @@ fn plane_terms<T: Term<K>, const K: usize, O>(
     };
     let plane = (q1 - q0) as usize;
     // The plane's sums by component.
-    let mut sums = vec![0.0; K * plane];
+    let (mut sums, mut scratch) = (vec![0.0; K * plane], vec![0.0; K * CHUNK]);
     for t in 0..plane {
         let start = term.start::<1>(first + q0 as usize + t);
         for c in 0..K {
@@ -628,16 +628,22 @@ fn plane_terms<T: Term<K>, const K: usize, O>(
             let Some((t0, t1)) = run else { continue };
             let step = if side == 0 { s.step } else { -s.step };
             let run = (t0 - q0) as usize..(t1 - q0) as usize;
-            let (t, u) = (first + t0 as usize, (first as isize + t0 + step) as usize);
             let mut parts = sums.chunks_exact_mut(plane);
             let sums: [&mut [f64]; K] =
                 std::array::from_fn(|_| &mut parts.next().unwrap()[run.clone()]);
+            // Offsets step forward (their last non-zero component is positive), so a spring's
+            // first end is its lower index: the run's first ends start at t0 on side 0, at
+            // t0 − s.step on side 1.
+            let from = (if side == 0 { t0 } else { t0 + step }) as usize;
+            let (ends, inv) = (
+                (first + from, s.step as usize),
+                &inv(o)[from..][..run.len()],
+            );
+            let fields = (x, y);
             if side == 0 {
-                let inv = &inv(o)[t0 as usize..];
-                run_terms::<T, K, true>(term, sums, (x, y), (t, u), inv, s);
+                run_terms::<T, K, true>(term, sums, fields, ends, inv, s, &mut scratch);
             } else {
-                let inv = &inv(o)[(t0 + step) as usize..];
-                run_terms::<T, K, false>(term, sums, (x, y), (u, t), inv, s);
+                run_terms::<T, K, false>(term, sums, fields, ends, inv, s, &mut scratch);
             }
         }
     }
@@ -774,8 +780,7 @@ fn slab_terms<T: Term<K>, const K: usize, O>(
 
 /// The terms of the springs of offset `s` from first ends a, a + 1, … (model indices; one per
 /// entry of `inv_len`, their 1/ℓ) to second ends `step` further, into `out` = (ring, at, r)
-/// by component (K runs from `at`, r apart): [`spring_terms`]' terms, [`LANES`] springs at a
-/// time.
+/// by component (K runs from `at`, r apart), [`LANES`] springs at a time.
 ///
 /// The lanes are read and written without a bounds check each (one check of the whole run
 /// first): with the checks, most of this loop's instructions were index comparisons.
@@ -823,9 +828,12 @@ fn starts<T: Term<K>, const K: usize>(
         }
     }
     for i in groups..len {
-        let z = spring_terms::<T, K, 1>(term, (x, y), (a + i, a + i + step), &inv_len[i..], s);
-        for (c, z) in z.iter().enumerate() {
-            out[c * r + at + i] = z[0];
+        let (p, q) = (a + i, a + i + step);
+        let point = |v: [&[f64]; 3], p: usize| DVec3::new(v[0][p], v[1][p], v[2][p]);
+        let (d, w) = (point(x, p) - point(x, q), point(y, p) - point(y, q));
+        let z = term.spring(d, w, inv_len[i], s);
+        for (c, z) in z.into_iter().enumerate() {
+            out[c * r + at + i] = z;
         }
     }
 }
@@ -842,35 +850,6 @@ fn add<const PLUS: bool>(sum: &mut [f64], z: &[f64]) {
     }
 }
 
-/// The terms of the `L` springs of offset `s` from first ends `a` to second ends `b` (model
-/// indices, `L` consecutive each) in the fields, their 1/ℓ the first `L` of `inv_len`.
-#[inline(always)]
-fn spring_terms<T: Term<K>, const K: usize, const L: usize>(
-    term: &T,
-    (x, y): Fields<'_>,
-    (a, b): (usize, usize),
-    inv_len: &[f64],
-    s: &Offset,
-) -> [[f64; L]; K] {
-    let lanes = |v: &[f64], at: usize| -> [f64; L] { v[at..at + L].try_into().unwrap() };
-    let (xa, xb, ya, yb) = (
-        x.map(|v| lanes(v, a)),
-        x.map(|v| lanes(v, b)),
-        y.map(|v| lanes(v, a)),
-        y.map(|v| lanes(v, b)),
-    );
-    let inv = lanes(inv_len, 0);
-    let mut out = [[0.0; L]; K];
-    for l in 0..L {
-        let at = |v: &[[f64; L]; 3]| DVec3::new(v[0][l], v[1][l], v[2][l]);
-        let z = term.spring(at(&xa) - at(&xb), at(&ya) - at(&yb), inv[l], s);
-        for c in 0..K {
-            out[c][l] = z[c];
-        }
-    }
-    out
-}
-
 /// z_s = B_s w for a spring at d = x_a − x_b with 1/ℓ `inv_len` and w = p_a − p_b: with
 /// u = d/ℓ, β(u·w)u + γ w = β (d·w)/ℓ² d + γ w ([`block`]'s β, γ; z = 0 where 1/ℓ = 0).
 #[inline(always)]
@@ -881,39 +860,37 @@ fn product(d: DVec3, w: DVec3, inv_len: f64, s: &Offset) -> DVec3 {
     (beta * inv_len * inv_len * d.dot(w)) * d + gamma * w
 }
 
-/// The sums of a run of springs of one offset, from first ends `a` to second ends `b` (model
-/// indices of the run's first spring), added at the first ends if `FIRST`, else at the second.
+/// The sums of a run of springs of one offset, from first ends `a` to second ends `step`
+/// further (model indices of the run's first spring), added at the first ends if `FIRST`, else
+/// at the second: [`starts`]' terms, [`CHUNK`] at a time through `scratch` (K·[`CHUNK`]).
 #[inline(always)]
 fn run_terms<T: Term<K>, const K: usize, const FIRST: bool>(
     term: &T,
-    sums: [&mut [f64]; K],
+    mut sums: [&mut [f64]; K],
     fields: Fields<'_>,
-    (a, b): (usize, usize),
+    (a, step): (usize, usize),
     inv_len: &[f64],
     s: &Offset,
+    scratch: &mut [f64],
 ) {
     let n = sums[0].len();
-    let mut sums = sums.map(|sum| &mut sum[..n]);
-    let mut add = |t: usize, z: &[f64], c: usize| {
-        for (sum, z) in sums[c][t..t + z.len()].iter_mut().zip(z) {
+    for t in (0..n).step_by(CHUNK) {
+        let len = CHUNK.min(n - t);
+        starts(
+            term,
+            fields,
+            (a + t, step),
+            &inv_len[t..t + len],
+            s,
+            (scratch, 0, CHUNK),
+        );
+        for (c, sum) in sums.iter_mut().enumerate() {
+            let (sum, z) = (&mut sum[t..t + len], &scratch[c * CHUNK..c * CHUNK + len]);
             if FIRST || c >= T::ODD {
-                *sum += z;
+                add::<true>(sum, z);
             } else {
-                *sum -= z;
+                add::<false>(sum, z);
             }
-        }
-    };
-    let groups = n / LANES * LANES;
-    for t in (0..groups).step_by(LANES) {
-        let z = spring_terms::<T, K, LANES>(term, fields, (a + t, b + t), &inv_len[t..], s);
-        for (c, z) in z.iter().enumerate() {
-            add(t, z, c);
-        }
-    }
-    for t in groups..n {
-        let z = spring_terms::<T, K, 1>(term, fields, (a + t, b + t), &inv_len[t..], s);
-        for (c, z) in z.iter().enumerate() {
-            add(t, z, c);
         }
     }
 }
