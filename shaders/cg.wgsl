@@ -20,27 +20,30 @@
 //   cg_curvature: q = S q;  partials of cᵀq
 //   cg_advance:   α = δ / cᵀq  (stop if cᵀq is not positive and finite: round-off);
 //                 Δv += α c, r −= α q;  partials of rᵀP⁻¹r
-//   cg_beta:      δ' = Σ; stop on non-finite or round-off growth (δ' > 1e6·smallest: δ = smallest);
-//                 β = δ'/δ, δ = δ'; iterations + 1; done = !(δ > target) or the cap
-//   cg_direction: c = S(P⁻¹ r + β c)
+//   cg_direction: δ' = Σ; stop on non-finite or round-off growth (δ' > 1e6·smallest: δ = smallest);
+//                 β = δ'/δ, δ = δ'; iterations + 1; done = !(δ > target) or the cap;
+//                 c = S(P⁻¹ r + β c)
 //
 // — the CPU's loop, operation for operation, in f32. Dot products are deterministic two-pass
 // sums: each workgroup writes its tree sum (reduce.wgsl) to `partials`, and the partials are added
 // in order (`sum_in_order`), on the device: no read-back per iteration, no float atomics. The
-// one-workgroup kernels cg_begin and cg_beta add them once; cg_advance's workgroups each add cᵀq's
-// themselves (the same code on the same input: the same α everywhere, bit for bit what a
-// one-workgroup cg_alpha computed), which saves a dispatch per iteration. So cᵀq's partials
-// have a half of `partials` of their own (`CURVATURE`): cg_advance reads them while it writes
-// rᵀP⁻¹r's.
+// one-workgroup kernel cg_begin adds them once; every workgroup of cg_advance adds cᵀq's, and
+// every workgroup of cg_direction adds rᵀP⁻¹r's, themselves (the same code on the same input:
+// the same α and β everywhere, bit for bit what one-workgroup kernels computed before), which
+// saves two dispatches per iteration. So cᵀq's partials have a half of `partials` of their own
+// (`CURVATURE`): cg_advance reads them while it writes rᵀP⁻¹r's.
 //
-// The scalars live in `scalars` (twin: `softbody_gpu::layout::CgScalars`). The iteration's
-// vector kernels are dispatched indirectly from `dispatch`, whose argument slots the scalar
-// kernels (cg_begin, cg_beta) rewrite: the full grids while the solve runs, zero workgroups once it is done, so
-// that the host can encode a batch of iterations per submission and the surplus costs only
-// empty dispatches. The scalar kernels themselves are dispatched directly (they write the
-// arguments) and return at once once the solve has stopped. cg_advance, dispatched indirectly,
-// cannot write the arguments: when it finds cᵀq unusable it only sets `done`, and cg_beta,
-// next, empties the slots. The "finished" slots are the
+// The scalars live in `scalars` (twin: `softbody_gpu::layout::CgScalars`); where a kernel's
+// first workgroup rewrites a scalar that the others read, they read a copy made by an earlier
+// dispatch instead (`previous_delta`, kept by cg_advance, which only reads δ). The iteration's
+// product and cg_curvature, cg_advance are dispatched indirectly from `dispatch`, whose argument
+// slots cg_begin and cg_direction rewrite: the full grids while the solve runs, zero workgroups
+// once it is done, so that the host can encode a batch of iterations per submission and the
+// surplus costs little. These two bind the arguments, so they are dispatched directly (a
+// buffer cannot be both in one dispatch) and return at once once the solve has stopped: for
+// cg_direction that is a full grid of workgroups that each read `done` and leave. cg_advance,
+// dispatched indirectly, cannot write the arguments: when it finds cᵀq unusable it only sets
+// `done`, and cg_direction, next, empties the slots. The "finished" slots are the
 // reverse (zero while running, full once done): the active-set update after a solve
 // (implicit_euler.wgsl) is encoded behind each batch and runs once, at the end.
 
@@ -63,7 +66,8 @@ struct CgScalars {
     tolerance: f32,
     max_iterations: u32,
     n_partials: u32,
-    _pad: u32,
+    // δ at the iteration's start, for cg_direction's β (see above).
+    previous_delta: f32,
     particle_grid: vec2<u32>,
     spring_grid: vec2<u32>,
 }
@@ -133,9 +137,8 @@ fn write_partial(id: Invocation, term: vec2<f32>, which: u32) {
 
 var<workgroup> solve_done: u32;
 
-// Whether the solve has stopped, uniformly across the workgroup (so that a scalar kernel can
-// return before its barriers). The scalar kernels are dispatched directly, as they write the
-// indirect arguments (a buffer cannot be both in one dispatch), and return at once when done.
+// Whether the solve has stopped, uniformly across the workgroup (so that a kernel dispatched
+// directly can return before its barriers).
 fn stopped(local: u32) -> bool {
     if local == 0u {
         solve_done = scalars.done;
@@ -245,6 +248,7 @@ fn cg_advance(id: Invocation) {
     let usable = cq > 0.0 && all_finite(vec3<f32>(cq));
     let alpha = scalars.delta / cq;
     if id.local == 0u && workgroup_of(id) == 0u {
+        scalars.previous_delta = scalars.delta;
         if usable {
             scalars.alpha = alpha;
         } else {
@@ -262,19 +266,9 @@ fn cg_advance(id: Invocation) {
     write_partial(id, term, DELTA);
 }
 
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn cg_beta(id: Invocation) {
-    if stopped(id.local) {
-        // cg_advance may have stopped the solve in this iteration: it cannot empty the slots.
-        if id.local == 0u {
-            set_dispatch(true);
-        }
-        return;
-    }
-    let delta_new = sum_in_order(id.local, DELTA).x;
-    if id.local != 0u {
-        return;
-    }
+// The iteration's scalars from δ' = rᵀP⁻¹r (one thread of cg_direction): whether the solve
+// goes on.
+fn next_scalars(delta_new: f32, beta: f32) {
     // Round-off dominates once the residual grows by orders of magnitude: stop there.
     if !all_finite(vec3<f32>(delta_new)) || delta_new > 1e6 * scalars.smallest {
         scalars.delta = scalars.smallest;
@@ -282,20 +276,33 @@ fn cg_beta(id: Invocation) {
         return;
     }
     scalars.smallest = min(scalars.smallest, delta_new);
-    scalars.beta = delta_new / scalars.delta;
+    scalars.beta = beta;
     scalars.delta = delta_new;
     let iterations = scalars.iterations + 1u;
     scalars.iterations = iterations;
-    let done = !(delta_new > scalars.target_delta) || iterations >= scalars.max_iterations;
-    // The last direction update is skipped: Δv is final.
-    finish(done);
+    finish(!(delta_new > scalars.target_delta) || iterations >= scalars.max_iterations);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cg_direction(id: Invocation) {
-    let i = thread_of(id);
-    if i >= params.n_particles {
+    let first = id.local == 0u && workgroup_of(id) == 0u;
+    if stopped(id.local) {
+        // cg_advance may have stopped the solve in this iteration: it cannot empty the slots.
+        if first {
+            set_dispatch(true);
+        }
         return;
     }
-    c[i] = vec4_of(free_part(i, precondition(i, r[i].xyz) + scalars.beta * c[i].xyz));
+    let delta_new = sum_in_order(id.local, DELTA).x;
+    let beta = delta_new / scalars.previous_delta;
+    if first {
+        next_scalars(delta_new, beta);
+    }
+    // Once the solve stops here the direction is never read again (the next solve starts
+    // with cg_residual's): the other workgroups update it regardless, whether or not they
+    // saw `done` set, so the first one's writes race with nothing that matters.
+    let i = thread_of(id);
+    if i < params.n_particles {
+        c[i] = vec4_of(free_part(i, precondition(i, r[i].xyz) + beta * c[i].xyz));
+    }
 }

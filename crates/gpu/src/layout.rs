@@ -291,8 +291,9 @@ pub struct CgScalars {
     pub max_iterations: u32,
     /// Per-workgroup partial sums of a particle reduction.
     pub n_partials: u32,
-    /// Padding (the grids align to 8).
-    pub _pad: u32,
+    /// δ at the iteration's start, kept by `cg_advance` for `cg_direction`'s β: there the
+    /// first workgroup replaces `delta` while the others divide by the old value.
+    pub previous_delta: f32,
     /// Workgroups of the particle grid along x and y.
     pub particle_grid: [u32; 2],
     /// Workgroups of the spring grid along x and y.

@@ -3,12 +3,14 @@
 //! operation in f32, its scalars on the device.
 //!
 //! A solve starts with a round (`cg_start`: the warm start; A Δv; `cg_residual`; `cg_begin`),
-//! then runs batches of iterations (A c → `cg_curvature` → `cg_advance` → `cg_beta` →
-//! `cg_direction`; `cg_advance`'s workgroups each compute α from the partial sums of cᵀq, which
-//! spares a one-workgroup kernel per iteration). The vector kernels of an iteration are
-//! dispatched indirectly from the argument slots the one-workgroup scalar kernels rewrite: full
-//! grids while the solve runs, empty ones once it is done, so a batch of iterations is one
-//! submission whatever the solve needs.
+//! then runs batches of iterations (A c → `cg_curvature` → `cg_advance` → `cg_direction`: four
+//! dispatches besides the product's; the workgroups of `cg_advance` each compute α from the
+//! partial sums of cᵀq, and those of `cg_direction` β from those of rᵀP⁻¹r, which spares two
+//! one-workgroup kernels per iteration). The product, `cg_curvature` and `cg_advance` are
+//! dispatched indirectly from the argument slots that `cg_begin` and `cg_direction` rewrite:
+//! full grids while the solve runs, empty ones once it is done, so a batch of iterations is one
+//! submission whatever the solve needs. `cg_direction` binds those slots, so it runs on the full
+//! grid, whose workgroups return at once once the solve is done.
 
 use super::system::{System, Vector};
 use super::{Buffers, SLOTS_RUNNING};
@@ -25,7 +27,6 @@ pub(crate) struct Cg {
     begin: Call,
     curvature: Call,
     advance: Call,
-    beta: Call,
     direction: Call,
     particles: Grid,
     dispatch: wgpu::Buffer,
@@ -45,7 +46,6 @@ impl Cg {
             begin: call("cg_begin")?,
             curvature: call("cg_curvature")?,
             advance: call("cg_advance")?,
-            beta: call("cg_beta")?,
             direction: call("cg_direction")?,
             particles: s.particles,
             dispatch: im.dispatch.clone(),
@@ -73,8 +73,7 @@ impl Cg {
             self.curvature.run_indirect(pass, &self.dispatch, particles);
             self.advance.run_indirect(pass, &self.dispatch, particles);
             // Direct: it writes the indirect arguments (and returns at once when done).
-            self.beta.run(pass, ONE);
-            self.direction.run_indirect(pass, &self.dispatch, particles);
+            self.direction.run(pass, self.particles);
         }
     }
 }
