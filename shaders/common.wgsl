@@ -49,6 +49,21 @@ struct Spring {
     damping: f32,
 }
 
+// Implicit Euler's block of one spring, B_s = β uuᵀ + γ I (system.wgsl).
+struct SpringBlock {
+    // Unit direction u (0 for a crushed spring).
+    u: vec3<f32>,
+    beta: f32,
+    gamma: f32,
+}
+
+// B_s w: spring s's term of a product A p, with w = p_a − p_b, as seen from its end a. One
+// definition for both routes of the product (system.wgsl's per-spring pass, fused_product.wgsl),
+// so that they give the same bits.
+fn block_product(blk: SpringBlock, w: vec3<f32>) -> vec3<f32> {
+    return blk.beta * dot(blk.u, w) * blk.u + blk.gamma * w;
+}
+
 // The springs of one per-spring dispatch (twin: `softbody_gpu::layout::SpringChunk`). Per-spring
 // arrays (springs, per-spring vectors, implicit Euler's blocks) may be larger than one storage
 // binding allows, so the host keeps each as chunks of 2^k springs in separate buffers and

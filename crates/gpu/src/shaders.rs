@@ -54,22 +54,25 @@ pub const LATTICE: &str = include_str!("../../../shaders/lattice.wgsl");
 pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
 /// `shaders/updates.wgsl`.
 pub const UPDATES: &str = include_str!("../../../shaders/updates.wgsl");
+/// `shaders/product.wgsl`.
+pub const PRODUCT: &str = include_str!("../../../shaders/product.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
 pub const PER_SPRING_CHUNK_BINDING: u32 = 16;
 
-/// Binding of implicit Euler's spring blocks' chunk 1 in `assemble_particles` (chunk c at this +
-/// c − 1; chunk 0 is binding 7).
+/// Binding of implicit Euler's spring blocks' chunk 1 in `assemble_particles` and the fused
+/// product (chunk c at this + c − 1; chunk 0 is binding 7).
 pub const BLOCK_CHUNK_BINDING: u32 = 32;
 
-/// Binding of the spring records' chunk 1 in the fused step's kernels (chunk c at this + c − 1;
-/// chunk 0 is binding 7).
+/// Binding of the spring records' chunk 1 in the fused step's kernels and the fused product
+/// (chunk c at this + c − 1; chunk 0 is binding 7 and 6).
 pub const SPRING_CHUNK_BINDING: u32 = 16;
 
 /// The accessors `per_spring_at(s)` and `gathered(s)` (and for `system.wgsl` `block_at(s)`; for
-/// `fused_step.wgsl` `spring_at(s)` alone) with the extra chunks' declarations, for `chunking`:
-/// a piece of WGSL appended to the gathering stages.
+/// `fused_step.wgsl` `spring_at(s)` alone; for `fused_product.wgsl` `spring_at(s)` and
+/// `block_at(s)`) with the extra chunks' declarations, for `chunking`: a piece of WGSL appended
+/// to the gathering stages.
 fn accessors(chunking: Chunking, stage: Stage) -> String {
     let mut out = String::new();
     out.push_str(&format!(
@@ -123,6 +126,11 @@ switch s >> {shift}u {{
         accessor("spring", "Spring", "springs", SPRING_CHUNK_BINDING);
         return out;
     }
+    if stage == Stage::FusedProduct {
+        accessor("spring", "Spring", "springs", SPRING_CHUNK_BINDING);
+        accessor("block", "SpringBlock", "blocks", BLOCK_CHUNK_BINDING);
+        return out;
+    }
     accessor(
         "per_spring",
         "vec4<f32>",
@@ -164,6 +172,9 @@ pub enum Stage {
     Energy,
     /// `system.wgsl` (implicit Euler's linear system).
     System,
+    /// `fused_product.wgsl` with `product.wgsl`: implicit Euler's product A p in one dispatch,
+    /// the springs' terms computed as they are gathered.
+    FusedProduct,
     /// `cg.wgsl` (implicit Euler's filtered PCG).
     Cg,
     /// `implicit_euler.wgsl` (contacts, active set, update; with terrain).
@@ -186,7 +197,7 @@ pub enum Stage {
 
 impl Stage {
     /// Every stage.
-    pub const ALL: [Stage; 18] = [
+    pub const ALL: [Stage; 19] = [
         Stage::SpringForces,
         Stage::Forces,
         Stage::ExplicitEuler,
@@ -197,6 +208,7 @@ impl Stage {
         Stage::CheckFinite,
         Stage::Energy,
         Stage::System,
+        Stage::FusedProduct,
         Stage::Cg,
         Stage::ImplicitEuler,
         Stage::TerrainProbe,
@@ -220,6 +232,7 @@ impl Stage {
             Stage::CheckFinite => "check_finite.wgsl",
             Stage::Energy => "energy.wgsl",
             Stage::System => "system.wgsl",
+            Stage::FusedProduct => "fused_product.wgsl",
             Stage::Cg => "cg.wgsl",
             Stage::ImplicitEuler => "implicit_euler.wgsl",
             Stage::TerrainProbe => "terrain_probe.wgsl",
@@ -243,6 +256,7 @@ impl Stage {
             Stage::CheckFinite => include_str!("../../../shaders/check_finite.wgsl"),
             Stage::Energy => include_str!("../../../shaders/energy.wgsl"),
             Stage::System => include_str!("../../../shaders/system.wgsl"),
+            Stage::FusedProduct => include_str!("../../../shaders/fused_product.wgsl"),
             Stage::Cg => include_str!("../../../shaders/cg.wgsl"),
             Stage::ImplicitEuler => include_str!("../../../shaders/implicit_euler.wgsl"),
             Stage::TerrainProbe => include_str!("../../../shaders/terrain_probe.wgsl"),
@@ -294,7 +308,10 @@ impl Stage {
 
     /// Whether its module includes `gather.wgsl`.
     fn uses_gather(self) -> bool {
-        matches!(self, Stage::Forces | Stage::System | Stage::FusedStep)
+        matches!(
+            self,
+            Stage::Forces | Stage::System | Stage::FusedStep | Stage::FusedProduct
+        )
     }
 
     /// Whether its module includes `lattice.wgsl`: the stages of the stencil route (the energies
@@ -357,6 +374,9 @@ impl Stage {
             Stage::FusedStep => pieces.push(("fused_gather.wgsl", FUSED_GATHER)),
             Stage::FusedStencil => pieces.push(("stencil.wgsl", STENCIL)),
             _ => {}
+        }
+        if matches!(self, Stage::System | Stage::FusedProduct) {
+            pieces.push(("product.wgsl", PRODUCT));
         }
         if self.uses_terrain() {
             pieces.push(("terrain.wgsl", TERRAIN));

@@ -96,8 +96,9 @@ pub struct GpuOptions {
     /// Storage bindings of at most this many bytes (instead of the adapter's
     /// `max_storage_buffer_binding_size`, if lower): per-spring arrays are split accordingly.
     pub max_binding_size: Option<u64>,
-    /// The explicit integrators on the per-spring path even where the fused one applies, to
-    /// compare the two.
+    /// The explicit integrators on the per-spring path even where the fused one applies, and
+    /// implicit Euler's product A p in two passes (per spring, then per particle) even where
+    /// the fused product fits, to compare the two.
     pub per_spring: bool,
     /// At most this many storage buffers per shader stage (instead of the adapter's
     /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
@@ -287,6 +288,7 @@ impl GpuSolver {
                 n_surfaces > 0,
                 collision_response.as_ref().map(|c| &c.start),
                 route,
+                options.per_spring,
             )?;
             let check = CheckFinite::new(s)?;
             let energy = Energy::new(s, spring_groups)?;
@@ -725,7 +727,7 @@ impl Solver for GpuSolver {
             // adjacency); or per-spring forces in chunks, gathered per particle through the
             // adjacency.
             kernel: match &self.stepper {
-                Stepper::Implicit(_) => "matrix-free",
+                Stepper::Implicit(implicit) => implicit.kernel(),
                 Stepper::Fused(fused) => fused.kernel(),
                 Stepper::Explicit(_) => "per-spring + gather",
             },

@@ -89,7 +89,7 @@ fn every_entry_point_reflects_within_webgpu_limits() {
             kernels += 1;
         }
     }
-    assert_eq!(kernels, 62);
+    assert_eq!(kernels, 64);
 }
 
 /// Reflection reads what an entry point uses through the functions it calls, with the access
@@ -395,8 +395,8 @@ fn spring_chunk_layout_matches() {
 
 /// The gathering modules composed for several spring chunks validate, and each gathering
 /// entry point reads every chunk (`per_spring_1`, …, the blocks' `block_1`, … for
-/// `assemble_particles`, the spring records' `spring_1`, … for the fused step's kernels); no
-/// other entry point reads one.
+/// `assemble_particles`, the spring records' `spring_1`, … for the fused step's kernels, both
+/// records and blocks for the fused product); no other entry point reads one.
 #[test]
 fn chunked_gathers_validate_and_read_every_chunk() {
     let chunkings = [
@@ -411,7 +411,12 @@ fn chunked_gathers_validate_and_read_every_chunk() {
         },
     ];
     for chunking in chunkings {
-        for stage in [Stage::Forces, Stage::System, Stage::FusedStep] {
+        for stage in [
+            Stage::Forces,
+            Stage::System,
+            Stage::FusedStep,
+            Stage::FusedProduct,
+        ] {
             let parsed = Parsed::new(stage, &stage.source_chunked(chunking))
                 .unwrap_or_else(|e| panic!("{} ({chunking:?}): {e}", stage.file()));
             for entry in parsed.entry_points() {
@@ -430,6 +435,9 @@ fn chunked_gathers_validate_and_read_every_chunk() {
                     |base: &'static str| (1..chunking.count).map(move |c| format!("{base}_{c}"));
                 let expected: Vec<String> = match entry {
                     _ if stage == Stage::FusedStep => extra("spring").collect(),
+                    _ if stage == Stage::FusedProduct => {
+                        extra("spring").chain(extra("block")).collect()
+                    }
                     "accelerations"
                     | "accelerations_with_pairs"
                     | "apply_particles"

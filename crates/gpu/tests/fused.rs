@@ -23,6 +23,9 @@
 //! - The stencil route's energies (`energy_lattices`, per particle over the lattices) against
 //!   the CPU's and the gather's, and that route holding no spring list, on the host or the
 //!   device.
+//! - Implicit Euler's fused product (`shaders/fused_product.wgsl`) against its two passes
+//!   (`GpuOptions::per_spring`), with one spring chunk and with three: the same bits, and one
+//!   dispatch fewer per CG iteration.
 
 mod common;
 
@@ -86,6 +89,10 @@ fn main() -> ExitCode {
     tests.push((
         "the_stencil_route_builds_no_spring_list".into(),
         no_spring_list,
+    ));
+    tests.push((
+        "implicit_eulers_fused_product_equals_its_two_passes".into(),
+        fused_product,
     ));
     softbody_testkit::run_gpu("GPU fused step tests", tests)
 }
@@ -627,6 +634,73 @@ fn no_spring_list(gpu: &Arc<Gpu>) -> Result<(), Failed> {
                 format!(
                     "{name}: {listed_device} B on the gather, {written_device} B on the per-spring \
                  path"
+                )
+            },
+        )?;
+    }
+    Ok(())
+}
+
+/// Implicit Euler on the bouncy plane (contacts from the first step, the active set changing)
+/// with its product fused and in two passes: the same bits after every batch, CG iteration for
+/// iteration, with the spring list in one chunk and in three (the fused product then reads each
+/// spring's record and block from its chunk, `spring_at`/`block_at`). The fused product takes
+/// one dispatch per product where the two passes take one per chunk and one more.
+fn fused_product(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    let (model, state) = cube(Integrator::ImplicitEuler, 0.01, 0.5, BOUNCY_PLANE);
+    // 1,024 blocks of 32 bytes per binding: the cube's 2,556 springs in three chunks.
+    for max_binding_size in [None, Some(32 * 1024)] {
+        let run = |per_spring: bool| -> Result<_, Failed> {
+            let options = GpuOptions {
+                per_spring,
+                max_binding_size,
+                ..GpuOptions::default()
+            };
+            let mut g = GpuSolver::with_options(gpu, model.clone(), state.clone(), options)
+                .map_err(|e| e.to_string())?;
+            let want = match per_spring {
+                true => "matrix-free",
+                false => "matrix-free, fused product",
+            };
+            let kernel = g.statistics().kernel;
+            ensure(kernel == want, || format!("kernel {kernel}, want {want}"))?;
+            let states = batches(&mut g, &[1, 2, 7, 40])?;
+            Ok((states, g.statistics()))
+        };
+        let (fused, fused_stats) = run(false)?;
+        let (two, two_stats) = run(true)?;
+        let (last, _) = fused.last().expect("batches");
+        let (dx, _) = differences(last, &state);
+        let chunks = match max_binding_size {
+            None => 1,
+            Some(_) => 3,
+        };
+        println!(
+            "implicit Euler, {chunks} chunk(s): {} CG iterations, {} and {} dispatches \
+             (fused, two passes), particles moved up to {dx:.3} m",
+            fused_stats.cg_iterations, fused_stats.dispatches, two_stats.dispatches
+        );
+        for (k, (f, t)) in fused.iter().zip(&two).enumerate() {
+            let (x, v) = differences(&f.0, &t.0);
+            ensure(f == t, || {
+                format!(
+                    "{chunks} chunk(s): after batch {k} the fused product's run differs \
+                     (|Δx| {x:e}, |Δv| {v:e}; energies {:?} and {:?})",
+                    f.1, t.1
+                )
+            })?;
+        }
+        ensure(fused_stats.cg_iterations == two_stats.cg_iterations, || {
+            "the CG iteration counts differ".into()
+        })?;
+        ensure(dx > 0.01, || "the cube did not move".into())?;
+        // Every encoded product saves `chunks` dispatches: at least one per CG iteration.
+        ensure(
+            two_stats.dispatches >= fused_stats.dispatches + chunks * fused_stats.cg_iterations,
+            || {
+                format!(
+                    "{} dispatches fused against {} in two passes over {} CG iterations",
+                    fused_stats.dispatches, two_stats.dispatches, fused_stats.cg_iterations
                 )
             },
         )?;

@@ -129,13 +129,14 @@ impl Stepper {
     /// `integrator`'s buffers and calls on `route` ([`Route::of`], which found that the fused
     /// kernels fit where it chose them); `terrain` says whether the scene has terrain, `start`
     /// is the collision response's record of each step's start (explicit integrators with
-    /// terrain).
+    /// terrain); `per_spring` keeps implicit Euler's product in its two passes.
     pub fn new(
         s: Setup<'_>,
         integrator: Integrator,
         terrain: bool,
         start: Option<&wgpu::Buffer>,
         route: Route,
+        per_spring: bool,
     ) -> Result<Stepper, GpuError> {
         if route != Route::PerSpring {
             return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?));
@@ -145,9 +146,9 @@ impl Stepper {
             Integrator::SymplecticEuler => Stepper::Explicit(Box::new(symplectic_euler::new(s)?)),
             Integrator::Midpoint => Stepper::Explicit(Box::new(midpoint::Midpoint::new(s)?)),
             Integrator::Rk4 => Stepper::Explicit(Box::new(rk4::Rk4::new(s)?)),
-            Integrator::ImplicitEuler => {
-                Stepper::Implicit(Box::new(implicit_euler::ImplicitEuler::new(s, terrain)?))
-            }
+            Integrator::ImplicitEuler => Stepper::Implicit(Box::new(
+                implicit_euler::ImplicitEuler::new(s, terrain, per_spring)?,
+            )),
         })
     }
 }

@@ -212,8 +212,9 @@ pub(crate) struct ImplicitEuler {
 }
 
 impl ImplicitEuler {
-    /// Its buffers and calls; `terrain`: whether the scene has terrain to touch.
-    pub fn new(s: Setup<'_>, terrain: bool) -> Result<ImplicitEuler, GpuError> {
+    /// Its buffers and calls; `terrain`: whether the scene has terrain to touch; `two_pass`:
+    /// the product in two passes even where the fused one fits ([`System::new`]).
+    pub fn new(s: Setup<'_>, terrain: bool, two_pass: bool) -> Result<ImplicitEuler, GpuError> {
         let buffers = Buffers::new(s);
         let resources = buffers.resources(s.buffers.resources());
         let call = |entry| s.builder.call(Stage::ImplicitEuler, entry, &resources);
@@ -225,7 +226,7 @@ impl ImplicitEuler {
             false => None,
         };
         Ok(ImplicitEuler {
-            system: System::new(s, &buffers)?,
+            system: System::new(s, &buffers, two_pass)?,
             cg: Cg::new(s, &buffers)?,
             constrain: call("implicit_constrain")?,
             finish: call("implicit_finish")?,
@@ -317,6 +318,14 @@ impl ImplicitEuler {
                 &self.buffers.dispatch,
                 SLOTS_FINISHED.particles,
             );
+        }
+    }
+
+    /// The design's name in `Statistics::kernel`: the product fused or in two passes.
+    pub fn kernel(&self) -> &'static str {
+        match self.system.fused() {
+            true => "matrix-free, fused product",
+            false => "matrix-free",
         }
     }
 

@@ -4,8 +4,10 @@
 //! A = M(1 + h·drag) − h ∂f/∂v − h² ∂f/∂x,  b = h (f + h ∂f/∂x v),
 //!
 //! kept matrix-free as one block B_s = β uuᵀ + γ I per spring (`assemble_springs`), gathered per
-//! particle into b and the block-Jacobi preconditioner (`assemble_particles`); A p is a
-//! per-spring product and a gather (`apply_springs`, `apply_particles`).
+//! particle into b and the block-Jacobi preconditioner (`assemble_particles`); A p is one dispatch
+//! where the adapter binds every chunk of the spring records and the blocks
+//! (`shaders/fused_product.wgsl`: each particle computes its springs' terms as it gathers them),
+//! else a per-spring product and a gather (`apply_springs`, `apply_particles`): the same bits.
 //!
 //! Where bodies touch, each pair in contact at the step's start whose penalty pushes there is a
 //! block β nnᵀ too (β = h c + h² k) with the share ±h(F − h k (u·n)) n of b: `pair_system` and
@@ -21,7 +23,7 @@ use crate::shaders::Stage;
 
 /// The product A p of one vector p, into q.
 struct Apply {
-    /// One call per spring chunk.
+    /// One call per spring chunk (none for the fused product).
     springs: Vec<Call>,
     /// The pairs' terms, for models whose bodies touch.
     pairs: Option<Call>,
@@ -49,11 +51,14 @@ pub(crate) struct System {
     particles: Grid,
     /// The CG's indirect dispatch arguments.
     dispatch: wgpu::Buffer,
+    /// Whether A p is the one-dispatch fused product.
+    fused: bool,
 }
 
 impl System {
-    /// The system's calls over the implicit buffers `im`.
-    pub fn new(s: Setup<'_>, im: &Buffers) -> Result<System, GpuError> {
+    /// The system's calls over the implicit buffers `im`; the product fused where the adapter
+    /// binds its buffers, unless `two_pass`.
+    pub fn new(s: Setup<'_>, im: &Buffers, two_pass: bool) -> Result<System, GpuError> {
         // The per-spring kernels bind their chunk's blocks; the gathers all chunks (`im`).
         let per_chunk = |entry, p: &wgpu::Buffer| {
             s.per_chunk(Stage::System, entry, |c, r| {
@@ -62,9 +67,14 @@ impl System {
                     .buffer("p", p)
             })
         };
-        let gather = |entry, p: &wgpu::Buffer| {
+        let gather = |stage, entry, p: &wgpu::Buffer| {
             let r = im.resources(s.buffers.resources()).buffer("p", p);
-            s.builder.call(Stage::System, entry, &r)
+            let r = match (stage, s.buffers.list()) {
+                // The spring records of every chunk, as the fused step binds them.
+                (Stage::FusedProduct, Some(list)) => r.chunks("springs", "spring", &list.records),
+                _ => r,
+            };
+            s.builder.call(stage, entry, &r)
         };
         // The pairs' kernels search the start grid: the contact's buffers with implicit Euler's.
         let pairs = |entry, p: &wgpu::Buffer| {
@@ -82,23 +92,42 @@ impl System {
             ),
             None => ("assemble_particles", "apply_particles"),
         };
+        // A limit is an answer (the two passes); anything else an error.
+        let fused = !two_pass
+            && match s.builder.fits(Stage::FusedProduct, product) {
+                Ok(()) => true,
+                Err(GpuError::Limit { .. }) => false,
+                Err(e) => return Err(e),
+            };
         let apply = |p| -> Result<Apply, GpuError> {
             Ok(Apply {
-                springs: per_chunk("apply_springs", p)?,
+                springs: match fused {
+                    true => Vec::new(),
+                    false => per_chunk("apply_springs", p)?,
+                },
                 pairs: pairs("pair_products", p)?,
-                particles: gather(product, p)?,
+                particles: match fused {
+                    true => gather(Stage::FusedProduct, product, p)?,
+                    false => gather(Stage::System, product, p)?,
+                },
             })
         };
         Ok(System {
             assemble_springs: per_chunk("assemble_springs", &im.dv)?,
             assemble_pairs: pairs("pair_system", &im.dv)?,
-            assemble_particles: gather(assemble, &im.dv)?,
+            assemble_particles: gather(Stage::System, assemble, &im.dv)?,
             apply_dv: apply(&im.dv)?,
             apply_c: apply(&im.c)?,
             spring_grids: s.chunks.grids.clone(),
             particles: s.particles,
             dispatch: im.dispatch.clone(),
+            fused,
         })
+    }
+
+    /// Whether A p is the one-dispatch fused product.
+    pub fn fused(&self) -> bool {
+        self.fused
     }
 
     /// Linearises at the current (x, v): the spring blocks, b and the preconditioner.
