@@ -22,9 +22,9 @@
 // - `apply_springs`: z_s = B_s (p_a − p_b) into `per_spring_out`;
 // - `apply_particles` (product.wgsl): out_i = m(1 + h·drag) p_i + Σ± z_s: out = A p.
 //
-// That is the product in two passes, for any adapter; where the adapter binds every spring
-// chunk twice over, fused_product.wgsl does it in one (`Stage::FusedProduct`), each particle
-// computing its springs' z_s as it gathers them, with the same bits.
+// That is the product in two passes (`GpuOptions::per_spring`); by default fused_product.wgsl
+// does it in one (`Stage::FusedProduct`), each particle computing its springs' z_s as it gathers
+// them, with the same bits.
 //
 // With contact between bodies, the pairs in contact at the step's start are springs of the
 // system too (body_contact.wgsl, `pair_system` and `pair_products`, which need the grid's

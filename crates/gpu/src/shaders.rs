@@ -66,7 +66,7 @@ pub const PER_SPRING_CHUNK_BINDING: u32 = 16;
 pub const BLOCK_CHUNK_BINDING: u32 = 32;
 
 /// Binding of the spring records' chunk 1 in the fused step's kernels and the fused product
-/// (chunk c at this + c − 1; chunk 0 is binding 7 and 6).
+/// (chunk c at this + c − 1; chunk 0 is binding 7 in the fused step, 6 in the fused product).
 pub const SPRING_CHUNK_BINDING: u32 = 16;
 
 /// The accessors `per_spring_at(s)` and `gathered(s)` (and for `system.wgsl` `block_at(s)`; for

@@ -393,6 +393,40 @@ fn spring_chunk_layout_matches() {
     }
 }
 
+/// The fused product binds 2k + 4 storage buffers for k spring chunks (the records' and the
+/// blocks' chunks, the adjacency, p, out, diag), fewer than the assembly's gather, which every
+/// implicit model runs: so the solver fuses the product without a fit check of its own
+/// (`integrators::implicit_euler::system`).
+#[test]
+fn the_fused_product_binds_fewer_buffers_than_the_assembly() {
+    let storage = |stage: Stage, chunking: Chunking, entry: &str| {
+        let parsed = Parsed::new(stage, &stage.source_chunked(chunking)).unwrap();
+        let (bindings, _) = reflect(&parsed, entry).unwrap();
+        bindings
+            .iter()
+            .filter(|b| b.access != Access::Uniform)
+            .count()
+    };
+    for count in 1..=MAX_SPRING_CHUNKS {
+        let chunking = Chunking { count, shift: 22 };
+        for (product, assembly) in [
+            ("apply_particles", "assemble_particles"),
+            (
+                "apply_particles_with_pairs",
+                "assemble_particles_with_pairs",
+            ),
+        ] {
+            let fused = storage(Stage::FusedProduct, chunking, product);
+            let assembled = storage(Stage::System, chunking, assembly);
+            assert_eq!(fused, 2 * count as usize + 4, "{product}, {count} chunk(s)");
+            assert!(
+                fused < assembled,
+                "{product} binds {fused}, {assembly} {assembled} ({count} chunk(s))"
+            );
+        }
+    }
+}
+
 /// The gathering modules composed for several spring chunks validate, and each gathering
 /// entry point reads every chunk (`per_spring_1`, …, the blocks' `block_1`, … for
 /// `assemble_particles`, the spring records' `spring_1`, … for the fused step's kernels, both

@@ -5,9 +5,11 @@
 //!
 //! kept matrix-free as one block B_s = β uuᵀ + γ I per spring (`assemble_springs`), gathered per
 //! particle into b and the block-Jacobi preconditioner (`assemble_particles`); A p is one dispatch
-//! where the adapter binds every chunk of the spring records and the blocks
 //! (`shaders/fused_product.wgsl`: each particle computes its springs' terms as it gathers them),
-//! else a per-spring product and a gather (`apply_springs`, `apply_particles`): the same bits.
+//! or with `GpuOptions::per_spring` a per-spring product and a gather (`apply_springs`,
+//! `apply_particles`): the same bits. The fused product binds fewer storage buffers than
+//! `assemble_particles` for any chunk count (pinned by a reflection test), so every adapter
+//! that can assemble the system can fuse the product.
 //!
 //! Where bodies touch, each pair in contact at the step's start whose penalty pushes there is a
 //! block β nnᵀ too (β = h c + h² k) with the share ±h(F − h k (u·n)) n of b: `pair_system` and
@@ -56,8 +58,7 @@ pub(crate) struct System {
 }
 
 impl System {
-    /// The system's calls over the implicit buffers `im`; the product fused where the adapter
-    /// binds its buffers, unless `two_pass`.
+    /// The system's calls over the implicit buffers `im`; the product fused unless `two_pass`.
     pub fn new(s: Setup<'_>, im: &Buffers, two_pass: bool) -> Result<System, GpuError> {
         // The per-spring kernels bind their chunk's blocks; the gathers all chunks (`im`).
         let per_chunk = |entry, p: &wgpu::Buffer| {
@@ -92,13 +93,7 @@ impl System {
             ),
             None => ("assemble_particles", "apply_particles"),
         };
-        // A limit is an answer (the two passes); anything else an error.
-        let fused = !two_pass
-            && match s.builder.fits(Stage::FusedProduct, product) {
-                Ok(()) => true,
-                Err(GpuError::Limit { .. }) => false,
-                Err(e) => return Err(e),
-            };
+        let fused = !two_pass;
         let apply = |p| -> Result<Apply, GpuError> {
             Ok(Apply {
                 springs: match fused {
