@@ -4,20 +4,20 @@
 //
 //   constraints[i] = (n, kind): kind 0 free (S p = p), 1 normal (S p = p − (p·n) n), 2 fixed
 //   (S p = 0); z holds the prescribed part of Δv. P⁻¹ is the inverse diagonal block of
-//   system.wgsl (`diag`), applied as S P⁻¹ S.
+//   system.wgsl (`diag`), applied as S P⁻¹ S. The filter and the partial sums are
+//   cg_common.wgsl's, shared with the iteration's product.
 //
-// A solve, as the host encodes it (system.wgsl provides A p):
+// A solve, as the host encodes it (product.wgsl provides A p):
 //
 //   cg_start:     Δv = S Δv + z                       (warm start from the last solve);
 //                 partials of wᵀP⁻¹w for the weight's impulse w = S h m g (in cᵀq's half,
 //                 unused until the first iteration)
-//   apply(Δv) → q = A Δv
+//   apply_particles(Δv) → q = A Δv
 //   cg_residual:  r = S(rhs − q), c = S P⁻¹ r;  partials of (Sb)ᵀP⁻¹(Sb) and rᵀc
 //   cg_begin:     δ₀, δ, δ_w; scale = max(δ₀, δ, δ_w); target = tol²·scale;
 //                 done = !(δ > target)
 //   then per iteration, while not done:
-//   apply(c) → q = A c
-//   cg_curvature: q = S q;  partials of cᵀq
+//   apply_particles_curvature(c) → q = S A c;  partials of cᵀq
 //   cg_advance:   α = δ / cᵀq  (stop if cᵀq is not positive and finite: round-off);
 //                 Δv += α c, r −= α q;  partials of rᵀP⁻¹r
 //   cg_direction: δ' = Σ; stop on non-finite or round-off growth (δ' > 1e6·smallest: δ = smallest);
@@ -30,13 +30,15 @@
 // one-workgroup kernel cg_begin adds them once; every workgroup of cg_advance adds cᵀq's, and
 // every workgroup of cg_direction adds rᵀP⁻¹r's, themselves (the same code on the same input:
 // the same α and β everywhere, bit for bit what one-workgroup kernels computed before), which
-// saves two dispatches per iteration. So cᵀq's partials have a half of `partials` of their own
-// (`CURVATURE`): cg_advance reads them while it writes rᵀP⁻¹r's.
+// saves two dispatches per iteration, and the product filters q and writes cᵀq's partials as it
+// forms A c (on the particle grid, as a kernel of its own did before it, so the same bits),
+// which saves a third. So cᵀq's partials have a half of `partials` of their own (`CURVATURE`):
+// cg_advance reads them while it writes rᵀP⁻¹r's.
 //
 // The scalars live in `scalars` (twin: `softbody_gpu::layout::CgScalars`); where a kernel's
 // first workgroup rewrites a scalar that the others read, they read a copy made by an earlier
 // dispatch instead (`previous_delta`, kept by cg_advance, which only reads δ). The iteration's
-// product and cg_curvature, cg_advance are dispatched indirectly from `dispatch`, whose argument
+// product and cg_advance are dispatched indirectly from `dispatch`, whose argument
 // slots cg_begin and cg_direction rewrite: the full grids while the solve runs, zero workgroups
 // once it is done, so that the host can encode a batch of iterations per submission and the
 // surplus costs little. These two bind the arguments, so they are dispatched directly (a
@@ -79,30 +81,16 @@ const DISPATCH_FINISHED_PARTICLES: u32 = 6u;
 const DISPATCH_FINISHED_SPRINGS: u32 = 9u;
 const DISPATCH_WORDS: u32 = 12u;
 
-@group(0) @binding(1) var<storage, read> constraints: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> z: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> dv: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> rhs: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read_write> q: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read> q: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> r: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read_write> c: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read> diag: array<vec4<f32>>;
-@group(0) @binding(9) var<storage, read_write> partials: array<vec2<f32>>;
 @group(0) @binding(10) var<storage, read_write> scalars: CgScalars;
 @group(0) @binding(11) var<storage, read_write> dispatch: array<u32, DISPATCH_WORDS>;
 @group(0) @binding(12) var<storage, read> mass: array<vec2<f32>>;
-
-// S_i p: the free part of p.
-fn free_part(i: u32, p: vec3<f32>) -> vec3<f32> {
-    let s = constraints[i];
-    if s.w == CONSTRAINT_FREE {
-        return p;
-    }
-    if s.w == CONSTRAINT_NORMAL {
-        return p - dot(p, s.xyz) * s.xyz;
-    }
-    return vec3<f32>(0.0);
-}
 
 // P⁻¹_i p (the symmetric inverse block of system.wgsl).
 fn precondition(i: u32, p: vec3<f32>) -> vec3<f32> {
@@ -119,20 +107,14 @@ fn vec4_of(p: vec3<f32>) -> vec4<f32> {
     return vec4<f32>(p, 0.0);
 }
 
-// Where a half of `partials` starts: δ's sums (and the start's) at 0, cᵀq's after them.
-const DELTA: u32 = 0u;
-const CURVATURE: u32 = 1u;
-
+// Where half `which` of `partials` starts (cg_common.wgsl).
 fn half(which: u32) -> u32 {
     return which * scalars.n_partials;
 }
 
 // Writes the tree sum of this workgroup's terms to its partial slot in half `which`.
 fn write_partial(id: Invocation, term: vec2<f32>, which: u32) {
-    let sum = workgroup_sum(id.local, term);
-    if id.local == 0u {
-        partials[half(which) + workgroup_of(id)] = sum;
-    }
+    write_partial_at(id, term, half(which));
 }
 
 var<workgroup> solve_done: u32;
@@ -225,18 +207,6 @@ fn cg_begin(id: Invocation) {
     scalars.iterations = 0u;
     finish(!(delta > target_delta) || !all_finite(vec3<f32>(delta, scale, 0.0))
         || scalars.max_iterations == 0u);
-}
-
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn cg_curvature(id: Invocation) {
-    let i = thread_of(id);
-    var term = vec2<f32>(0.0);
-    if i < params.n_particles {
-        let qi = free_part(i, q[i].xyz);
-        q[i] = vec4_of(qi);
-        term = vec2<f32>(dot(c[i].xyz, qi), 0.0);
-    }
-    write_partial(id, term, CURVATURE);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

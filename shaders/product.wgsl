@@ -6,26 +6,73 @@
 // z_s its per-spring pass `apply_springs` wrote, and fused_product.wgsl, whose `gathered(s)`
 // computes z_s itself (`block_product`, common.wgsl). The same entry points in both modules, so
 // the two routes differ only in where z_s comes from.
+//
+// The CG's iterations (cg.wgsl) multiply its direction c, and take the filtered product: their
+// `…_curvature` entry points write out = S A p and each workgroup's partial sum of pᵀ(S A p)
+// (cg_common.wgsl), on the particle grid, so the sum's terms and tree are those a kernel of
+// their own formed from the stored product before (the same bits), one dispatch fewer.
 
 @group(0) @binding(9) var<storage, read> p: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> out: array<vec4<f32>>;
 // diag[2i].w = m(1 + h·drag) (system.wgsl's `assemble_particles` writes it).
 @group(0) @binding(12) var<storage, read_write> diag: array<vec4<f32>>;
 
+// (A p)_i.
+fn product(i: u32) -> vec3<f32> {
+    return diag[2u * i].w * p[i].xyz + gather(i);
+}
+
+// (A p)_i where bodies touch: `pair_products` (body_contact.wgsl) has left the pairs' terms in
+// out.
+fn product_with_pairs(i: u32) -> vec3<f32> {
+    return product(i) + out[i].xyz;
+}
+
+// out_i = S_i (A p)_i, and the workgroup's partial of pᵀ out into cᵀq's half of the partials.
+// `a_p` is (A p)_i for the threads of particles; every thread of the workgroup calls this (it
+// has barriers).
+fn write_curvature(id: Invocation, i: u32, a_p: vec3<f32>) {
+    var term = vec2<f32>(0.0);
+    if i < params.n_particles {
+        let qi = free_part(i, a_p);
+        out[i] = vec4<f32>(qi, 0.0);
+        term = vec2<f32>(dot(p[i].xyz, qi), 0.0);
+    }
+    write_curvature_partial(id, term);
+}
+
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles(id: Invocation) {
     let i = thread_of(id);
     if i < params.n_particles {
-        out[i] = vec4<f32>(diag[2u * i].w * p[i].xyz + gather(i), 0.0);
+        out[i] = vec4<f32>(product(i), 0.0);
     }
 }
 
-// For models whose bodies touch: `pair_products` (body_contact.wgsl) has left the pairs' terms
-// in out.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles_with_pairs(id: Invocation) {
     let i = thread_of(id);
     if i < params.n_particles {
-        out[i] = vec4<f32>((diag[2u * i].w * p[i].xyz + gather(i)) + out[i].xyz, 0.0);
+        out[i] = vec4<f32>(product_with_pairs(i), 0.0);
     }
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn apply_particles_curvature(id: Invocation) {
+    let i = thread_of(id);
+    var a_p = vec3<f32>(0.0);
+    if i < params.n_particles {
+        a_p = product(i);
+    }
+    write_curvature(id, i, a_p);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn apply_particles_with_pairs_curvature(id: Invocation) {
+    let i = thread_of(id);
+    var a_p = vec3<f32>(0.0);
+    if i < params.n_particles {
+        a_p = product_with_pairs(i);
+    }
+    write_curvature(id, i, a_p);
 }

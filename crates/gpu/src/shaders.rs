@@ -3,9 +3,11 @@
 //! WGSL has no includes, so each stage's module is the concatenation of the shared pieces it
 //! needs and its own file: `common.wgsl` (parameters, springs, the thread index) always, then
 //! `finite.wgsl` (the instability record) for the stages that check the state, `reduce.wgsl`
-//! (the workgroup tree sum) for the stages that reduce, `gather.wgsl` (the CSR gather) for the
-//! stages that gather over the springs (and `fused_gather.wgsl`, the spring records the fused step
-//! reads, or `stencil.wgsl`, the lattices it reads instead, for the fused step's two variants),
+//! (the workgroup tree sum) for the stages that reduce, `cg_common.wgsl` (the constraints'
+//! filter and the CG's partial sums) for the CG and the products, `gather.wgsl` (the CSR
+//! gather) for the stages that gather over the springs (and `fused_gather.wgsl`, the spring
+//! records the fused step reads, or `stencil.wgsl`, the lattices it reads instead, for the
+//! fused step's two variants),
 //! `lattice.wgsl` (the springs found on the lattices) for the stages of the stencil route (the
 //! stencil and the energies), `terrain.wgsl` for the stages that query the terrain,
 //! then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the stages that
@@ -56,6 +58,8 @@ pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
 pub const UPDATES: &str = include_str!("../../../shaders/updates.wgsl");
 /// `shaders/product.wgsl`.
 pub const PRODUCT: &str = include_str!("../../../shaders/product.wgsl");
+/// `shaders/cg_common.wgsl`.
+pub const CG_COMMON: &str = include_str!("../../../shaders/cg_common.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
@@ -303,7 +307,13 @@ impl Stage {
 
     /// Whether its module includes `reduce.wgsl`.
     fn uses_reduce(self) -> bool {
-        matches!(self, Stage::Energy | Stage::Cg)
+        matches!(self, Stage::Energy) || self.uses_cg_common()
+    }
+
+    /// Whether its module includes `cg_common.wgsl`: the CG's kernels and the products (the
+    /// CG iteration's filters q and sums cᵀq).
+    fn uses_cg_common(self) -> bool {
+        matches!(self, Stage::Cg | Stage::System | Stage::FusedProduct)
     }
 
     /// Whether its module includes `gather.wgsl`.
@@ -363,6 +373,9 @@ impl Stage {
         }
         if self.uses_reduce() {
             pieces.push(("reduce.wgsl", REDUCE));
+        }
+        if self.uses_cg_common() {
+            pieces.push(("cg_common.wgsl", CG_COMMON));
         }
         if self.uses_gather() {
             pieces.push(("gather.wgsl", GATHER));

@@ -3,11 +3,12 @@
 //! operation in f32, its scalars on the device.
 //!
 //! A solve starts with a round (`cg_start`: the warm start; A Δv; `cg_residual`; `cg_begin`),
-//! then runs batches of iterations (A c → `cg_curvature` → `cg_advance` → `cg_direction`: four
-//! dispatches besides the product's; the workgroups of `cg_advance` each compute α from the
-//! partial sums of cᵀq, and those of `cg_direction` β from those of rᵀP⁻¹r, which spares two
-//! one-workgroup kernels per iteration). The product, `cg_curvature` and `cg_advance` are
-//! dispatched indirectly from the argument slots that `cg_begin` and `cg_direction` rewrite:
+//! then runs batches of iterations of three dispatches: the product of the direction c, which
+//! also filters q = S A c and writes cᵀq's partial sums (`apply_particles_curvature`,
+//! `shaders/product.wgsl`), `cg_advance`, whose workgroups each compute α from those partial
+//! sums, and `cg_direction`, whose workgroups each compute β from those of rᵀP⁻¹r. (Kernels of
+//! their own for cᵀq, α and β took three more.) The product and `cg_advance` are dispatched
+//! indirectly from the argument slots that `cg_begin` and `cg_direction` rewrite:
 //! full grids while the solve runs, empty ones once it is done, so a batch of iterations is one
 //! submission whatever the solve needs. `cg_direction` binds those slots, so it runs on the full
 //! grid, whose workgroups return at once once the solve is done.
@@ -25,7 +26,6 @@ pub(crate) struct Cg {
     start: Call,
     residual: Call,
     begin: Call,
-    curvature: Call,
     advance: Call,
     direction: Call,
     particles: Grid,
@@ -44,7 +44,6 @@ impl Cg {
             start: call("cg_start")?,
             residual: call("cg_residual")?,
             begin: call("cg_begin")?,
-            curvature: call("cg_curvature")?,
             advance: call("cg_advance")?,
             direction: call("cg_direction")?,
             particles: s.particles,
@@ -69,8 +68,8 @@ impl Cg {
     ) {
         let particles = SLOTS_RUNNING.particles;
         for _ in 0..iterations {
+            // q = S A c and cᵀq's partial sums.
             system.encode_apply(pass, Vector::C, Some(SLOTS_RUNNING));
-            self.curvature.run_indirect(pass, &self.dispatch, particles);
             self.advance.run_indirect(pass, &self.dispatch, particles);
             // Direct: it writes the indirect arguments (and returns at once when done).
             self.direction.run(pass, self.particles);

@@ -7,9 +7,11 @@
 //! particle into b and the block-Jacobi preconditioner (`assemble_particles`); A p is one dispatch
 //! (`shaders/fused_product.wgsl`: each particle computes its springs' terms as it gathers them),
 //! or with `GpuOptions::per_spring` a per-spring product and a gather (`apply_springs`,
-//! `apply_particles`): the same bits. The fused product binds fewer storage buffers than
-//! `assemble_particles` for any chunk count (pinned by a reflection test), so every adapter
-//! that can assemble the system can fuse the product.
+//! `apply_particles`): the same bits. The CG iterations' product of its direction c also
+//! filters it and sums cᵀq (`apply_particles_curvature`, `shaders/product.wgsl`). The fused
+//! product of A Δv binds fewer storage buffers than `assemble_particles`, and that of c as
+//! many plus one, for any chunk count (pinned by a reflection test): on an adapter whose limit
+//! is the assembly's exactly, the product takes the two passes, whose gathers bind fewer.
 //!
 //! Where bodies touch, each pair in contact at the step's start whose penalty pushes there is a
 //! block β nnᵀ too (β = h c + h² k) with the share ±h(F − h k (u·n)) n of b: `pair_system` and
@@ -23,7 +25,16 @@ use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
 
-/// The product A p of one vector p, into q.
+/// Whether a fit check passed: `false` for [`GpuError::Limit`], other errors passed on.
+fn fits(check: Result<(), GpuError>) -> Result<bool, GpuError> {
+    match check {
+        Ok(()) => Ok(true),
+        Err(GpuError::Limit { .. }) => Ok(false),
+        Err(e) => Err(e),
+    }
+}
+
+/// The product A p of one vector p, into q (for CG's direction c, S A c with cᵀq's partials).
 struct Apply {
     /// One call per spring chunk (none for the fused product).
     springs: Vec<Call>,
@@ -86,15 +97,20 @@ impl System {
                 })
                 .transpose()
         };
-        let (assemble, product) = match s.body_contact {
+        let (assemble, product, curvature) = match s.body_contact {
             Some(_) => (
                 "assemble_particles_with_pairs",
                 "apply_particles_with_pairs",
+                "apply_particles_with_pairs_curvature",
             ),
-            None => ("assemble_particles", "apply_particles"),
+            None => (
+                "assemble_particles",
+                "apply_particles",
+                "apply_particles_curvature",
+            ),
         };
-        let fused = !two_pass;
-        let apply = |p| -> Result<Apply, GpuError> {
+        let fused = !two_pass && fits(s.builder.fits(Stage::FusedProduct, curvature))?;
+        let apply = |entry, p| -> Result<Apply, GpuError> {
             Ok(Apply {
                 springs: match fused {
                     true => Vec::new(),
@@ -102,8 +118,8 @@ impl System {
                 },
                 pairs: pairs("pair_products", p)?,
                 particles: match fused {
-                    true => gather(Stage::FusedProduct, product, p)?,
-                    false => gather(Stage::System, product, p)?,
+                    true => gather(Stage::FusedProduct, entry, p)?,
+                    false => gather(Stage::System, entry, p)?,
                 },
             })
         };
@@ -111,8 +127,8 @@ impl System {
             assemble_springs: per_chunk("assemble_springs", &im.dv)?,
             assemble_pairs: pairs("pair_system", &im.dv)?,
             assemble_particles: gather(Stage::System, assemble, &im.dv)?,
-            apply_dv: apply(&im.dv)?,
-            apply_c: apply(&im.c)?,
+            apply_dv: apply(product, &im.dv)?,
+            apply_c: apply(curvature, &im.c)?,
             spring_grids: s.chunks.grids.clone(),
             particles: s.particles,
             dispatch: im.dispatch.clone(),
