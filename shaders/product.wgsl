@@ -17,24 +17,31 @@
 // diag[2i].w = m(1 + h·drag) (system.wgsl's `assemble_particles` writes it).
 @group(0) @binding(12) var<storage, read_write> diag: array<vec4<f32>>;
 
-// (A p)_i.
-fn product(i: u32) -> vec3<f32> {
-    return diag[2u * i].w * p[i].xyz + gather(i);
+// (A p)_i; where bodies touch (`pairs`), `pair_products` (body_contact.wgsl) has left the pairs'
+// terms in out, added last.
+fn product(i: u32, pairs: bool) -> vec3<f32> {
+    let springs = diag[2u * i].w * p[i].xyz + gather(i);
+    if pairs {
+        return springs + out[i].xyz;
+    }
+    return springs;
 }
 
-// (A p)_i where bodies touch: `pair_products` (body_contact.wgsl) has left the pairs' terms in
-// out.
-fn product_with_pairs(i: u32) -> vec3<f32> {
-    return product(i) + out[i].xyz;
+// out = A p.
+fn apply(id: Invocation, pairs: bool) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        out[i] = vec4<f32>(product(i, pairs), 0.0);
+    }
 }
 
-// out_i = S_i (A p)_i, and the workgroup's partial of pᵀ out into cᵀq's half of the partials.
-// `a_p` is (A p)_i for the threads of particles; every thread of the workgroup calls this (it
-// has barriers).
-fn write_curvature(id: Invocation, i: u32, a_p: vec3<f32>) {
+// out = S A p, and the workgroup's partial of pᵀ out into cᵀq's half of the partials. Every
+// thread of the workgroup gets here (`write_curvature_partial` has barriers).
+fn apply_curvature(id: Invocation, pairs: bool) {
+    let i = thread_of(id);
     var term = vec2<f32>(0.0);
     if i < params.n_particles {
-        let qi = free_part(i, a_p);
+        let qi = free_part(i, product(i, pairs));
         out[i] = vec4<f32>(qi, 0.0);
         term = vec2<f32>(dot(p[i].xyz, qi), 0.0);
     }
@@ -43,36 +50,20 @@ fn write_curvature(id: Invocation, i: u32, a_p: vec3<f32>) {
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles(id: Invocation) {
-    let i = thread_of(id);
-    if i < params.n_particles {
-        out[i] = vec4<f32>(product(i), 0.0);
-    }
+    apply(id, false);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles_with_pairs(id: Invocation) {
-    let i = thread_of(id);
-    if i < params.n_particles {
-        out[i] = vec4<f32>(product_with_pairs(i), 0.0);
-    }
+    apply(id, true);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles_curvature(id: Invocation) {
-    let i = thread_of(id);
-    var a_p = vec3<f32>(0.0);
-    if i < params.n_particles {
-        a_p = product(i);
-    }
-    write_curvature(id, i, a_p);
+    apply_curvature(id, false);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn apply_particles_with_pairs_curvature(id: Invocation) {
-    let i = thread_of(id);
-    var a_p = vec3<f32>(0.0);
-    if i < params.n_particles {
-        a_p = product_with_pairs(i);
-    }
-    write_curvature(id, i, a_p);
+    apply_curvature(id, true);
 }
