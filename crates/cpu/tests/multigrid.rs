@@ -381,20 +381,22 @@ fn a_cube_at_rest_is_solved_once_a_step_in_a_few_iterations() {
     }
 }
 
-/// Not a check, a measurement (`-- --ignored --nocapture`; set `SIZES`, e.g. `10,22,46`, and
-/// `PRECONDITIONERS`): CG iterations and solves per step over the first 120 steps (2 s: the
-/// fall, the impact, the settling) of `softbody bench`'s stiff cube (its bottom 0.5 m above
-/// the ground, k_s = 10⁴ N/m, h = 1/60 s), two threads, the wall-clock steps per second and each stage's time a step.
+/// Not a check, a measurement (`-- --ignored --nocapture`; set `SIZES`, e.g. `10,22,46`,
+/// `PRECONDITIONERS` and `THREADS`, default 2): CG iterations and solves per step over the
+/// first 120 steps (2 s: the fall, the impact, the settling) of `softbody bench`'s stiff cube
+/// (its bottom 0.5 m above the ground, k_s = 10⁴ N/m, h = 1/60 s), the wall-clock steps per
+/// second and each stage's time a step.
 #[test]
 #[ignore]
 fn iterations_per_step_of_the_benchmark_run() {
     let list = |name: &str, default: &str| std::env::var(name).unwrap_or(default.into());
+    let threads: usize = list("THREADS", "2").parse().unwrap();
     for n in list("SIZES", "10,22").split(',') {
         let n: u32 = n.parse().unwrap();
         for p in list("PRECONDITIONERS", "multigrid,block-jacobi").split(',') {
             let p: softbody_scene::Preconditioner = p.parse().unwrap();
             let (model, state) = stiff_cube(n, 0.5, p);
-            let mut solver = CpuSolver::new(model, state, Some(2)).unwrap();
+            let mut solver = CpuSolver::new(model, state, Some(threads)).unwrap();
             let started = Instant::now();
             solver.advance(120).unwrap();
             let seconds = started.elapsed().as_secs_f64();
