@@ -276,6 +276,16 @@ impl Builder {
     }
 }
 
+/// A fit check ([`fits`], [`Builder::fits`]) as an answer: `false` for [`GpuError::Limit`],
+/// any other error passed on.
+pub(crate) fn answer(check: Result<(), GpuError>) -> Result<bool, GpuError> {
+    match check {
+        Ok(()) => Ok(true),
+        Err(GpuError::Limit { .. }) => Ok(false),
+        Err(e) => Err(e),
+    }
+}
+
 /// Whether an adapter with `limits` can bind what each of `entries` of `stage` binds (its
 /// per-spring arrays split as `chunking`): [`GpuError::Limit`] naming the first that cannot.
 /// [`Builder::fits`] without a builder: found by reflection on the composed module alone, before

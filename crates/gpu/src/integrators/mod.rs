@@ -30,7 +30,7 @@ pub mod symplectic_euler;
 
 use softbody_scene::{Integrator, Model};
 
-use crate::builder::{Setup, fits};
+use crate::builder::{Setup, answer, fits};
 use crate::chunks::Chunking;
 use crate::forces::Accelerations;
 use crate::grid::Grid;
@@ -95,11 +95,7 @@ impl Route {
         let fused = fused_applies(integrator, model.contact.enabled(), options.per_spring);
         let entries = fused::Fused::entries(integrator);
         // Whether `stage`'s fused kernels fit; a limit is an answer, anything else an error.
-        let fit = |stage, chunking| match fits(limits, adapter, stage, entries, chunking) {
-            Ok(()) => Ok(true),
-            Err(GpuError::Limit { .. }) => Ok(false),
-            Err(e) => Err(e),
-        };
+        let fit = |stage, chunking| answer(fits(limits, adapter, stage, entries, chunking));
         let lattices = model.lattices().len() == model.bodies.len();
         if fused && lattices && !options.gather && fit(Stage::FusedStencil, Chunking::ONE)? {
             return Ok((

@@ -20,19 +20,10 @@
 
 use super::{Buffers, Slots};
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::builder::{Setup, answer};
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
-
-/// Whether a fit check passed: `false` for [`GpuError::Limit`], other errors passed on.
-fn fits(check: Result<(), GpuError>) -> Result<bool, GpuError> {
-    match check {
-        Ok(()) => Ok(true),
-        Err(GpuError::Limit { .. }) => Ok(false),
-        Err(e) => Err(e),
-    }
-}
 
 /// The product A p of one vector p, into q (for CG's direction c, S A c with cᵀq's partials).
 struct Apply {
@@ -109,7 +100,7 @@ impl System {
                 "apply_particles_curvature",
             ),
         };
-        let fused = !two_pass && fits(s.builder.fits(Stage::FusedProduct, curvature))?;
+        let fused = !two_pass && answer(s.builder.fits(Stage::FusedProduct, curvature))?;
         let apply = |entry, p| -> Result<Apply, GpuError> {
             Ok(Apply {
                 springs: match fused {
