@@ -7,13 +7,13 @@
 //! filter and the CG's partial sums) for the CG and the products, `gather.wgsl` (the CSR
 //! gather) for the stages that gather over the springs (and `fused_gather.wgsl`, the spring
 //! records the fused step reads, or `stencil.wgsl`, the lattices it reads instead, for the
-//! fused step's two variants),
-//! `lattice.wgsl` (the springs found on the lattices) for the stages of the stencil route (the
-//! stencil and the energies), `terrain.wgsl` for the stages that query the terrain,
-//! then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the stages that
-//! compute accelerations, `response.wgsl` (the collision response) for the stages that respond,
-//! and `neighbours.wgsl` (the hashed grid of contact between bodies) for the stages that build
-//! or search it.
+//! fused step's two variants), `lattice.wgsl` (the springs found on the lattices) for the
+//! stages of the stencil route (the stencil and the energies), `product.wgsl` (implicit
+//! Euler's product A p) for the system's two modules, `terrain.wgsl` for the stages that query
+//! the terrain, then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the
+//! stages that compute accelerations, `response.wgsl` (the collision response) for the stages
+//! that respond, and `neighbours.wgsl` (the hashed grid of contact between bodies) for the
+//! stages that build or search it.
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
 //! point's bindings (name, number, access) from the composed module with naga and binds
