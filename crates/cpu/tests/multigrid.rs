@@ -271,8 +271,11 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
         };
         let (x, y) = (random(), random());
         let (mut mx, mut my) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
-        mg.apply(&constraints, &x, &mut mx);
-        mg.apply(&constraints, &y, &mut my);
+        let xmx = mg.apply(&constraints, &x, &mut mx);
+        let ymy = mg.apply(&constraints, &y, &mut my);
+        // What it returns is the product with its input (summed in chunks, so to rounding).
+        assert!((xmx - dot(&x, &mx)).abs() <= 1e-12 * xmx.abs(), "{xmx:e}");
+        assert!((ymy - dot(&y, &my)).abs() <= 1e-12 * ymy.abs(), "{ymy:e}");
         let asymmetry = (dot(&x, &my) - dot(&y, &mx)).abs();
         let scale = norm(&x) * norm(&my);
         println!(

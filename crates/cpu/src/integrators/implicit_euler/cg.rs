@@ -24,7 +24,7 @@ pub use softbody_scene::implicit::Constraint;
 use super::multigrid::Multigrid;
 use super::system::System;
 use crate::forces::PARTICLE_CHUNK;
-use crate::reduce::chunked_sum;
+use crate::reduce::{chunked_sum, fill_and_sum};
 
 /// How a solve ended.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,10 +74,6 @@ impl Scratch {
     }
 }
 
-fn dot(a: &[DVec3], b: &[DVec3]) -> f64 {
-    chunked_sum(a.len(), |i| a[i].dot(b[i]))
-}
-
 /// Solves for `dv` (which holds a warm start on entry; its constrained part is replaced by `z`),
 /// preconditioned by `preconditioner`.
 #[allow(clippy::too_many_arguments)]
@@ -101,13 +97,13 @@ pub fn solve(
     // Moved out for the solve so that `system` can lend its per-spring scratch to `apply`.
     let inv_diag = std::mem::take(&mut system.inv_diag);
     let inv = &inv_diag;
-    // out = S P⁻¹ r for a filtered r.
+    // out = S P⁻¹ r for a filtered r; returns rᵀ out (every use of the preconditioner is
+    // followed by that product, which the pass writing `out` sums at once).
     let mut precondition = |r: &[DVec3], out: &mut [DVec3]| match &mut preconditioner {
-        Preconditioner::BlockJacobi => out
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, out)| *out = constraints[i].filter(inv[i] * r[i])),
+        Preconditioner::BlockJacobi => fill_and_sum(out, |i| {
+            let z = constraints[i].filter(inv[i] * r[i]);
+            (z, r[i].dot(z))
+        }),
         Preconditioner::Multigrid(mg) => mg.apply(constraints, r, out),
     };
     dv.par_iter_mut()
@@ -119,27 +115,21 @@ pub fn solve(
         .zip(constraints.par_iter().zip(b.par_iter()))
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(r, (s, b))| *r = s.filter(*b));
-    precondition(r, p);
-    let delta0 = dot(r, p);
+    let delta0 = precondition(r, p);
     system.apply(model, dv, q);
     r.par_iter_mut()
         .enumerate()
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(i, r)| *r = constraints[i].filter(b[i] - q[i]));
-    precondition(r, c);
-    let mut delta = dot(r, c);
-    // (S h M g)ᵀ P⁻¹ (S h M g), with r holding the weight's impulse S h M g for the moment.
+    let mut delta = precondition(r, c);
+    // (S h M g)ᵀ P⁻¹ (S h M g), with q (free until the first product) holding the weight's
+    // impulse S h M g.
     let hg = model.simulation.dt * model.simulation.gravity;
-    r.par_iter_mut()
+    q.par_iter_mut()
         .enumerate()
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(i, w)| *w = constraints[i].filter(model.mass[i] * hg));
-    precondition(r, p);
-    let weight = dot(r, p);
-    r.par_iter_mut()
-        .enumerate()
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(i, r)| *r = constraints[i].filter(b[i] - q[i]));
+    let weight = precondition(q, p);
     // Relative to the largest of the right-hand side, the warm start's residual and the
     // weight's impulse. A body at rest has S·b ≈ 0, its springs' forces and its weight
     // cancelling, while its prescribed contact velocities still leave a residual: a target
@@ -149,8 +139,14 @@ pub fn solve(
     let target = tolerance * tolerance * scale;
     let mut smallest = delta;
     let mut iterations = 0;
+    // The next search direction is c ← p + βc, formed by the product that reads it
+    // (`System::apply_direction`); the first is c itself (β = 0 would give the same values).
+    let mut beta = None;
     while delta > target && iterations < max_iterations {
-        system.apply(model, c, q);
+        match beta {
+            None => system.apply(model, c, q),
+            Some(beta) => system.apply_direction(model, p, beta, c, q),
+        }
         // q = S A c, filtered where it is read (no pass of its own).
         let cq = chunked_sum(c.len(), |i| c[i].dot(constraints[i].filter(q[i])));
         if !(cq > 0.0 && cq.is_finite()) {
@@ -165,8 +161,7 @@ pub fn solve(
                 *dv += alpha * *c;
                 *r -= alpha * s.filter(*q);
             });
-        precondition(r, p);
-        let delta_new = dot(r, p);
+        let delta_new = precondition(r, p);
         // In exact arithmetic the residual never grows by orders of magnitude; in floating
         // point it does once round-off dominates: stop there rather than follow it.
         if !(delta_new >= 0.0 && delta_new.is_finite()) || delta_new > 1e6 * smallest {
@@ -174,12 +169,8 @@ pub fn solve(
             break;
         }
         smallest = smallest.min(delta_new);
-        let beta = delta_new / delta;
+        beta = Some(delta_new / delta);
         delta = delta_new;
-        c.par_iter_mut()
-            .zip(p.par_iter())
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(c, p)| *c = *p + beta * *c);
         iterations += 1;
     }
     system.inv_diag = inv_diag;

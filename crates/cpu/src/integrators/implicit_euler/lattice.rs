@@ -41,7 +41,7 @@ use crate::forces::PARTICLE_CHUNK;
 use crate::pipeline::all_cuboids;
 use crate::spring_forces::Isa;
 
-use super::system::outer;
+use super::system::{direction, outer};
 
 /// 1/ℓ of a spring of ends x_a − x_b = `d` (0 for a spring crushed to zero length, which
 /// [`block`] then gives no direction and no transverse stiffness).
@@ -277,9 +277,27 @@ impl LatticeSystem {
         &self.sums
     }
 
-    /// out = M(1 + h·drag) p + the springs' terms, with `mass_diag` the diagonal's mass part.
-    pub fn apply(&mut self, mass_diag: &[f64], p: &[DVec3], out: &mut [DVec3]) {
+    /// Makes `p` the operand of the next [`LatticeSystem::product`] (its copy by axis).
+    pub fn set_operand(&mut self, p: &[DVec3]) {
         split(p, &mut self.p);
+    }
+
+    /// c ← p + βc (CG's next search direction, [`direction`]) and c the operand of the next
+    /// [`LatticeSystem::product`], in one pass.
+    pub fn set_direction(&mut self, p: &[DVec3], beta: f64, c: &mut [DVec3]) {
+        let [x, y, z] = &mut self.p;
+        (x, y, z, c, p)
+            .into_par_iter()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(x, y, z, c, p)| {
+                *c = direction(*p, beta, *c);
+                (*x, *y, *z) = (c.x, c.y, c.z);
+            });
+    }
+
+    /// out = M(1 + h·drag) p + the springs' terms for the operand p, with `mass_diag` the
+    /// diagonal's mass part.
+    pub fn product(&self, mass_diag: &[f64], out: &mut [DVec3]) {
         let p = [&self.p[0][..], &self.p[1][..], &self.p[2][..]];
         let term = Product { mass_diag, p };
         self.traverse(&term, out, |t| DVec3::new(t[0], t[1], t[2]));
@@ -949,7 +967,8 @@ mod tests {
                 lattice.isa = isa;
                 lattice.linearise(&state.x);
                 let mut out = vec![DVec3::NAN; model.len()];
-                lattice.apply(&mass_diag, &p, &mut out);
+                lattice.set_operand(&p);
+                lattice.product(&mass_diag, &mut out);
                 out.iter()
                     .flat_map(|v| v.to_array())
                     .map(f64::to_bits)
@@ -963,6 +982,33 @@ mod tests {
                 assert!(product(isa) == scalar, "{dims:?}: {isa:?} differs");
             }
         }
+    }
+
+    /// CG's search direction formed in the product's pass (`set_direction`) is p + βc, and
+    /// its product the bits of that vector's product through `set_operand`.
+    #[test]
+    fn the_direction_formed_in_the_product_is_p_plus_beta_c() {
+        let (model, state, mass_diag, p) = two_cuboids([9, 7, 8], 5);
+        let c0: Vec<DVec3> = p.iter().map(|p| DVec3::new(p.z, -p.x, 0.5 * p.y)).collect();
+        let beta = 0.37;
+        let mut lattice = LatticeSystem::new(&model).expect("cuboids");
+        lattice.linearise(&state.x);
+        let mut c = c0.clone();
+        let mut fused = vec![DVec3::NAN; model.len()];
+        lattice.set_direction(&p, beta, &mut c);
+        lattice.product(&mass_diag, &mut fused);
+        let expected: Vec<DVec3> = (p.iter().zip(&c0)).map(|(p, c)| *p + beta * *c).collect();
+        let mut apart = vec![DVec3::NAN; model.len()];
+        lattice.set_operand(&expected);
+        lattice.product(&mass_diag, &mut apart);
+        let bits = |v: &[DVec3]| -> Vec<u64> {
+            v.iter()
+                .flat_map(|v| v.to_array())
+                .map(f64::to_bits)
+                .collect()
+        };
+        assert_eq!(bits(&c), bits(&expected));
+        assert_eq!(bits(&fused), bits(&apart));
     }
 
     /// The inner planes' slabs, each spring's term computed once and handed from its first end
@@ -983,7 +1029,8 @@ mod tests {
                     lattice.slabs = slabs;
                     lattice.linearise(&state.x);
                     let mut out = vec![DVec3::NAN; model.len()];
-                    lattice.apply(&mass_diag, &p, &mut out);
+                    lattice.set_operand(&p);
+                    lattice.product(&mass_diag, &mut out);
                     lattice.assemble(&state.v, 0.01);
                     let sums = (lattice.sums().iter())
                         .flat_map(|s| s.force.to_array().into_iter().chain(s.block));

@@ -67,6 +67,7 @@ use super::cg::Constraint;
 use super::lattice::LatticeSystem;
 use super::system::{System, outer};
 use crate::forces::PARTICLE_CHUNK;
+use crate::reduce::fill_and_sum;
 
 /// Coarsening stops once a level has at most this many nodes.
 pub const COARSEST_NODES: usize = 40;
@@ -737,8 +738,8 @@ impl Multigrid {
     }
 
     /// z = S·MG·S r for a filtered r (the preconditioner of the filtered CG):
-    /// z = S(ω D̂⁻¹ r + α P cycle(Pᵀ r)).
-    pub fn apply(&mut self, constraints: &[Constraint], r: &[DVec3], z: &mut [DVec3]) {
+    /// z = S(ω D̂⁻¹ r + α P cycle(Pᵀ r)). Returns rᵀz ([`fill_and_sum`]'s bits).
+    pub fn apply(&mut self, constraints: &[Constraint], r: &[DVec3], z: &mut [DVec3]) -> f64 {
         let Multigrid {
             levels,
             direct,
@@ -750,12 +751,10 @@ impl Multigrid {
         cycle(levels, direct);
         let (parent, x) = (&levels[0].parent, &levels[0].x);
         let smoother = &*fine_smoother;
-        z.par_iter_mut()
-            .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, z)| {
-                *z = constraints[i].filter(smoother[i] * r[i] + CORRECTION * x[parent[i] as usize])
-            });
+        fill_and_sum(z, |i| {
+            let z = constraints[i].filter(smoother[i] * r[i] + CORRECTION * x[parent[i] as usize]);
+            (z, r[i].dot(z))
+        })
     }
 }
 

@@ -132,6 +132,22 @@ impl PairBlocks {
     }
 }
 
+/// What a product multiplies: a vector, or CG's next search direction c ← p + βc.
+enum Operand<'a> {
+    Vector(&'a [DVec3]),
+    Direction {
+        p: &'a [DVec3],
+        beta: f64,
+        c: &'a mut [DVec3],
+    },
+}
+
+/// CG's next search direction p + βc: one definition for both routes' updates.
+#[inline(always)]
+pub(crate) fn direction(p: DVec3, beta: f64, c: DVec3) -> DVec3 {
+    p + beta * c
+}
+
 impl System {
     /// Sized for `model`.
     pub fn new(model: &Model) -> System {
@@ -280,13 +296,48 @@ impl System {
 
     /// out = A p.
     pub fn apply(&mut self, model: &Model, p: &[DVec3], out: &mut [DVec3]) {
+        self.apply_to(model, Operand::Vector(p), out);
+    }
+
+    /// c ← p + βc (CG's next search direction), then out = A c. On the lattices' route the
+    /// update writes c's copy by axis for the product in the same pass (one pass over the
+    /// vectors less per CG iteration).
+    pub fn apply_direction(
+        &mut self,
+        model: &Model,
+        p: &[DVec3],
+        beta: f64,
+        c: &mut [DVec3],
+        out: &mut [DVec3],
+    ) {
+        self.apply_to(model, Operand::Direction { p, beta, c }, out);
+    }
+
+    fn apply_to(&mut self, model: &Model, operand: Operand<'_>, out: &mut [DVec3]) {
+        let (p, by_axis): (&[DVec3], bool) = match operand {
+            Operand::Vector(p) => (p, false),
+            Operand::Direction { p, beta, c } => {
+                match &mut self.lattice {
+                    Some(lattice) => lattice.set_direction(p, beta, c),
+                    None => c
+                        .par_iter_mut()
+                        .zip(p.par_iter())
+                        .with_min_len(PARTICLE_CHUNK)
+                        .for_each(|(c, p)| *c = direction(*p, beta, *c)),
+                }
+                (c, self.lattice.is_some())
+            }
+        };
         if let Some(pairs) = self.pairs.as_mut() {
             pairs.products(p);
         }
         let pairs = self.pairs.as_ref();
         match &mut self.lattice {
             Some(lattice) => {
-                lattice.apply(&self.mass_diag, p, out);
+                if !by_axis {
+                    lattice.set_operand(p);
+                }
+                lattice.product(&self.mass_diag, out);
                 if let Some(pairs) = pairs {
                     out.par_iter_mut()
                         .enumerate()
