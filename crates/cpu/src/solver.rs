@@ -182,7 +182,8 @@ impl Solver for CpuSolver {
 
     fn restore(&mut self, steps: u64, state: &State, history: &History) -> Result<(), StepError> {
         self.set_state(state)?;
-        self.stepper.restore(history)?;
+        let (model, stepper) = (&self.model, &mut self.stepper);
+        self.pool.install(|| stepper.restore(model, history))?;
         self.steps = steps;
         Ok(())
     }

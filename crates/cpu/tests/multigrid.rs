@@ -7,7 +7,7 @@ use std::time::Instant;
 use glam::DVec3;
 use softbody_cpu::CpuSolver;
 use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Preconditioner, Scratch};
-use softbody_cpu::integrators::implicit_euler::multigrid::Multigrid;
+use softbody_cpu::integrators::implicit_euler::multigrid::{KEEP_ASSEMBLIES, Multigrid};
 use softbody_cpu::integrators::implicit_euler::system::System;
 use softbody_cpu::integrators::implicit_euler::{CG_MAX_ITERATIONS, CG_TOLERANCE};
 use softbody_scene::{Integrator, Model, Solver, SpringParams, State};
@@ -290,7 +290,8 @@ fn the_multigrid_preconditioner_is_symmetric_positive_definite() {
 /// A later solve of the same step computes again only the values of the nodes whose
 /// constraints changed: the preconditioner then gives the same bits as one prepared afresh
 /// for the new constraints (contacts made, released and switched between fixed and sliding,
-/// in the cube's bottom layer and inside it), and a system assembled again is prepared anew.
+/// in the cube's bottom layer and inside it); a system assembled again keeps the values for
+/// the same constraints, [`KEEP_ASSEMBLIES`] times, and is prepared anew for others or after.
 #[test]
 fn a_second_solves_preconditioner_is_the_fresh_one() {
     let (model, state) = deformed(12);
@@ -330,31 +331,35 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
         applied(&mut incremental) == expected,
         "the incremental values differ"
     );
-    // A new assembly (other positions) is prepared anew, not from the old values.
+    // A new assembly (other positions) with the same constraints keeps the values, for up to
+    // KEEP_ASSEMBLIES assemblies; other constraints, or one assembly more, compute them anew.
+    let kept = applied(&mut incremental);
     let mut moved = state.clone();
     moved.x.iter_mut().for_each(|x| *x *= 1.01);
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, None, &moved.x, &moved.v, &mut b);
-    incremental.prepare(&system, &model, &second);
-    fresh.prepare(&system, &model, &first);
-    fresh.prepare(&system, &model, &second);
+    for _ in 0..KEEP_ASSEMBLIES {
+        system.assemble(&model, None, &moved.x, &moved.v, &mut b);
+        incremental.prepare(&system, &model, &second);
+        assert!(
+            applied(&mut incremental) == kept,
+            "the values were not kept"
+        );
+    }
     let mut afresh = Multigrid::new(&model, &system).unwrap();
     afresh.prepare(&system, &model, &second);
     let expected = applied(&mut afresh);
+    assert!(expected != kept, "the positions do not matter");
+    fresh.prepare(&system, &model, &first);
+    fresh.prepare(&system, &model, &second);
+    assert!(
+        applied(&mut fresh) == expected,
+        "other constraints kept old values"
+    );
+    system.assemble(&model, None, &moved.x, &moved.v, &mut b);
+    incremental.prepare(&system, &model, &second);
     assert!(
         applied(&mut incremental) == expected,
-        "a new assembly kept old values"
-    );
-    assert!(applied(&mut fresh) == expected);
-    assert!(
-        expected
-            != applied(&mut {
-                let mut old = Multigrid::new(&model, &system).unwrap();
-                let mut system = System::new(&model);
-                system.assemble(&model, None, &state.x, &state.v, &mut b);
-                old.prepare(&system, &model, &second);
-                old
-            })
+        "values kept past KEEP_ASSEMBLIES"
     );
 }
 
@@ -382,6 +387,45 @@ fn a_cube_at_rest_is_solved_once_a_step_in_a_few_iterations() {
         assert_eq!(solves, 30, "{p}: more than one solve a step");
         assert!(iterations <= 12 * 30, "{p}: {iterations} iterations");
     }
+}
+
+/// A solver restored from another's state and history where the multigrid's values were
+/// kept from an earlier step (the stiff 10³ cube at rest: the constraints do not change)
+/// computes those values again from the positions in the history and goes on with the
+/// uninterrupted run's bits.
+#[test]
+fn a_restored_solver_rebuilds_the_kept_multigrid_values() {
+    let (model, state) = stiff_cube(10, 0.5, softbody_scene::Preconditioner::Multigrid);
+    let mut first = CpuSolver::new(model.clone(), state.clone(), Some(2)).unwrap();
+    first.advance(100).unwrap();
+    let history = first.history().unwrap();
+    let kept = history
+        .parts
+        .iter()
+        .find(|(n, _)| n == "multigrid-kept")
+        .unwrap();
+    let kept = u32::from_le_bytes(kept.1[..].try_into().unwrap());
+    assert!(
+        (1..=KEEP_ASSEMBLIES).contains(&kept),
+        "kept by {kept} assemblies"
+    );
+    let halfway = first.state().unwrap().clone();
+    let mut second = CpuSolver::new(model, state, Some(3)).unwrap();
+    second.restore(100, &halfway, &history).unwrap();
+    let before = first.statistics().cg_iterations;
+    first.advance(20).unwrap();
+    second.advance(20).unwrap();
+    let bits = |s: &State| -> Vec<u64> {
+        (s.x.iter().chain(&s.v))
+            .flat_map(|v| v.to_array())
+            .map(f64::to_bits)
+            .collect()
+    };
+    assert!(bits(first.state().unwrap()) == bits(second.state().unwrap()));
+    assert_eq!(
+        first.statistics().cg_iterations - before,
+        second.statistics().cg_iterations
+    );
 }
 
 /// Not a check, a measurement (`-- --ignored --nocapture`; set `SIZES`, e.g. `10,22,46`,

@@ -129,9 +129,9 @@ impl Stepper {
     }
 
     /// Takes up [`Stepper::history`]'s.
-    pub fn restore(&mut self, history: &History) -> Result<(), StepError> {
+    pub fn restore(&mut self, model: &Model, history: &History) -> Result<(), StepError> {
         match self {
-            Stepper::ImplicitEuler(s) => s.restore(history),
+            Stepper::ImplicitEuler(s) => s.restore(model, history),
             _ if history.parts.is_empty() => Ok(()),
             _ => Err(StepError::Invalid(
                 "restore: the history is an implicit integrator's, this solver's integrator is \

@@ -57,6 +57,40 @@ use crate::body_contact::Partners;
 use crate::forces::PARTICLE_CHUNK;
 use softbody_terrain::Surface;
 
+/// `multigrid-kept` of a history whose multigrid had no values.
+const NOTHING_KEPT: u32 = u32::MAX;
+
+/// A constraint in a history: a tag byte (0 free, 1 normal, 2 fixed) and the normal.
+const CONSTRAINT_BYTES: usize = 25;
+
+fn encode(s: Constraint) -> [u8; CONSTRAINT_BYTES] {
+    let (tag, n) = match s {
+        Constraint::Free => (0, DVec3::ZERO),
+        Constraint::Normal(n) => (1, n),
+        Constraint::Fixed => (2, DVec3::ZERO),
+    };
+    let mut bytes = [0; CONSTRAINT_BYTES];
+    bytes[0] = tag;
+    for (k, c) in n.to_array().into_iter().enumerate() {
+        bytes[1 + 8 * k..9 + 8 * k].copy_from_slice(&c.to_le_bytes());
+    }
+    bytes
+}
+
+fn decode(bytes: &[u8]) -> Result<Constraint, StepError> {
+    let n = DVec3::from_array(std::array::from_fn(|k| {
+        f64::from_le_bytes(bytes[1 + 8 * k..9 + 8 * k].try_into().unwrap())
+    }));
+    match bytes[0] {
+        0 => Ok(Constraint::Free),
+        1 => Ok(Constraint::Normal(n)),
+        2 => Ok(Constraint::Fixed),
+        tag => Err(StepError::Invalid(format!(
+            "restore: the history's `multigrid-constraints` has a constraint tag {tag}"
+        ))),
+    }
+}
+
 /// CG stops when the preconditioned residual is this fraction of the right-hand side's.
 pub const CG_TOLERANCE: f64 = 1e-8;
 
@@ -103,6 +137,9 @@ pub struct ImplicitEuler {
     touching: Vec<bool>,
     /// Sticking at the end of the last step.
     sticking: Vec<bool>,
+    /// The positions the multigrid's values were computed at (empty without a multigrid):
+    /// with the constraints, what a resumed run needs to compute the values a run kept.
+    prepared_x: Vec<DVec3>,
     /// Counters over the run.
     pub statistics: Statistics,
 }
@@ -127,7 +164,6 @@ impl ImplicitEuler {
         };
         ImplicitEuler {
             system,
-            multigrid,
             scratch: Scratch::new(n),
             b: zeros(),
             rhs: zeros(),
@@ -137,6 +173,11 @@ impl ImplicitEuler {
             constraints: vec![Constraint::Free; n],
             touching: vec![false; n],
             sticking: vec![false; n],
+            prepared_x: match multigrid {
+                Some(_) => zeros(),
+                None => Vec::new(),
+            },
+            multigrid,
             statistics,
         }
     }
@@ -154,6 +195,7 @@ impl ImplicitEuler {
             + vec_bytes(&self.constraints)
             + vec_bytes(&self.touching)
             + vec_bytes(&self.sticking)
+            + vec_bytes(&self.prepared_x)
     }
 
     /// How the system's products are computed: `matrix-free-lattice` on cuboids
@@ -165,12 +207,27 @@ impl ImplicitEuler {
         }
     }
 
-    /// What the next step starts from besides the state: the warm start Δv and who touches
-    /// and sticks.
+    /// What the next step starts from besides the state: the warm start Δv, who touches and
+    /// sticks, and with a multigrid, what its values were computed for (positions and
+    /// constraints) and how long they have been kept ([`Multigrid::prepare`]).
     pub fn history(&self) -> History {
         let mut history = History::default();
-        let dv = self.dv.iter().flat_map(|v| v.to_array());
-        history.push("dv", dv.flat_map(f64::to_le_bytes).collect());
+        let vectors = |v: &[DVec3]| -> Vec<u8> {
+            v.iter()
+                .flat_map(|v| v.to_array())
+                .flat_map(f64::to_le_bytes)
+                .collect()
+        };
+        history.push("dv", vectors(&self.dv));
+        if let Some(mg) = &self.multigrid {
+            let (constraints, kept) = mg.kept().unwrap_or((&[], NOTHING_KEPT));
+            history.push("multigrid-x", vectors(&self.prepared_x));
+            history.push(
+                "multigrid-constraints",
+                constraints.iter().flat_map(|s| encode(*s)).collect(),
+            );
+            history.push("multigrid-kept", kept.to_le_bytes().to_vec());
+        }
         history.push(
             "touching",
             self.touching.iter().map(|&b| u8::from(b)).collect(),
@@ -182,13 +239,39 @@ impl ImplicitEuler {
         history
     }
 
-    /// Takes up [`ImplicitEuler::history`]'s.
-    pub fn restore(&mut self, history: &History) -> Result<(), StepError> {
+    /// Takes up [`ImplicitEuler::history`]'s: with a multigrid, computes the values the run
+    /// kept from the positions and constraints they were computed for (a model with contact
+    /// between bodies keeps none).
+    pub fn restore(&mut self, model: &Model, history: &History) -> Result<(), StepError> {
         let n = self.dv.len();
-        let dv = history.part("dv", 24 * n)?;
-        for (v, bytes) in self.dv.iter_mut().zip(dv.chunks_exact(24)) {
-            let c = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap());
-            *v = DVec3::new(c(0), c(1), c(2));
+        let vectors = |name: &str, out: &mut [DVec3]| -> Result<(), StepError> {
+            let bytes = history.part(name, 24 * n)?;
+            for (v, bytes) in out.iter_mut().zip(bytes.chunks_exact(24)) {
+                *v = DVec3::from_array(std::array::from_fn(|k| {
+                    f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap())
+                }));
+            }
+            Ok(())
+        };
+        vectors("dv", &mut self.dv)?;
+        if let Some(mg) = self.multigrid.as_mut() {
+            let kept = history.part("multigrid-kept", 4)?;
+            let kept = u32::from_le_bytes(kept.try_into().unwrap());
+            vectors("multigrid-x", &mut self.prepared_x)?;
+            if kept == NOTHING_KEPT || self.system.pairs.is_some() {
+                mg.forget();
+            } else {
+                let bytes = history.part("multigrid-constraints", CONSTRAINT_BYTES * n)?;
+                let constraints: Vec<Constraint> = bytes
+                    .chunks_exact(CONSTRAINT_BYTES)
+                    .map(decode)
+                    .collect::<Result<_, _>>()?;
+                // The system at those positions (its diagonal blocks and springs' blocks do not
+                // depend on the velocities); the next step assembles its own.
+                let zeros = vec![DVec3::ZERO; n];
+                (self.system).assemble(model, None, &self.prepared_x, &zeros, &mut self.b);
+                mg.restore(&self.system, model, &constraints, kept);
+            }
         }
         for (name, flags) in [
             ("touching", &mut self.touching),
@@ -253,6 +336,11 @@ impl ImplicitEuler {
             {
                 break;
             }
+        }
+        if let Some(mg) = &self.multigrid
+            && mg.computed_at() == Some(self.system.assembly())
+        {
+            self.prepared_x.copy_from_slice(&state.x);
         }
         timings.time("update", || self.finish(&candidates, h, state));
     }
