@@ -22,7 +22,7 @@ pub fn chunked_sum(n: usize, term: impl Fn(usize) -> f64 + Sync) -> f64 {
     )
 }
 
-/// Writes out[i] = value(i).0 and returns Σ value(i).1, the same bits as [`chunked_sum`] of
+/// Writes `out[i] = value(i).0` and returns Σ `value(i).1`, the same bits as [`chunked_sum`] of
 /// those terms: one pass that fills a vector and sums a product with it (a preconditioner's
 /// output and CG's rᵀz), where two passes would read the vector back.
 pub fn fill_and_sum<T: Send>(out: &mut [T], value: impl Fn(usize) -> (T, f64) + Sync) -> f64 {

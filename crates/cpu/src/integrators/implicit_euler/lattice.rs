@@ -282,7 +282,7 @@ impl LatticeSystem {
         split(p, &mut self.p);
     }
 
-    /// c ← p + βc (CG's next search direction, [`direction`]) and c the operand of the next
+    /// c ← p + βc (CG's next search direction) and c the operand of the next
     /// [`LatticeSystem::product`], in one pass.
     pub fn set_direction(&mut self, p: &[DVec3], beta: f64, c: &mut [DVec3]) {
         let [x, y, z] = &mut self.p;
