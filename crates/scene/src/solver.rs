@@ -89,9 +89,11 @@ pub enum StepError {
 }
 
 /// What a solver carries from one step into the next besides the state and the step count:
-/// implicit Euler's warm start and contact modes (explicit integrators carry nothing). Given
-/// back with the state to [`Solver::restore`], it makes the steps that follow bit-identical to
-/// those of the run it was taken from, which is what `softbody run --resume` relies on.
+/// implicit Euler's warm start and contact modes, and on the CPU the positions and
+/// constraints its multigrid's kept values were computed from (explicit integrators carry
+/// nothing). Given back with the state to [`Solver::restore`], it makes the steps that follow
+/// bit-identical to those of the run it was taken from, which is what `softbody run --resume`
+/// relies on.
 ///
 /// Its parts are the backend's own named byte arrays: a history is for a solver of the same
 /// backend and model only, and [`History::part`] refuses a part that is missing or of the

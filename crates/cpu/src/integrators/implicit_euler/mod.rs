@@ -254,10 +254,20 @@ impl ImplicitEuler {
             Ok(())
         };
         vectors("dv", &mut self.dv)?;
+        // A history without the multigrid's parts (written before its values were kept
+        // across steps) kept nothing.
+        let kept_part = history
+            .parts
+            .iter()
+            .any(|(name, _)| name == "multigrid-kept");
         if let Some(mg) = self.multigrid.as_mut() {
-            let kept = history.part("multigrid-kept", 4)?;
-            let kept = u32::from_le_bytes(kept.try_into().unwrap());
-            vectors("multigrid-x", &mut self.prepared_x)?;
+            let kept = match kept_part {
+                true => u32::from_le_bytes(history.part("multigrid-kept", 4)?.try_into().unwrap()),
+                false => NOTHING_KEPT,
+            };
+            if kept != NOTHING_KEPT {
+                vectors("multigrid-x", &mut self.prepared_x)?;
+            }
             if kept == NOTHING_KEPT || self.system.pairs.is_some() {
                 mg.forget();
             } else {

@@ -633,14 +633,15 @@ impl Multigrid {
     /// answer is the same to its tolerance; a body at rest or falling keeps nearly the same
     /// springs' blocks from step to step (the 22³ benchmark cube: 16.8 instead of 16.7
     /// iterations a step, CG ~11% faster), and the bound limits how far a body spinning free
-    /// of contact turns under a kept preconditioner (at 3 rev/s, 8% more iterations). Otherwise they are
-    /// computed for this assembly. An entry's value depends only on the constraints of the
-    /// particles its row's and column's nodes hold, so after the first solve of a step (the
-    /// same assembly) only the entries of nodes holding a particle whose constraint changed
-    /// are computed again: the active set's later rounds change a few contacts. The values
-    /// are the same bits as when computed afresh. Each level's entries below the diagonal are
-    /// the transposes of those above it (Pᵀ Â P is symmetric), so only the upper half is
-    /// summed.
+    /// of contact turns under a kept preconditioner (at 3 rev/s, 8% more iterations).
+    /// Otherwise they are computed for this assembly.
+    ///
+    /// An entry's value depends only on the constraints of the particles its row's and
+    /// column's nodes hold, so after the first solve of a step (the same assembly) only the
+    /// entries of nodes holding a particle whose constraint changed are computed again: the
+    /// active set's later rounds change a few contacts. The values are the same bits as when
+    /// computed afresh. Each level's entries below the diagonal are the transposes of those
+    /// above it (Pᵀ Â P is symmetric), so only the upper half is summed.
     pub fn prepare(&mut self, system: &System, model: &Model, constraints: &[Constraint]) {
         let assembly = system.assembly();
         // The fine particles whose constraint changed since the values were computed (`None`:
