@@ -35,6 +35,8 @@ use crate::output::Frame;
 
 /// The first bytes of a `checkpoint` file (the format's version is its last digit).
 const MAGIC: &[u8; 8] = b"SBCKPT01";
+/// The checkpoint's name in its directory (beside the `frames` journal).
+const FILE: &str = "checkpoint";
 
 /// Why checkpoints cannot be written or resumed.
 #[derive(Debug, thiserror::Error)]
@@ -158,7 +160,7 @@ impl Checkpoints {
         every: Option<u64>,
         solver: &mut dyn Solver,
     ) -> Result<Option<Checkpoints>, CheckpointError> {
-        let path = dir.join("checkpoint");
+        let path = dir.join(FILE);
         let bytes = match fs::read(&path) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
@@ -215,6 +217,11 @@ impl Checkpoints {
     /// Where the checkpoint is.
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// The checkpoint file.
+    pub fn file(&self) -> PathBuf {
+        self.dir.join(FILE)
     }
 
     /// Frames a resumed run takes from the journal (0 for a fresh run).
@@ -308,7 +315,7 @@ impl Checkpoints {
 
     /// Replaces `checkpoint` with one counting `frames` journaled frames, atomically.
     fn write_checkpoint(&self, frames: u64) -> Result<(), CheckpointError> {
-        let path = self.dir.join("checkpoint");
+        let path = self.file();
         let mut bytes = MAGIC.to_vec();
         for word in [
             self.fingerprint,

@@ -202,7 +202,13 @@ pub fn run_until(
         previous = Some((f.step, f.state));
     }
     if let Some((step, state)) = &previous {
-        solver.restore(*step, state, &history)?;
+        // A history the solver refuses (a part missing or of another size) is a checkpoint
+        // that this version cannot read: bad input, not a failure of the solver.
+        let refused = |e| match (e, checkpoints.as_deref()) {
+            (StepError::Invalid(why), Some(c)) => CheckpointError::Corrupt(c.file(), why).into(),
+            (e, _) => RunError::from(e),
+        };
+        solver.restore(*step, state, &history).map_err(refused)?;
     }
     let mut previous = previous.map(|(step, state)| (step, state, history));
     let exceeds = |e: &Energies| {

@@ -263,7 +263,7 @@ fn a_run_stopped_by_a_signal_keeps_its_checkpoint() {
 }
 
 /// A checkpoint of another run (here another dt) is refused with status 2 and left as it was,
-/// so is a damaged one; `--resume` without a checkpoint starts from the beginning; standard
+/// so is a damaged one and one whose history the solver does not take; `--resume` without a checkpoint starts from the beginning; standard
 /// output cannot be checkpointed.
 #[test]
 fn what_cannot_be_resumed_is_refused_and_left_alone() {
@@ -310,6 +310,28 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
         o.stderr
     );
     assert_eq!(std::fs::read(&checkpoint).unwrap(), saved, "left as it was");
+
+    // A history this version's solver does not take (a part it needs, renamed): a checkpoint
+    // of another version, not a failing solver.
+    let at = (saved.windows(8).position(|w| w == b"sticking")).expect("implicit Euler's part");
+    let mut renamed = saved.clone();
+    renamed[at..at + 8].copy_from_slice(b"stickinG");
+    std::fs::write(&checkpoint, &renamed).unwrap();
+    let o = run(&["--resume"]);
+    o.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        o.stderr.contains(
+            "checkpoint: not a checkpoint of this version of softbody (restore: the history \
+             has no part `sticking`)"
+        ),
+        "{}",
+        o.stderr
+    );
+    assert_eq!(
+        std::fs::read(&checkpoint).unwrap(),
+        renamed,
+        "left as it was"
+    );
 
     std::fs::write(&checkpoint, b"SBCKPT01 cut short").unwrap();
     let o = run(&["--resume"]);
