@@ -209,6 +209,7 @@ fn cg_solution_matches_a_direct_sparse_solve() {
         &b,
         &z,
         &mut dv,
+        &[],
         &mut scratch,
         cg::Preconditioner::BlockJacobi,
         CG_TOLERANCE,
@@ -302,16 +303,32 @@ fn lattice_product_is_the_assembled_matrix() {
     }
 }
 
-/// The filtered solve: particle 0 is `Fixed` with a prescribed Δv₀ = z₀, the centre particle 13
-/// has a `Normal(n)` constraint with Δv₁₃·n = z₁₃·n, the rest are free, and CG starts from a
-/// random warm start. Its Δv must keep the prescribed components (exactly for the fixed
-/// particle, to round-off for the normal one) and solve the reduced system on the free
-/// components: compared with a dense Cholesky solve of QᵀAQ y = Qᵀ(b − A z), Δv = z + Q y (Q an
-/// orthonormal basis of the free directions) to 1e-6 relative, and with the free residual
-/// ‖S(AΔv − b)‖ ≤ √κ(P)·tol·‖Sb‖, κ(P) bounding the condition of the block diagonal (the CG stops
-/// on the P⁻¹-norm of the residual).
-#[test]
-fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
+/// The particle of [`filtered`] whose Δv is prescribed.
+const FIXED: usize = 0;
+/// The particle of [`filtered`] whose Δv is prescribed along [`slid_normal`].
+const SLID: usize = 13;
+
+fn slid_normal() -> DVec3 {
+    DVec3::new(1.0, 2.0, -1.0).normalize()
+}
+
+/// A filtered system of [`perturbed_cube`] and its direct solution.
+struct Filtered {
+    model: Model,
+    /// The independently assembled matrix.
+    a: DMatrix<f64>,
+    system: System,
+    b: Vec<DVec3>,
+    constraints: Vec<Constraint>,
+    z: Vec<DVec3>,
+    /// Δv = z + Q y with QᵀAQ y = Qᵀ(b − A z), Q an orthonormal basis of the free directions,
+    /// by a dense Cholesky factorisation.
+    direct: Vec<DVec3>,
+}
+
+/// [`perturbed_cube`]'s system with particle [`FIXED`] prescribed to Δv = z, [`SLID`] to
+/// Δv·n = z·n ([`slid_normal`]) and the others free.
+fn filtered() -> Filtered {
     let (model, state) = perturbed_cube();
     let n = model.len();
     let (triplets, _, _) = assemble(&model, &state);
@@ -319,39 +336,14 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
     system.assemble(&model, None, &state.x, &state.v, &mut b);
-
-    let normal = DVec3::new(1.0, 2.0, -1.0).normalize();
-    let (fixed, slid) = (0usize, 13usize);
+    let normal = slid_normal();
     let mut constraints = vec![Constraint::Free; n];
-    constraints[fixed] = Constraint::Fixed;
-    constraints[slid] = Constraint::Normal(normal);
+    constraints[FIXED] = Constraint::Fixed;
+    constraints[SLID] = Constraint::Normal(normal);
     let mut z = vec![DVec3::ZERO; n];
-    z[fixed] = DVec3::new(0.01, -0.02, 0.03);
-    z[slid] = 0.05 * normal;
-    let mut rng = Rng::new(11);
-    let mut dv: Vec<DVec3> = (0..n).map(|_| rng.vec(0.1)).collect();
-    let mut scratch = Scratch::new(n);
-    let outcome = cg::solve(
-        &mut system,
-        &model,
-        &constraints,
-        &b,
-        &z,
-        &mut dv,
-        &mut scratch,
-        cg::Preconditioner::BlockJacobi,
-        CG_TOLERANCE,
-        CG_MAX_ITERATIONS,
-    );
-    assert!(outcome.relative_residual <= CG_TOLERANCE, "{outcome:?}");
-    assert_eq!(dv[fixed], z[fixed], "the fixed particle's Δv is z exactly");
-    let along = dv[slid].dot(normal);
-    assert!(
-        (along - 0.05).abs() <= 1e-14,
-        "the constrained normal component is {along}, not 0.05"
-    );
+    z[FIXED] = DVec3::new(0.01, -0.02, 0.03);
+    z[SLID] = 0.05 * normal;
 
-    // The reduced direct solve.
     let (t1, t2) = normal.any_orthonormal_pair();
     let mut basis: Vec<(usize, DVec3)> = Vec::new();
     for (i, constraint) in constraints.iter().enumerate() {
@@ -374,6 +366,62 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
         .expect("QᵀAQ is positive definite")
         .solve(&rhs);
     let direct = unflat(&(flat(&z) + &q * y));
+    Filtered {
+        model,
+        a,
+        system,
+        b,
+        constraints,
+        z,
+        direct,
+    }
+}
+
+/// The filtered solve: particle 0 is `Fixed` with a prescribed Δv₀ = z₀, the centre particle 13
+/// has a `Normal(n)` constraint with Δv₁₃·n = z₁₃·n, the rest are free, and CG starts from a
+/// random warm start. Its Δv must keep the prescribed components (exactly for the fixed
+/// particle, to round-off for the normal one) and solve the reduced system on the free
+/// components: compared with a dense Cholesky solve of QᵀAQ y = Qᵀ(b − A z), Δv = z + Q y (Q an
+/// orthonormal basis of the free directions) to 1e-6 relative, and with the free residual
+/// ‖S(AΔv − b)‖ ≤ √κ(P)·tol·‖Sb‖, κ(P) bounding the condition of the block diagonal (the CG stops
+/// on the P⁻¹-norm of the residual).
+#[test]
+fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
+    let Filtered {
+        model,
+        a,
+        mut system,
+        b,
+        constraints,
+        z,
+        direct,
+    } = filtered();
+    let n = model.len();
+    let (fixed, slid, normal) = (FIXED, SLID, slid_normal());
+    let mut rng = Rng::new(11);
+    let mut dv: Vec<DVec3> = (0..n).map(|_| rng.vec(0.1)).collect();
+    let mut scratch = Scratch::new(n);
+    let outcome = cg::solve(
+        &mut system,
+        &model,
+        &constraints,
+        &b,
+        &z,
+        &mut dv,
+        &[],
+        &mut scratch,
+        cg::Preconditioner::BlockJacobi,
+        CG_TOLERANCE,
+        CG_MAX_ITERATIONS,
+    );
+    assert!(outcome.relative_residual <= CG_TOLERANCE, "{outcome:?}");
+    assert_eq!(dv[fixed], z[fixed], "the fixed particle's Δv is z exactly");
+    let along = dv[slid].dot(normal);
+    assert!(
+        (along - 0.05).abs() <= 1e-14,
+        "the constrained normal component is {along}, not 0.05"
+    );
+
     let diff: Vec<DVec3> = dv.iter().zip(&direct).map(|(a, b)| *a - *b).collect();
     let rel = norm(&diff) / norm(&direct);
 
@@ -409,6 +457,110 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
         norm(&r) <= bound,
         "free residual {:e} > {bound:e}",
         norm(&r)
+    );
+}
+
+/// The warm start that [`filtered`]'s solve begins from when it may take at most
+/// `max_iterations` (0: the projected start itself), from `u0` and the `earlier` solutions.
+fn started(
+    f: &mut Filtered,
+    u0: &[DVec3],
+    earlier: &[&[DVec3]],
+    max_iterations: u32,
+) -> (Vec<DVec3>, u32) {
+    let mut dv = u0.to_vec();
+    let mut scratch = Scratch::new(dv.len());
+    let outcome = cg::solve(
+        &mut f.system,
+        &f.model,
+        &f.constraints,
+        &f.b,
+        &f.z,
+        &mut dv,
+        earlier,
+        &mut scratch,
+        cg::Preconditioner::BlockJacobi,
+        CG_TOLERANCE,
+        max_iterations,
+    );
+    (dv, outcome.iterations)
+}
+
+/// ‖Δv − Δv_direct‖_A.
+fn a_norm_error(f: &Filtered, dv: &[DVec3]) -> f64 {
+    let e = flat(dv) - flat(&f.direct);
+    e.dot(&(&f.a * &e)).sqrt()
+}
+
+/// The warm start projected with earlier solutions (Fischer's projection) is the combination
+/// closest to the solution: when the solution's free part is a combination of the last
+/// solution and earlier ones, CG starts at it and takes no iteration (the plain warm start
+/// takes several); for random solutions it satisfies the Galerkin condition
+/// d_jᵀ(A Δv₀ − b) = 0 for every filtered direction and is no further from the solution in
+/// the A-norm than any one of them; and solutions that repeat one another are left out
+/// rather than divided by zero.
+#[test]
+fn the_warm_start_is_the_closest_combination_of_earlier_solutions() {
+    let mut f = filtered();
+    let n = f.model.len();
+    let mut rng = Rng::new(29);
+    let mut random = || -> Vec<DVec3> { (0..n).map(|_| rng.vec(0.1)).collect() };
+    let (u0, extra) = (random(), random());
+
+    // Spanned: the solution is (u0 + u1)/2.
+    let u1: Vec<DVec3> = (0..n).map(|i| 2.0 * f.direct[i] - u0[i]).collect();
+    let (plain, plain_iterations) = started(&mut f, &u0, &[], CG_MAX_ITERATIONS);
+    let (dv, iterations) = started(&mut f, &u0, &[&u1, &extra], CG_MAX_ITERATIONS);
+    let rel = max_diff(&dv, &f.direct) / f.direct.iter().map(|v| v.length()).fold(0.0, f64::max);
+    println!("spanned: {iterations} iterations (plain {plain_iterations}), max error {rel:.1e}");
+    assert_eq!(iterations, 0, "the solution is in the span");
+    assert!(
+        plain_iterations > 3,
+        "the plain warm start is far: {plain_iterations}"
+    );
+    assert!(rel <= 1e-10, "{rel:e}");
+    assert!(max_diff(&plain, &f.direct) <= 1e-6 * norm(&f.direct));
+
+    // Random: the Galerkin condition, and no further than any of them.
+    let (u1, u2) = (random(), random());
+    let (dv, _) = started(&mut f, &u0, &[&u1, &u2], 0);
+    let residual = flat(&f.b) - &f.a * flat(&dv);
+    let scale = norm(&f.b);
+    for (name, u) in [("u0", &u0), ("u1", &u1), ("u2", &u2)] {
+        let d: Vec<DVec3> = u
+            .iter()
+            .zip(&f.constraints)
+            .map(|(u, s)| s.filter(*u))
+            .collect();
+        let galerkin = flat(&d).dot(&residual) / (norm(&d) * scale);
+        assert!(
+            galerkin.abs() <= 1e-12,
+            "{name}: dᵀ(b − AΔv₀) = {galerkin:e} relative"
+        );
+    }
+    assert_eq!(dv[FIXED], f.z[FIXED], "the prescribed Δv is kept");
+    let projected = a_norm_error(&f, &dv);
+    for (name, u) in [("u0", &u0), ("u1", &u1), ("u2", &u2)] {
+        let (alone, _) = started(&mut f, u, &[], 0);
+        let error = a_norm_error(&f, &alone);
+        println!("random: A-norm error {projected:.4e}, from {name} alone {error:.4e}");
+        assert!(projected <= error, "{name}: {projected:e} > {error:e}");
+    }
+
+    // Repeated: u0 twice is u0 alone, scaled to the best multiple.
+    let (twice, _) = started(&mut f, &u0, &[&u0, &u0], 0);
+    let d: Vec<DVec3> = u0
+        .iter()
+        .zip(&f.constraints)
+        .map(|(u, s)| s.filter(*u))
+        .collect();
+    let ad = &f.a * flat(&d);
+    let best = (flat(&d).dot(&(flat(&f.b) - &f.a * flat(&f.z)))) / flat(&d).dot(&ad);
+    let expected: Vec<DVec3> = (0..n).map(|i| f.z[i] + best * d[i]).collect();
+    let err = max_diff(&twice, &expected) / norm(&expected);
+    assert!(
+        err <= 1e-12,
+        "u0 repeated: {err:e} from the best multiple of u0"
     );
 }
 

@@ -90,6 +90,7 @@ fn solve_once(
         &b,
         &z,
         &mut dv,
+        &[],
         &mut scratch,
         match multigrid {
             Some(mg) => Preconditioner::Multigrid(mg),

@@ -1042,6 +1042,7 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
             &b,
             &z,
             &mut dv,
+            &[],
             &mut scratch,
             cg::Preconditioner::BlockJacobi,
             tol,

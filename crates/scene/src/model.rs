@@ -52,7 +52,9 @@ pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
 /// multigrid's levels (the first coarse level's 27 blocks per node, and its sources naming
 /// each spring twice): 1,340–1,388 B per particle on cubes from 22³ to 200³ (BENCHMARKS.md,
 /// "Memory"), and since 2026-11-29 24 B more (the positions the multigrid's kept values were
-/// computed at), so 1.5 kB. `crates/cpu/tests/lean.rs` holds the solver to it.
+/// computed at) and 72 B more (the earlier steps' Δv that the warm start combines, and a
+/// copy of the last): 1,412 B on the 40³ cube, so 1.5 kB. `crates/cpu/tests/lean.rs` holds
+/// the solver to it.
 ///
 /// The figure is the CPU solver's. A GPU solver's needs are not estimated: its host keeps the
 /// model and stages the uploads, and a software adapter's buffers are in this machine's memory

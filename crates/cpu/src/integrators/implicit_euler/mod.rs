@@ -4,7 +4,7 @@
 //!
 //! solved matrix-free by filtered, preconditioned CG ([`cg`], [`system`]) to a relative
 //! residual of [`CG_TOLERANCE`] or at most [`CG_MAX_ITERATIONS`] iterations, warm started from
-//! the previous step's Δv. The preconditioner is the scene's `preconditioner`: aggregation
+//! the combination of the last [`cg::WARM_START_BASIS`] steps' Δv closest to the solution. The preconditioner is the scene's `preconditioner`: aggregation
 //! multigrid on the lattice ([`multigrid`]; the default, where every particle has lattice
 //! coordinates) or block Jacobi (a model with a `particles` body always runs block Jacobi).
 //!
@@ -131,6 +131,10 @@ pub struct ImplicitEuler {
     rhs: Vec<DVec3>,
     z: Vec<DVec3>,
     dv: Vec<DVec3>,
+    /// The Δv of the steps before the last, the latest first ([`cg::WARM_START_BASIS`] − 1).
+    earlier: Vec<Vec<DVec3>>,
+    /// The last step's Δv while this step's solve replaces it (then the latest of `earlier`).
+    last: Vec<DVec3>,
     impulse: Vec<DVec3>,
     constraints: Vec<Constraint>,
     /// Touching a surface at the end of the last step (a new touch is a fresh impact).
@@ -169,6 +173,8 @@ impl ImplicitEuler {
             rhs: zeros(),
             z: zeros(),
             dv: zeros(),
+            earlier: vec![zeros(); cg::WARM_START_BASIS - 1],
+            last: zeros(),
             impulse: zeros(),
             constraints: vec![Constraint::Free; n],
             touching: vec![false; n],
@@ -188,10 +194,18 @@ impl ImplicitEuler {
         self.system.memory_bytes()
             + self.multigrid.as_ref().map_or(0, Multigrid::memory_bytes)
             + self.scratch.memory_bytes()
-            + [&self.b, &self.rhs, &self.z, &self.dv, &self.impulse]
-                .into_iter()
-                .map(vec_bytes)
-                .sum::<u64>()
+            + [
+                &self.b,
+                &self.rhs,
+                &self.z,
+                &self.dv,
+                &self.last,
+                &self.impulse,
+            ]
+            .into_iter()
+            .chain(&self.earlier)
+            .map(vec_bytes)
+            .sum::<u64>()
             + vec_bytes(&self.constraints)
             + vec_bytes(&self.touching)
             + vec_bytes(&self.sticking)
@@ -219,6 +233,7 @@ impl ImplicitEuler {
                 .collect()
         };
         history.push("dv", vectors(&self.dv));
+        history.push("dv-earlier", vectors(&self.earlier.concat()));
         if let Some(mg) = &self.multigrid {
             let (constraints, kept) = mg.kept().unwrap_or((&[], NOTHING_KEPT));
             history.push("multigrid-x", vectors(&self.prepared_x));
@@ -245,7 +260,7 @@ impl ImplicitEuler {
     pub fn restore(&mut self, model: &Model, history: &History) -> Result<(), StepError> {
         let n = self.dv.len();
         let vectors = |name: &str, out: &mut [DVec3]| -> Result<(), StepError> {
-            let bytes = history.part(name, 24 * n)?;
+            let bytes = history.part(name, 24 * out.len())?;
             for (v, bytes) in out.iter_mut().zip(bytes.chunks_exact(24)) {
                 *v = DVec3::from_array(std::array::from_fn(|k| {
                     f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap())
@@ -254,6 +269,15 @@ impl ImplicitEuler {
             Ok(())
         };
         vectors("dv", &mut self.dv)?;
+        // A history without the earlier solutions (written before the warm start combined
+        // them) leaves them zero: the first step after it starts from the last Δv alone.
+        let mut earlier = vec![DVec3::ZERO; self.earlier.len() * n];
+        if history.parts.iter().any(|(name, _)| name == "dv-earlier") {
+            vectors("dv-earlier", &mut earlier)?;
+        }
+        for (e, saved) in self.earlier.iter_mut().zip(earlier.chunks_exact(n.max(1))) {
+            e.copy_from_slice(saved);
+        }
         // A history without the multigrid's parts (written before its values were kept
         // across steps) kept nothing.
         let kept_part = history
@@ -314,10 +338,13 @@ impl ImplicitEuler {
             self.find_candidates(model, surfaces, state, h, eps)
         });
 
+        self.last.copy_from_slice(&self.dv);
         for _ in 0..ACTIVE_SET_ROUNDS {
             timings.time("contacts", || {
                 self.constrain(model, surfaces, state, &candidates)
             });
+            let earlier: [&[DVec3]; cg::WARM_START_BASIS - 1] =
+                std::array::from_fn(|j| self.earlier[j].as_slice());
             let outcome = timings.time("cg", || {
                 cg::solve(
                     &mut self.system,
@@ -326,6 +353,7 @@ impl ImplicitEuler {
                     &self.rhs,
                     &self.z,
                     &mut self.dv,
+                    &earlier,
                     &mut self.scratch,
                     match self.multigrid.as_mut() {
                         Some(mg) => cg::Preconditioner::Multigrid(mg),
@@ -352,6 +380,8 @@ impl ImplicitEuler {
         {
             self.prepared_x.copy_from_slice(&state.x);
         }
+        self.earlier.rotate_right(1);
+        std::mem::swap(&mut self.earlier[0], &mut self.last);
         timings.time("update", || self.finish(&candidates, h, state));
     }
 
