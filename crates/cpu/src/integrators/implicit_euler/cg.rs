@@ -10,7 +10,7 @@
 //! on that subspace, and one CG loop runs either.
 //!
 //! Warm start: the last step's Δv, projected with the solutions of the steps before it
-//! ([`project_warm_start`]) onto the combination closest to this step's solution.
+//! (`project_warm_start`) onto the combination closest to this step's solution.
 //!
 //! Convergence: stop when rᵀP⁻¹r ≤ tol²·max((Sb)ᵀP⁻¹(Sb), r₀ᵀP⁻¹r₀, wᵀP⁻¹w), i.e. the
 //! preconditioned residual is `tol` relative to the filtered right-hand side, to the initial
@@ -90,7 +90,7 @@ const INDEPENDENT: f64 = 1e-12;
 /// Solves for `dv` (which holds a warm start on entry; its constrained part is replaced by `z`),
 /// preconditioned by `preconditioner`; the warm start is projected with the `earlier`
 /// solutions (at most [`WARM_START_BASIS`] − 1; none for a plain warm start) by
-/// [`project_warm_start`].
+/// `project_warm_start`.
 #[allow(clippy::too_many_arguments)]
 pub fn solve(
     system: &mut System,
