@@ -4,9 +4,10 @@
 //!
 //! solved matrix-free by filtered, preconditioned CG ([`cg`], [`system`]) to a relative
 //! residual of [`CG_TOLERANCE`] or at most [`CG_MAX_ITERATIONS`] iterations, warm started from
-//! the combination of the last [`cg::WARM_START_BASIS`] steps' Δv closest to the solution. The preconditioner is the scene's `preconditioner`: aggregation
-//! multigrid on the lattice ([`multigrid`]; the default, where every particle has lattice
-//! coordinates) or block Jacobi (a model with a `particles` body always runs block Jacobi).
+//! the combination of the last [`cg::WARM_START_BASIS`] steps' Δv closest to the solution. The
+//! preconditioner is the scene's `preconditioner`: aggregation multigrid on the lattice
+//! ([`multigrid`]; the default, where every particle has lattice coordinates) or block Jacobi
+//! (a model with a `particles` body always runs block Jacobi).
 //!
 //! Contact and friction live inside the solve, as velocity constraints (Baraff and Witkin's
 //! constraint filtering), because explicit contact forces or position projections pump energy
