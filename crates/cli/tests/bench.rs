@@ -84,9 +84,18 @@ fn implicit_reports_cg_iterations_and_takes_dt_and_stiffness() {
     assert_eq!(v["preconditioner"], "multigrid");
     // Its timed steps are at rest after the warm-up, where the warm start is the solution to
     // CG's tolerance: no iteration is a right answer, but every step solves at least once.
-    let iterations = v["cg_iterations_per_step"].as_f64().expect("a number");
-    assert!(iterations.is_finite() && iterations >= 0.0, "{v}");
-    assert!(positive_number(v, "cg_solves_per_step") >= 1.0, "{v}");
+    // Both figures are counts over the timed steps divided by their number: whole counts.
+    let steps = positive_number(v, "steps");
+    let iterations = v["cg_iterations_per_step"].as_f64().expect("a number") * steps;
+    let solves = positive_number(v, "cg_solves_per_step") * steps;
+    assert!(
+        iterations >= 0.0 && (iterations - iterations.round()).abs() < 1e-9,
+        "{v}"
+    );
+    assert!(
+        solves >= steps && (solves - solves.round()).abs() < 1e-9,
+        "{v}"
+    );
     positive_number(v, "particle_steps_per_s");
     positive_number(v, "bytes_per_particle");
 }
