@@ -55,6 +55,9 @@ struct SpringBlock {
     u: vec3<f32>,
     beta: f32,
     gamma: f32,
+    // h k_s ε_x: the spring's impulse over a step where its length is known to ε_x, half a
+    // ulp of its ends' largest coordinate in f32 (system.wgsl, `resolution2`).
+    resolution: f32,
 }
 
 // B_s w: spring s's term of a product A p, with w = p_a − p_b, as seen from its end a. One

@@ -603,7 +603,7 @@ fn contact_layouts_match() {
 #[test]
 fn spring_block_layout_matches() {
     let pad = offset_of!(SpringBlockGpu, _pad);
-    assert_eq!(pad, 20);
+    assert_eq!(pad, 24);
     check_layout(
         Stage::System,
         "SpringBlock",
@@ -612,6 +612,7 @@ fn spring_block_layout_matches() {
             ("u", offset_of!(SpringBlockGpu, u)),
             ("beta", offset_of!(SpringBlockGpu, beta)),
             ("gamma", offset_of!(SpringBlockGpu, gamma)),
+            ("resolution", offset_of!(SpringBlockGpu, resolution)),
         ],
     );
 }
