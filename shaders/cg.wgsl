@@ -27,10 +27,11 @@
 //                 c = S(P⁻¹ r + β c)
 //
 // — the CPU's loop, operation for operation, in f32, but for the target's floor at what the
-// f32 state resolves of b (docs/physics.md, "Filtered preconditioned conjugate gradients"). Dot products are deterministic two-pass
-// sums: each workgroup writes its tree sum (reduce.wgsl) to `partials`, and the partials are added
-// in order (`sum_in_order`), on the device: no read-back per iteration, no float atomics. The
-// one-workgroup kernel cg_begin adds them once; every workgroup of cg_advance adds cᵀq's, and
+// f32 state resolves of b (docs/physics.md, "Filtered preconditioned conjugate gradients").
+// Dot products are deterministic two-pass sums: each workgroup writes its tree sum
+// (reduce.wgsl) to `partials`, and the partials are added in order (`sum_in_order`), on the
+// device: no read-back per iteration, no float atomics. The one-workgroup kernel cg_begin
+// adds them once; every workgroup of cg_advance adds cᵀq's, and
 // every workgroup of cg_direction adds rᵀP⁻¹r's, themselves (the same code on the same input:
 // the same α and β everywhere, bit for bit what one-workgroup kernels computed before), which
 // saves two dispatches per iteration, and the product filters q and writes cᵀq's partials as it

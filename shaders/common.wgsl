@@ -55,8 +55,9 @@ struct SpringBlock {
     u: vec3<f32>,
     beta: f32,
     gamma: f32,
-    // h k_s ε_x: the spring's impulse over a step where its length is known to ε_x, half a
-    // ulp of its ends' largest coordinate in f32 (system.wgsl, `resolution2`).
+    // h k_s ε_s: the spring's impulse over a step where its length is known to ε_s, half a
+    // ulp of its ends' largest coordinate in f32 (what the f32 state resolves of it; the
+    // assembly sums their squares for CG's stopping rule, system.wgsl).
     resolution: f32,
 }
 

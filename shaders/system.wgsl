@@ -11,16 +11,16 @@
 // added to the (a, a) and (b, b) blocks of A and subtracted from (a, b) and (b, a); a spring
 // crushed to zero length has u = 0 and α = 0. Kernels (one thread per spring or per particle):
 //
-// - `assemble_springs`: per spring, `blocks[s]` = (u, β, γ, h k_s ε_x) and, into
-//   `per_spring_out`, g_s = f_s − h y_s with f_s the spring force (common.wgsl) and y_s = K_s (v_a − v_b),
-//   K_s = k_s [(1 − α) uuᵀ + α I];
+// - `assemble_springs`: per spring, `blocks[s]` = (u, β, γ, h k_s ε_s) and, into
+//   `per_spring_out`, g_s = f_s − h y_s with f_s the spring force (common.wgsl) and
+//   y_s = K_s (v_a − v_b), K_s = k_s [(1 − α) uuᵀ + α I];
 // - `assemble_particles`: b_i = h (m g − drag·m·v_i + Σ± g_s) (gather.wgsl: since
 //   (∂f/∂x v)_i = −Σ± y_s, one gather gives h(f + h ∂f/∂x v)), and the diagonal block
 //   D_i = m(1 + h·drag) I + Σ_{s ∋ i} B_s, stored as its inverse (the block-Jacobi
 //   preconditioner) with the mass part: `diag[2i] = (P⁻¹xx, P⁻¹yy, P⁻¹zz, m(1 + h·drag))`,
-//   `diag[2i + 1] = (P⁻¹xy, P⁻¹xz, P⁻¹yz, ρ_i²)` (P⁻¹ is symmetric; ρ_i² = Σ (h k_s ε_x)²,
+//   `diag[2i + 1] = (P⁻¹xy, P⁻¹xz, P⁻¹yz, ρ_i²)` (P⁻¹ is symmetric; ρ_i² = Σ (h k_s ε_s)²,
 //   what the f32 state resolves of each component of b_i, for the CG's stopping rule: a
-//   spring's length is known to ε_x, half a ulp of its ends' largest coordinate);
+//   spring's length is known to ε_s, half a ulp of its ends' largest coordinate);
 // - `apply_springs`: z_s = B_s (p_a − p_b) into `per_spring_out`;
 // - `apply_particles` (product.wgsl): out_i = m(1 + h·drag) p_i + Σ± z_s: out = A p.
 //
@@ -83,7 +83,8 @@ fn assemble_springs(id: Invocation) {
     let f = spring_force(spring, xa, xb, va, vb);
     per_spring_out[j] = vec4<f32>(f - h * y, 0.0);
     let beta = h * spring.damping + h * h * ks * (1.0 - alpha);
-    blocks[j] = SpringBlock(u, beta, h * h * ks * alpha, h * ks * half_ulp(max(largest(xa), largest(xb))));
+    let resolution = h * ks * half_ulp(max(largest(xa), largest(xb)));
+    blocks[j] = SpringBlock(u, beta, h * h * ks * alpha, resolution);
 }
 
 // The largest coordinate of p in magnitude.
@@ -109,7 +110,7 @@ fn assemble_particle(i: u32, pair_force: vec3<f32>, pair_dd: vec3<f32>, pair_off
     // The diagonal block's upper triangle: (xx, yy, zz) and (xy, xz, yz).
     var dd = vec3<f32>(md);
     var off = vec3<f32>(0.0);
-    // ρ_i² = Σ (h k_s ε_x)²: what the f32 state resolves of each component of b_i, squared
+    // ρ_i² = Σ (h k_s ε_s)²: what the f32 state resolves of each component of b_i, squared
     // (the springs' errors independent, they add in squares).
     var resolution2 = 0.0;
     let entries = params.n_particles + 1u;

@@ -259,8 +259,9 @@ pub struct SpringBlockGpu {
     pub beta: f32,
     /// γ = h² k_s α.
     pub gamma: f32,
-    /// h k_s ε_x, the impulse of the spring's length known to ε_x (what the f32 state
-    /// resolves; `resolution2` in `shaders/system.wgsl`).
+    /// h k_s ε_s: the spring's impulse over a step where its length is known to ε_s, half a
+    /// ulp of its ends' largest coordinate in f32 (for CG's stopping rule,
+    /// `shaders/system.wgsl`).
     pub resolution: f32,
     /// Padding to WGSL's 32-byte size (the struct aligns to its vec3's 16).
     pub _pad: [u32; 2],
