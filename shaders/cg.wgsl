@@ -9,7 +9,9 @@
 //
 // A solve, as the host encodes it (product.wgsl provides A p):
 //
-//   cg_start:     Δv = S Δv + z                       (warm start from the last solve);
+//   the warm start's projection (below): Δv = Σ x_j u-basis_j, the combination of the last
+//                 solve's Δv and the two steps' before it closest to the solution;
+//   cg_start:     Δv = S Δv + z;
 //                 partials of wᵀP⁻¹w for the weight's impulse w = S h m g and of the
 //                 resolution's Σ ρ_i² tr(S P⁻¹ S) (in cᵀq's half, unused until the first
 //                 iteration)
@@ -76,6 +78,9 @@ struct CgScalars {
     previous_delta: f32,
     particle_grid: vec2<u32>,
     spring_grid: vec2<u32>,
+    // The warm start's coefficients x_j (cg_project_solve).
+    warm_start: array<f32, 3>,
+    _pad: u32,
 }
 
 // Indirect dispatch arguments (x, y, z) per slot; see DISPATCH_* and `set_dispatch`.
@@ -104,6 +109,10 @@ const RESOLVED: f32 = 1e-3;
 @group(0) @binding(10) var<storage, read_write> scalars: CgScalars;
 @group(0) @binding(11) var<storage, read_write> dispatch: array<u32, DISPATCH_WORDS>;
 @group(0) @binding(12) var<storage, read> mass: array<vec2<f32>>;
+// The Δv of the two steps before the last one's (implicit_euler.wgsl's `implicit_remember`
+// keeps them): the warm start's history.
+@group(0) @binding(1) var<storage, read> earlier_1: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read> earlier_2: array<vec4<f32>>;
 
 // P⁻¹_i p (the symmetric inverse block of system.wgsl).
 fn precondition(i: u32, p: vec3<f32>) -> vec3<f32> {
@@ -300,5 +309,184 @@ fn cg_direction(id: Invocation) {
     let i = thread_of(id);
     if i < params.n_particles {
         c[i] = vec4_of(free_part(i, precondition(i, r[i].xyz) + beta * c[i].xyz));
+    }
+}
+
+// The warm start's projection, the CPU's `project_warm_start` (Fischer's projection for
+// successive right-hand sides): with the filtered basis d₀ = S u₀, d₁ = S(u₁ − u₀),
+// d₂ = S(u₂ − u₁) of the warm start u₀ (the last solve's Δv) and the Δv u₁, u₂ of the two steps
+// before,
+//
+//   Δv₀ = z + Σ_j x_j d_j,  G x = c,  G_ij = d_iᵀ A d_j,  c_i = d_iᵀ(b − A z)
+//
+// (the CPU forms c_i as d_iᵀb − (A d_i)ᵀz: the same for a symmetric A; here A z is one product
+// of Δv, where z waits while u₀ is kept in r). The host encodes
+//
+//   cg_project_start:  r = u₀, c = d₀, Δv = z
+//   apply_particles(Δv) → q = A z
+//   cg_project_rhs:    partials of c_j
+//   then for j = 0, 1, 2:
+//     apply_particles_curvature(c) → q = S A d_j   (its partial of cᵀq is not used)
+//     cg_project_gram_j: partials of G_ij = d_iᵀq for i ≤ j; c = d_{j+1}
+//   cg_project_solve:  G x = c by LDLᵀ, dropping nearly dependent directions (one workgroup)
+//   cg_project_combine: Δv = Σ_j x_j (u-basis_j), unfiltered, as the CPU's (cg_start filters
+//                      it and adds z)
+//
+// Their sums have halves of `partials` of their own, from PROJECTION on: (c₀, c₁), (c₂, ·), then
+// two per row j of G: (G_0j, G_1j), (G_2j, ·) (zero where i > j).
+const PROJECTION: u32 = 2u;
+const WARM_START_BASIS: u32 = 3u;
+// A direction whose pivot is below this fraction of its diagonal entry is left out: in f32 a
+// Gram entry's sum carries relative errors of ~1e-7·√(terms) (the CPU's f64 threshold is
+// 1e-12).
+const INDEPENDENT: f32 = 1e-5;
+
+// Basis vector j of the warm start at particle i, unfiltered: u₀ (in r), u₁ − u₀, u₂ − u₁.
+fn warm_basis(j: u32, i: u32) -> vec3<f32> {
+    let u0 = r[i].xyz;
+    if j == 0u {
+        return u0;
+    }
+    if j == 1u {
+        return earlier_1[i].xyz - u0;
+    }
+    return earlier_2[i].xyz - earlier_1[i].xyz;
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_start(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        let u0 = dv[i];
+        r[i] = u0;
+        c[i] = vec4_of(free_part(i, u0.xyz));
+        dv[i] = z[i];
+    }
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_rhs(id: Invocation) {
+    let i = thread_of(id);
+    var c01 = vec2<f32>(0.0);
+    var c2 = vec2<f32>(0.0);
+    if i < params.n_particles {
+        let w = rhs[i].xyz - q[i].xyz;
+        c01 = vec2<f32>(
+            dot(free_part(i, warm_basis(0u, i)), w),
+            dot(free_part(i, warm_basis(1u, i)), w),
+        );
+        c2.x = dot(free_part(i, warm_basis(2u, i)), w);
+    }
+    write_partial(id, c01, PROJECTION);
+    write_partial(id, c2, PROJECTION + 1u);
+}
+
+// Row j of G from q = S A d_j, and the next basis vector into c.
+fn project_gram(id: Invocation, j: u32) {
+    let i = thread_of(id);
+    var g = array<f32, 3>(0.0, 0.0, 0.0);
+    if i < params.n_particles {
+        let qi = q[i].xyz;
+        for (var k = 0u; k <= j; k++) {
+            g[k] = dot(free_part(i, warm_basis(k, i)), qi);
+        }
+        if j + 1u < WARM_START_BASIS {
+            c[i] = vec4_of(free_part(i, warm_basis(j + 1u, i)));
+        }
+    }
+    write_partial(id, vec2<f32>(g[0], g[1]), PROJECTION + 2u + 2u * j);
+    write_partial(id, vec2<f32>(g[2], 0.0), PROJECTION + 3u + 2u * j);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_gram_0(id: Invocation) {
+    project_gram(id, 0u);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_gram_1(id: Invocation) {
+    project_gram(id, 1u);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_gram_2(id: Invocation) {
+    project_gram(id, 2u);
+}
+
+// G x = c for the Gram matrix of the basis (symmetric positive semi-definite): LDLᵀ, leaving out
+// (x_j = 0) each vector whose pivot is below INDEPENDENT of its diagonal entry; non-finite
+// coefficients give the plain warm start (x = e₀). The CPU's `solve_gram`, in f32.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_solve(id: Invocation) {
+    let c01 = sum_in_order(id.local, PROJECTION);
+    let c2 = sum_in_order(id.local, PROJECTION + 1u).x;
+    var gram: array<vec3<f32>, 3>;
+    for (var j = 0u; j < WARM_START_BASIS; j++) {
+        let upper = sum_in_order(id.local, PROJECTION + 2u + 2u * j);
+        let lowest = sum_in_order(id.local, PROJECTION + 3u + 2u * j).x;
+        gram[j] = vec3<f32>(upper, lowest); // column j: G_0j, G_1j, G_2j (upper triangle)
+    }
+    if id.local != 0u {
+        return;
+    }
+    let rhs_c = vec3<f32>(c01, c2);
+    var l: array<vec3<f32>, 3>; // l[i][j], i > j
+    var pivot = vec3<f32>(0.0);
+    var kept = vec3<bool>(false);
+    for (var j = 0u; j < WARM_START_BASIS; j++) {
+        var v = gram[j][j];
+        for (var m = 0u; m < j; m++) {
+            v -= l[j][m] * l[j][m] * pivot[m];
+        }
+        if !(all_finite(vec3<f32>(v)) && v > INDEPENDENT * gram[j][j]) {
+            continue;
+        }
+        kept[j] = true;
+        pivot[j] = v;
+        for (var i = j + 1u; i < WARM_START_BASIS; i++) {
+            var s = gram[i][j]; // G_ji = G_ij, upper triangle: column i, row j
+            for (var m = 0u; m < j; m++) {
+                s -= l[i][m] * l[j][m] * pivot[m];
+            }
+            l[i][j] = s / v;
+        }
+    }
+    var y = vec3<f32>(0.0);
+    for (var j = 0u; j < WARM_START_BASIS; j++) {
+        if kept[j] {
+            var s = rhs_c[j];
+            for (var m = 0u; m < j; m++) {
+                s -= l[j][m] * y[m];
+            }
+            y[j] = s;
+        }
+    }
+    var x = vec3<f32>(0.0);
+    for (var k = 0u; k < WARM_START_BASIS; k++) {
+        let j = WARM_START_BASIS - 1u - k;
+        if kept[j] {
+            var s = y[j] / pivot[j];
+            for (var i = j + 1u; i < WARM_START_BASIS; i++) {
+                s -= l[i][j] * x[i];
+            }
+            x[j] = s;
+        }
+    }
+    if !all_finite(x) {
+        x = vec3<f32>(1.0, 0.0, 0.0);
+    }
+    scalars.warm_start = array<f32, 3>(x.x, x.y, x.z);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn cg_project_combine(id: Invocation) {
+    let i = thread_of(id);
+    if i < params.n_particles {
+        var x = scalars.warm_start;
+        var sum = vec3<f32>(0.0);
+        for (var j = 0u; j < WARM_START_BASIS; j++) {
+            sum += x[j] * warm_basis(j, i);
+        }
+        dv[i] = vec4_of(sum);
     }
 }

@@ -3,9 +3,9 @@
 // sums): the velocity constraints' filter S and the per-workgroup partial sums of the CG's dot
 // products (prepended by crates/gpu/src/shaders.rs after reduce.wgsl).
 //
-// `partials` has two halves of n_partials slots (the workgroups of the particle grid), one sum
-// per workgroup each: cᵀq's (and at a solve's start wᵀP⁻¹w's) first, then δ's (rᵀP⁻¹r, and at
-// the start (Sb)ᵀP⁻¹(Sb)). cᵀq's half comes first so that the product, which does not bind the
+// `partials` has PARTIAL_HALVES "halves" of n_partials slots (the workgroups of the particle
+// grid), one sum per workgroup each: cᵀq's (and at a solve's start wᵀP⁻¹w's) first, then δ's
+// (rᵀP⁻¹r, and at the start (Sb)ᵀP⁻¹(Sb)), then the warm start projection's (cg.wgsl). cᵀq's half comes first so that the product, which does not bind the
 // CG's scalars and so does not know n_partials, can write it.
 
 @group(0) @binding(14) var<storage, read> constraints: array<vec4<f32>>;
@@ -14,6 +14,8 @@
 // The halves of `partials`: which · n_partials is where each starts.
 const CURVATURE: u32 = 0u;
 const DELTA: u32 = 1u;
+// The halves in all: these two and the warm start projection's (cg.wgsl, from PROJECTION).
+const PARTIAL_HALVES: u32 = 10u;
 
 // S_i p: the free part of p.
 fn free_part(i: u32, p: vec3<f32>) -> vec3<f32> {

@@ -26,6 +26,7 @@
 //   (Coulomb, μ > 0, not settled) sticks and is settled; else, with μ > 0, it takes λ_n when
 //   that moved by more than 1e-3 relative. Any change sets the `changed` word (atomicOr); the
 //   host reads it and solves again, at most ACTIVE_SET_ROUNDS (8) times per step.
+// - `implicit_remember` (before the step's solves): the warm start's history moves on a step.
 // - `implicit_finish`: v ← v + Δv, x ← x + h v. The records stay: the next step's candidates
 //   read from them whether the particle was touching (active) and sticking at the end of this
 //   one.
@@ -82,6 +83,11 @@ const STICK_SLACK: f32 = 1e-5;
 @group(0) @binding(9) var<storage, read_write> constraints: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> z: array<vec4<f32>>;
 @group(0) @binding(11) var<storage, read_write> changed: atomic<u32>;
+// The warm start's history (cg.wgsl's projection): the Δv of the last step, and of the two
+// before it.
+@group(0) @binding(12) var<storage, read_write> last: array<vec4<f32>>;
+@group(0) @binding(13) var<storage, read_write> earlier_1: array<vec4<f32>>;
+@group(0) @binding(14) var<storage, read_write> earlier_2: array<vec4<f32>>;
 
 // softbody_scene::implicit::RESTING_ULPS, and f32's machine epsilon.
 const RESTING_ULPS: f32 = 64.0;
@@ -287,4 +293,19 @@ fn implicit_finish(id: Invocation) {
     let vi = v[i].xyz + dv[i].xyz;
     v[i] = vec4<f32>(vi, 0.0);
     x[i] = x[i] + vec4<f32>(params.dt * vi, 0.0);
+}
+
+// The warm start's history moves on by a step before the step's solves: earlier_2 ← earlier_1
+// ← last ← Δv (the last step's). Then Δv, earlier_1 and earlier_2 are the CPU's warm start and
+// `earlier` at every solve of the step (`last` carries the last step's Δv past them, where the
+// CPU keeps it aside and rotates `earlier` after the solves).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn implicit_remember(id: Invocation) {
+    let i = thread_of(id);
+    if i >= params.n_particles {
+        return;
+    }
+    earlier_2[i] = earlier_1[i];
+    earlier_1[i] = last[i];
+    last[i] = dv[i];
 }

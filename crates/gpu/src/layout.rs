@@ -302,6 +302,10 @@ pub struct CgScalars {
     pub particle_grid: [u32; 2],
     /// Workgroups of the spring grid along x and y.
     pub spring_grid: [u32; 2],
+    /// The warm start's coefficients on its basis (`cg_project_solve`).
+    pub warm_start: [f32; 3],
+    /// Padding to the record's 8-byte alignment.
+    pub _pad: u32,
 }
 
 impl CgScalars {
@@ -319,6 +323,10 @@ impl CgScalars {
 /// Words of the indirect dispatch arguments CG rewrites (`DISPATCH_WORDS` in `shaders/cg.wgsl`):
 /// four slots of (x, y, z).
 pub const CG_DISPATCH_WORDS: usize = 12;
+
+/// Halves of the CG's per-workgroup partial sums (`cg_common.wgsl`, `PARTIAL_HALVES`): cᵀq's,
+/// δ's and the warm start projection's eight.
+pub const CG_PARTIAL_HALVES: u64 = 10;
 
 /// Byte offsets of the slots in the indirect dispatch buffer (`DISPATCH_*` in
 /// `shaders/cg.wgsl`, in words there).

@@ -2,7 +2,9 @@
 //! block-Jacobi-preconditioned conjugate gradients for A Δv = rhs, the CPU's loop operation for
 //! operation in f32, its scalars on the device.
 //!
-//! A solve starts with a round (`cg_start`: the warm start; A Δv; `cg_residual`; `cg_begin`),
+//! A solve starts with the warm start's projection on the last three steps' Δv (`Projection`:
+//! eleven dispatches, four of them products) and a round (`cg_start`: the warm start; A Δv;
+//! `cg_residual`; `cg_begin`),
 //! then runs batches of iterations of three dispatches: the product of the direction c, which
 //! also filters q = S A c and writes cᵀq's partial sums (`apply_particles_curvature`,
 //! `shaders/product.wgsl`), `cg_advance`, whose workgroups each compute α from those partial
@@ -21,8 +23,19 @@ use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
 
+/// The warm start projection's calls (`cg.wgsl`, the CPU's `project_warm_start`).
+struct Projection {
+    start: Call,
+    rhs: Call,
+    /// Row j of the Gram matrix, after the product of basis vector j.
+    gram: [Call; 3],
+    solve: Call,
+    combine: Call,
+}
+
 /// The CG kernels' calls.
 pub(crate) struct Cg {
+    projection: Projection,
     start: Call,
     residual: Call,
     begin: Call,
@@ -41,6 +54,17 @@ impl Cg {
         let resources = im.resources(s.buffers.resources());
         let call = |entry| s.builder.call(Stage::Cg, entry, &resources);
         Ok(Cg {
+            projection: Projection {
+                start: call("cg_project_start")?,
+                rhs: call("cg_project_rhs")?,
+                gram: [
+                    call("cg_project_gram_0")?,
+                    call("cg_project_gram_1")?,
+                    call("cg_project_gram_2")?,
+                ],
+                solve: call("cg_project_solve")?,
+                combine: call("cg_project_combine")?,
+            },
             start: call("cg_start")?,
             residual: call("cg_residual")?,
             begin: call("cg_begin")?,
@@ -51,8 +75,19 @@ impl Cg {
         })
     }
 
-    /// A solve's start: the warm start, the residual and the scalars.
+    /// A solve's start: the warm start projected on the earlier solutions, the residual and
+    /// the scalars.
     pub fn encode_start(&self, pass: &mut wgpu::ComputePass<'_>, system: &System) {
+        let p = &self.projection;
+        p.start.run(pass, self.particles);
+        system.encode_apply(pass, Vector::Dv, None);
+        p.rhs.run(pass, self.particles);
+        for gram in &p.gram {
+            system.encode_apply(pass, Vector::C, None);
+            gram.run(pass, self.particles);
+        }
+        p.solve.run(pass, ONE);
+        p.combine.run(pass, self.particles);
         self.start.run(pass, self.particles);
         system.encode_apply(pass, Vector::Dv, None);
         self.residual.run(pass, self.particles);

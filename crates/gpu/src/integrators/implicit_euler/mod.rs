@@ -7,12 +7,14 @@
 //!
 //! | submission | dispatches | read back |
 //! |---|---|---|
-//! | first | start grid (bodies) → assemble (springs, pairs, particles) → candidates (terrain) → round → batch | scalars, changed |
+//! | first | start grid (bodies) → assemble (springs, pairs, particles) → candidates (terrain) → `implicit_remember` → round → batch | scalars, changed |
 //! | while CG runs | batch | scalars, changed |
 //! | next round (active set changed) | round → batch | scalars, changed |
 //! | last | finish → end grid and response (bodies) → `check_finite` | nothing (the status at the end of `advance`) |
 //!
-//! where a round is `implicit_constrain` → the CG's start, and a batch is a run of CG
+//! where `implicit_remember` moves the warm start's history on (the last three steps' Δv), a
+//! round is `implicit_constrain` → the CG's start (the warm start projected on that history,
+//! then the residual), and a batch is a run of CG
 //! iterations (the first batch of a solve as many as the last solve took plus 2, later ones
 //! [`ITERATIONS_PER_BATCH`]) followed, with terrain, by the active-set update (A Δv →
 //! `implicit_active_set`), dispatched from the "finished" argument slots so that it runs once,
@@ -45,7 +47,9 @@ use crate::builder::Setup;
 use crate::check_finite::CheckFinite;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources};
-use crate::layout::{CG_DISPATCH_WORDS, CandidateGpu, CgScalars, SpringBlockGpu, dispatch_slot};
+use crate::layout::{
+    CG_DISPATCH_WORDS, CG_PARTIAL_HALVES, CandidateGpu, CgScalars, SpringBlockGpu, dispatch_slot,
+};
 use crate::shaders::Stage;
 use crate::submit::Submitter;
 use crate::{GpuError, VEC4};
@@ -107,6 +111,11 @@ pub(crate) struct Buffers {
     pub scalars: wgpu::Buffer,
     pub dispatch: wgpu::Buffer,
     pub changed: wgpu::Buffer,
+    /// The warm start's history (`implicit_remember`): the last step's Δv while this step's
+    /// solves replace it, and the two steps' before it.
+    pub last: wgpu::Buffer,
+    pub earlier_1: wgpu::Buffer,
+    pub earlier_2: wgpu::Buffer,
 }
 
 impl Buffers {
@@ -152,7 +161,7 @@ impl Buffers {
                 s.n,
                 std::mem::size_of::<CandidateGpu>() as u64,
             ),
-            partials: builder.storage("cg partials", 2 * s.particles.groups(), 8),
+            partials: builder.storage("cg partials", CG_PARTIAL_HALVES * s.particles.groups(), 8),
             scalars: builder.init("cg scalars", bytemuck::bytes_of(&settings), storage),
             dispatch: builder.init(
                 "cg dispatch",
@@ -160,6 +169,10 @@ impl Buffers {
                 storage | wgpu::BufferUsages::INDIRECT,
             ),
             changed: builder.storage("changed", 1, 4),
+            // Zeroed: the first steps' bases leave the missing solutions out.
+            last: vectors("last"),
+            earlier_1: vectors("earlier_1"),
+            earlier_2: vectors("earlier_2"),
         }
     }
 
@@ -182,6 +195,9 @@ impl Buffers {
             .buffer("scalars", &self.scalars)
             .buffer("dispatch", &self.dispatch)
             .buffer("changed", &self.changed)
+            .buffer("last", &self.last)
+            .buffer("earlier_1", &self.earlier_1)
+            .buffer("earlier_2", &self.earlier_2)
     }
 }
 
@@ -204,6 +220,7 @@ pub(crate) struct ImplicitEuler {
     system: System,
     cg: Cg,
     constrain: Call,
+    remember: Call,
     contacts: Option<Contacts>,
     finish: Call,
     particles: Grid,
@@ -233,6 +250,7 @@ impl ImplicitEuler {
             system: System::new(s, &buffers, two_pass)?,
             cg: Cg::new(s, &buffers)?,
             constrain: call("implicit_constrain")?,
+            remember: call("implicit_remember")?,
             finish: call("implicit_finish")?,
             contacts,
             particles: s.particles,
@@ -243,19 +261,30 @@ impl ImplicitEuler {
         })
     }
 
-    /// What the next step starts from besides the state, read back: the warm start Δv, the
-    /// contact records (who touches and sticks) and the last solve's iteration count (which
-    /// sizes the next solve's first batch).
+    /// What the next step starts from besides the state, read back: the warm start Δv and the
+    /// two steps' before it (`dv-earlier`, the latest first, as the CPU's), the contact records
+    /// (who touches and sticks) and the last solve's iteration count (which sizes the next
+    /// solve's first batch).
     pub fn history(&self, submitter: &mut Submitter) -> Result<History, StepError> {
         let b = &self.buffers;
         let n = self.n;
+        let vector = (n * VEC4) as usize;
         let candidates = n * std::mem::size_of::<CandidateGpu>() as u64;
         let encoder = submitter.encoder("read history");
-        let bytes = submitter
-            .submit_and_read(encoder, &[(&b.dv, n * VEC4), (&b.candidates, candidates)])?;
-        let (dv, candidates) = bytes.split_at((n * VEC4) as usize);
+        let bytes = submitter.submit_and_read(
+            encoder,
+            &[
+                (&b.dv, n * VEC4),
+                (&b.last, n * VEC4),
+                (&b.earlier_1, n * VEC4),
+                (&b.candidates, candidates),
+            ],
+        )?;
+        let (dv, rest) = bytes.split_at(vector);
+        let (earlier, candidates) = rest.split_at(2 * vector);
         let mut history = History::default();
         history.push("dv", dv.to_vec());
+        history.push("dv-earlier", earlier.to_vec());
         history.push("candidates", candidates.to_vec());
         history.push(
             "last iterations",
@@ -267,13 +296,24 @@ impl ImplicitEuler {
     /// Takes up [`ImplicitEuler::history`]'s.
     pub fn restore(&mut self, submitter: &Submitter, history: &History) -> Result<(), StepError> {
         let n = self.n as usize;
-        let dv = history.part("dv", n * VEC4 as usize)?;
+        let vector = n * VEC4 as usize;
+        let dv = history.part("dv", vector)?;
         let candidates = history.part("candidates", n * std::mem::size_of::<CandidateGpu>())?;
-        let last = history.part("last iterations", 4)?;
+        let iterations = history.part("last iterations", 4)?;
         let queue = submitter.queue();
         queue.write_buffer(&self.buffers.dv, 0, dv);
+        // A history without the earlier solutions (written before the warm start combined
+        // them) leaves them zero: the next step starts from the last Δv alone. The next step's
+        // `implicit_remember` moves `last` and `earlier_1` on and overwrites `earlier_2`.
+        let mut earlier = vec![0u8; 2 * vector];
+        if history.parts.iter().any(|(name, _)| name == "dv-earlier") {
+            earlier.copy_from_slice(history.part("dv-earlier", 2 * vector)?);
+        }
+        let (previous, before) = earlier.split_at(vector);
+        queue.write_buffer(&self.buffers.last, 0, previous);
+        queue.write_buffer(&self.buffers.earlier_1, 0, before);
         queue.write_buffer(&self.buffers.candidates, 0, candidates);
-        self.last_iterations = u32::from_le_bytes(last.try_into().expect("4 bytes"));
+        self.last_iterations = u32::from_le_bytes(iterations.try_into().expect("4 bytes"));
         Ok(())
     }
 
@@ -406,6 +446,7 @@ impl ImplicitEuler {
         let started = std::time::Instant::now();
         let encoder = submitter.encode_pass("implicit step", |pass| {
             self.encode_assemble(pass, contact);
+            self.remember.run(pass, self.particles);
             self.encode_round(pass, true);
             self.encode_batch(pass, true);
         });
