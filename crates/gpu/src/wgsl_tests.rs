@@ -696,8 +696,9 @@ fn resting_slack_matches_the_cpu() {
     );
 }
 
-/// The indirect dispatch slots the host dispatches from are those the scalar kernels write, and
-/// the constraint codes the host uploads are the shaders'.
+/// The indirect dispatch slots the host dispatches from are those the scalar kernels write, the
+/// partial sums it allocates are those the CG indexes, and the constraint codes the host
+/// uploads are the shaders'.
 #[test]
 fn cg_dispatch_slots_and_constraint_codes_match() {
     let words = |name| (wgsl_const(Stage::Cg, name) * 4.0) as u64;
@@ -714,6 +715,16 @@ fn cg_dispatch_slots_and_constraint_codes_match() {
     assert_eq!(
         wgsl_const(Stage::Cg, "DISPATCH_WORDS") as usize,
         CG_DISPATCH_WORDS
+    );
+    // The host allocates the halves the shaders index: the projection's eight, from
+    // PROJECTION, are the last.
+    assert_eq!(
+        wgsl_const(Stage::Cg, "PARTIAL_HALVES") as u64,
+        crate::layout::CG_PARTIAL_HALVES
+    );
+    assert_eq!(
+        wgsl_const(Stage::Cg, "PROJECTION") + 8.0,
+        wgsl_const(Stage::Cg, "PARTIAL_HALVES")
     );
     use softbody_scene::implicit::Constraint;
     for (name, c) in [
