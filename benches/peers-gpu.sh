@@ -5,6 +5,7 @@
 #
 #   pip install numpy warp-lang && cargo build --release && benches/peers-gpu.sh
 #   SIZES="46 100" benches/peers-gpu.sh
+#   GPU_ROUTE=per-spring benches/peers-gpu.sh   # softbody's other designs: gather, per-spring
 #
 # The Warp side is a copy of PEER_SCRIPT (default ../shared/peers/mass_spring_peer.py beside the
 # repository) with its device changed to cuda:0, timed over PEER_PSTEPS particle-steps per repeat
@@ -18,6 +19,7 @@ cd "$(dirname "$0")/.."
 PY=${PY:-python3}
 PEER_SCRIPT=${PEER_SCRIPT:-../shared/peers/mass_spring_peer.py}
 SIZES=${SIZES:-46 100 200}
+GPU_ROUTE=${GPU_ROUTE:-auto}
 PEER_PSTEPS=${PEER_PSTEPS:-2000000000}
 OUT=${OUT:-bench-peers-gpu.jsonl}
 BIN=${BIN:-target/release/softbody}
@@ -49,7 +51,7 @@ fi
 printf '%5s %12s %12s   (million particle-steps/s, f32, symplectic Euler; Warp best of 3)\n' \
   n softbody warp-cuda
 for n in $SIZES; do
-  ours=$("$BIN" bench --backend gpu --sizes "$n" --json --quiet | tee -a "$OUT" |
+  ours=$("$BIN" bench --backend gpu --gpu-route "$GPU_ROUTE" --sizes "$n" --json --quiet | tee -a "$OUT" |
     python3 -c 'import json,sys; print(json.loads(sys.stdin.read())["particle_steps_per_s"])')
   steps=$((PEER_PSTEPS / (n * n * n)))
   line=$("$PY" "$copy" run --backend warp --n "$n" --fp f32 --dt stable --repeats 3 --steps "$steps" | tail -1)

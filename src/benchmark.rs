@@ -188,6 +188,46 @@ pub struct Options {
     pub self_contact: bool,
     /// Implicit Euler's CG preconditioner (the CPU's; the GPU always runs block Jacobi).
     pub preconditioner: Preconditioner,
+    /// How the GPU finds each particle's springs (the GPU's only).
+    pub gpu_route: GpuRoute,
+}
+
+/// How the GPU solver finds each particle's springs, so that its designs can be timed side by
+/// side on one adapter (the figure reports which one ran: [`Measurement::kernel`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GpuRoute {
+    /// What the solver takes by itself: the fused stencil on lattice bodies (the benchmark
+    /// cube), for the explicit integrators and implicit Euler's fused product.
+    #[default]
+    Auto,
+    /// The fused step through the spring list and the adjacency, as for bodies that are not
+    /// lattices.
+    Gather,
+    /// The explicit integrators' forces per spring into a buffer, then gathered per particle
+    /// (five dispatches a symplectic step instead of one); implicit Euler's product in two
+    /// passes.
+    PerSpring,
+}
+
+impl GpuRoute {
+    /// The name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            GpuRoute::Auto => "auto",
+            GpuRoute::Gather => "gather",
+            GpuRoute::PerSpring => "per-spring",
+        }
+    }
+}
+
+impl std::str::FromStr for GpuRoute {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        [GpuRoute::Auto, GpuRoute::Gather, GpuRoute::PerSpring]
+            .into_iter()
+            .find(|r| r.name() == s)
+            .ok_or_else(|| format!("unknown GPU route `{s}`; expected auto, gather or per-spring"))
+    }
 }
 
 impl Default for Options {
@@ -201,6 +241,7 @@ impl Default for Options {
             dt: None,
             self_contact: false,
             preconditioner: Preconditioner::default(),
+            gpu_route: GpuRoute::Auto,
         }
     }
 }
@@ -291,7 +332,7 @@ impl Measurement {
     /// One JSON object: `particles`, `springs`, `steps`, `seconds`, `particle_steps_per_s`,
     /// `spring_steps_per_s`, `bytes_per_particle`, `kernel`, and
     /// `cg_iterations_per_step`, `cg_solves_per_step` and `preconditioner` for implicit Euler,
-    /// plus what was run (`n`, `backend`,
+    /// `gpu_route` on the GPU, plus what was run (`n`, `backend`,
     /// `device`, `integrator`, `dt`, `stiffness`, `warmup_steps`).
     pub fn to_json(&self, options: &Options) -> serde_json::Value {
         let mut v = serde_json::json!({
@@ -312,6 +353,9 @@ impl Measurement {
             "bytes_per_particle": self.bytes_per_particle,
             "kernel": self.kernel,
         });
+        if options.backend == Backend::Gpu {
+            v["gpu_route"] = options.gpu_route.name().into();
+        }
         if let Some(design) = &self.design {
             v["dispatches_per_step"] = design.dispatches_per_step.into();
             v["bytes_per_particle_step"] = design.bytes_per_particle_step.into();
@@ -381,7 +425,21 @@ pub fn measure(
         key: e.key.to_string(),
         message: e.message.to_string(),
     })?;
-    let mut solver = crate::open(&scene, options.backend, options.threads)?;
+    let mut solver = match (options.backend, options.gpu_route) {
+        (Backend::Gpu, route @ (GpuRoute::Gather | GpuRoute::PerSpring)) => {
+            use softbody_gpu::{Gpu, GpuOptions, GpuSolver};
+            let (model, state) = softbody_scene::Model::build(&scene);
+            let gpu_options = GpuOptions {
+                gather: route == GpuRoute::Gather,
+                per_spring: route == GpuRoute::PerSpring,
+                ..GpuOptions::default()
+            };
+            let gpu = Gpu::open().map_err(OpenError::from)?;
+            let solver = GpuSolver::with_options(&gpu, model, state, gpu_options);
+            Box::new(solver.map_err(OpenError::from)?)
+        }
+        _ => crate::open(&scene, options.backend, options.threads)?,
+    };
     time(solver.as_mut(), n, dt, options, progress)
 }
 

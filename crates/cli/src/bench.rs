@@ -3,6 +3,7 @@
 use std::io::Write;
 
 use clap::Args;
+use softbody::benchmark::GpuRoute;
 use softbody::{Backend, Integrator, Preconditioner};
 
 use crate::args::{positive, time_step};
@@ -20,6 +21,11 @@ pub struct BenchArgs {
     /// runs block Jacobi).
     #[arg(long, default_value = "multigrid")]
     preconditioner: Preconditioner,
+    /// How the GPU finds each particle's springs: auto (the fused stencil on the cube), gather
+    /// (the fused step through the spring list), per-spring (forces per spring, then a
+    /// gather). Only with --backend gpu.
+    #[arg(long, default_value = "auto")]
+    gpu_route: GpuRoute,
     /// Cube sizes: n for n³ particles, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "10,22,46,100",
           value_parser = clap::value_parser!(u32).range(2..=1000))]
@@ -52,6 +58,12 @@ pub struct BenchArgs {
 
 pub fn bench(args: BenchArgs) -> Result<(), Failure> {
     use softbody::benchmark::{self, BenchError, Options};
+    if args.gpu_route != GpuRoute::Auto && args.backend != Backend::Gpu {
+        return Err(bad_input(anyhow::anyhow!(
+            "--gpu-route {} needs --backend gpu",
+            args.gpu_route.name()
+        )));
+    }
     let plain = Options {
         backend: args.backend,
         integrator: args.integrator,
@@ -61,6 +73,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
         dt: args.dt,
         self_contact: false,
         preconditioner: args.preconditioner,
+        gpu_route: args.gpu_route,
     };
     let with_contact = Options {
         self_contact: true,

@@ -131,6 +131,8 @@ fn bad_arguments_are_bad_input() {
         &["bench", "--stiffness", "-5"],
         &["bench", "--steps", "0"],
         &["bench", "--integrator", "leapfrog"],
+        &["bench", "--gpu-route", "gather"],
+        &["bench", "--backend", "gpu", "--gpu-route", "csr"],
     ] {
         let out = sandbox.run(args);
         out.expect_status(EXIT_BAD_INPUT);
@@ -213,4 +215,43 @@ fn block_jacobi_is_selectable_and_reported() {
         "{}",
         out.stderr
     );
+}
+
+/// `--gpu-route` times each of the GPU's designs of a symplectic step on one adapter and says
+/// which ran: the fused stencil and the fused gather take one dispatch a step, the per-spring
+/// path five (forces, gather, and the update's three per-particle kernels), and their traffic
+/// per particle-step grows in that order (records on the lattice; the spring list and the
+/// adjacency; per-spring forces written and gathered).
+#[test]
+fn the_gpu_routes_are_timed_and_named() {
+    let sandbox = Sandbox::new();
+    let mut bytes = Vec::new();
+    for (route, kernel, dispatches) in [
+        ("auto", "fused stencil", 1.0),
+        ("gather", "fused gather", 1.0),
+        ("per-spring", "per-spring + gather", 5.0),
+    ] {
+        let args = [
+            "bench",
+            "--backend",
+            "gpu",
+            "--gpu-route",
+            route,
+            "--sizes",
+            "6",
+            "--steps",
+            "10",
+            "--json",
+        ];
+        let out = sandbox.run(&args);
+        out.expect_status(EXIT_OK);
+        let lines = json_lines(&out);
+        assert_eq!(lines.len(), 1);
+        let v = &lines[0];
+        assert_eq!(v["gpu_route"], route);
+        assert_eq!(v["kernel"], kernel);
+        assert_eq!(positive_number(v, "dispatches_per_step"), dispatches, "{v}");
+        bytes.push(positive_number(v, "bytes_per_particle_step"));
+    }
+    assert!(bytes[0] < bytes[1] && bytes[1] < bytes[2], "{bytes:?}");
 }
