@@ -364,6 +364,59 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
     );
 }
 
+/// CG's weight norm wᵀ S MG S w (w_i = S m_i h g: its stopping scale's floor) is computed once
+/// for as long as the multigrid keeps its values: the kept norm is the bits those values give,
+/// a solve under it the bits of one that computed it, and new values (other constraints) or
+/// another h g find none.
+#[test]
+fn the_weight_norm_lasts_as_long_as_the_values() {
+    let (model, state) = deformed(8);
+    let n = model.len();
+    let hg = model.simulation.dt * model.simulation.gravity;
+    // `solve_once`'s constraints: the bottom layer slides.
+    let sliding: Vec<Constraint> = (0..n)
+        .map(|i| match model.contact.lattice[i].unwrap()[1] {
+            0 => Constraint::Normal(DVec3::Y),
+            _ => Constraint::Free,
+        })
+        .collect();
+    let system = assembled(&model, &state);
+    let mut kept = Multigrid::new(&model, &system).unwrap();
+    assert_eq!(kept.weight_norm(hg), None, "nothing before the values");
+    let first = solve_once(&model, &state, Some(&mut kept));
+    let norm = kept
+        .weight_norm(hg)
+        .expect("the first solve keeps the weight norm");
+    let w: Vec<DVec3> = (0..n)
+        .map(|i| sliding[i].filter(model.mass[i] * hg))
+        .collect();
+    let mut z = vec![DVec3::ZERO; n];
+    assert_eq!(norm.to_bits(), kept.apply(&sliding, &w, &mut z).to_bits());
+    // A second solve of the same system takes the kept norm; a fresh multigrid computes it.
+    let second = solve_once(&model, &state, Some(&mut kept));
+    let mut fresh = Multigrid::new(&model, &system).unwrap();
+    let third = solve_once(&model, &state, Some(&mut fresh));
+    let bits = |v: &[DVec3]| -> Vec<u64> {
+        v.iter()
+            .flat_map(|v| v.to_array())
+            .map(f64::to_bits)
+            .collect()
+    };
+    for (a, b) in [(&first, &second), (&second, &third)] {
+        assert!(bits(&a.0) == bits(&b.0), "Δv differs");
+        assert_eq!(a.1.iterations, b.1.iterations);
+        assert_eq!(
+            a.1.relative_residual.to_bits(),
+            b.1.relative_residual.to_bits()
+        );
+    }
+    assert_eq!(kept.weight_norm(2.0 * hg), None, "another h g");
+    let mut other = sliding.clone();
+    other[n / 2] = Constraint::Fixed;
+    kept.prepare(&system, &model, &other);
+    assert_eq!(kept.weight_norm(hg), None, "new values");
+}
+
 /// The stiff 10³ cube at rest on the ground after its bounces is solved once a step, in a few
 /// iterations: its bottom layer's contacts are made before the first solve (their predicted
 /// φ + h v·N is zero to rounding: `resting_slack`), and the solve's target does not fall to the

@@ -118,13 +118,35 @@ pub fn solve(
     let inv = &inv_diag;
     // out = S P⁻¹ r for a filtered r; returns rᵀ out (every use of the preconditioner is
     // followed by that product, which the pass writing `out` sums at once).
-    let mut precondition = |r: &[DVec3], out: &mut [DVec3]| match &mut preconditioner {
-        Preconditioner::BlockJacobi => fill_and_sum(out, |i| {
-            let z = constraints[i].filter(inv[i] * r[i]);
-            (z, r[i].dot(z))
-        }),
-        Preconditioner::Multigrid(mg) => mg.apply(constraints, r, out),
+    let apply = |preconditioner: &mut Preconditioner<'_>, r: &[DVec3], out: &mut [DVec3]| {
+        match preconditioner {
+            Preconditioner::BlockJacobi => fill_and_sum(out, |i| {
+                let z = constraints[i].filter(inv[i] * r[i]);
+                (z, r[i].dot(z))
+            }),
+            Preconditioner::Multigrid(mg) => mg.apply(constraints, r, out),
+        }
     };
+    // (S h M g)ᵀ P⁻¹ (S h M g), with q (free until the first product) holding the weight's
+    // impulse S h M g. A multigrid keeps it with its values: the same values, constraints and
+    // impulse give the same bits, and a kept one saves an application a solve.
+    let hg = model.simulation.dt * model.simulation.gravity;
+    let kept = match &preconditioner {
+        Preconditioner::Multigrid(mg) => mg.weight_norm(hg),
+        Preconditioner::BlockJacobi => None,
+    };
+    let weight = kept.unwrap_or_else(|| {
+        q.par_iter_mut()
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, w)| *w = constraints[i].filter(model.mass[i] * hg));
+        let weight = apply(&mut preconditioner, q, p);
+        if let Preconditioner::Multigrid(mg) = &mut preconditioner {
+            mg.keep_weight_norm(hg, weight);
+        }
+        weight
+    });
+    let mut precondition = |r: &[DVec3], out: &mut [DVec3]| apply(&mut preconditioner, r, out);
     dv.par_iter_mut()
         .zip(constraints.par_iter().zip(z.par_iter()))
         .with_min_len(PARTICLE_CHUNK)
@@ -141,14 +163,6 @@ pub fn solve(
         .with_min_len(PARTICLE_CHUNK)
         .for_each(|(i, r)| *r = constraints[i].filter(b[i] - q[i]));
     let mut delta = precondition(r, c);
-    // (S h M g)ᵀ P⁻¹ (S h M g), with q (free until the first product) holding the weight's
-    // impulse S h M g.
-    let hg = model.simulation.dt * model.simulation.gravity;
-    q.par_iter_mut()
-        .enumerate()
-        .with_min_len(PARTICLE_CHUNK)
-        .for_each(|(i, w)| *w = constraints[i].filter(model.mass[i] * hg));
-    let weight = precondition(q, p);
     // Relative to the largest of the right-hand side, the warm start's residual and the
     // weight's impulse. A body at rest has S·b ≈ 0, its springs' forces and its weight
     // cancelling, while its prescribed contact velocities still leave a residual: a target

@@ -394,6 +394,9 @@ struct Prepared {
     /// The last assembly that kept them, and how many later assemblies have.
     seen: u64,
     kept: u32,
+    /// CG's weight norm under them ([`Multigrid::weight_norm`]): h g, and wᵀ S MG S w for the
+    /// impulse w_i = S m_i h g.
+    weight: Option<(DVec3, f64)>,
 }
 
 /// The springs the first coarse level sums, by the codes of its sources: the spring list's
@@ -768,6 +771,7 @@ impl Multigrid {
             Some(p) => {
                 (p.assembly, p.seen, p.kept) = (assembly, assembly, 0);
                 p.constraints.copy_from_slice(constraints);
+                p.weight = None;
             }
             None => {
                 self.prepared = Some(Prepared {
@@ -775,8 +779,27 @@ impl Multigrid {
                     constraints: constraints.to_vec(),
                     seen: assembly,
                     kept: 0,
+                    weight: None,
                 })
             }
+        }
+    }
+
+    /// The weight norm wᵀ S MG S w that [`Multigrid::keep_weight_norm`] kept for the impulse
+    /// w_i = S m_i `hg` under the current values, if it did: the constraints S are those the
+    /// values were computed for, and the same values give the same bits.
+    pub fn weight_norm(&self, hg: DVec3) -> Option<f64> {
+        let (kept_hg, norm) = self.prepared.as_ref()?.weight?;
+        (kept_hg == hg).then_some(norm)
+    }
+
+    /// Keeps `norm`, the weight norm for `hg` under the current values ([`weight_norm`]), until
+    /// they change.
+    ///
+    /// [`weight_norm`]: Multigrid::weight_norm
+    pub fn keep_weight_norm(&mut self, hg: DVec3, norm: f64) {
+        if let Some(p) = self.prepared.as_mut() {
+            p.weight = Some((hg, norm));
         }
     }
 
