@@ -201,7 +201,7 @@ pub enum GpuRoute {
     #[default]
     Auto,
     /// The fused step through the spring list and the adjacency, as for bodies that are not
-    /// lattices.
+    /// lattices (implicit Euler takes the spring list under [`GpuRoute::Auto`] too).
     Gather,
     /// The explicit integrators' forces per spring into a buffer, then gathered per particle
     /// (five dispatches a symplectic step instead of one); implicit Euler's product in two
