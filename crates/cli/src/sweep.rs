@@ -34,6 +34,10 @@ pub struct SweepArgs {
     /// (`pip install ./crates/python ray`); `python3` or $SOFTBODY_PYTHON runs it.
     #[arg(long, value_name = "ADDRESS", conflicts_with_all = ["task_index", "workers"])]
     ray: Option<String>,
+    /// With --ray: K runs per Ray task, one after the other (default 1), so that Ray schedules
+    /// a task per K runs (for many short runs on a cluster); the same records and files.
+    #[arg(long, value_name = "K", requires = "ray", value_parser = clap::value_parser!(u32).range(1..))]
+    batch: Option<u32>,
     /// No progress bar and no summary.
     #[arg(long, short)]
     quiet: bool,
@@ -128,6 +132,9 @@ fn ray(args: &SweepArgs, address: &str, out: &std::path::Path) -> Result<(), Fai
         .arg(address)
         .arg("--out")
         .arg(out);
+    if let Some(batch) = args.batch {
+        command.arg("--batch").arg(batch.to_string());
+    }
     if args.quiet {
         command.arg("--quiet");
     }

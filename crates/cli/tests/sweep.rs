@@ -194,3 +194,18 @@ fn ray_without_the_python_package_is_bad_input() {
     );
     assert!(!sb.path().join("out").exists());
 }
+
+#[test]
+fn batch_needs_ray_and_a_positive_count() {
+    let (sb, sweep) = sandbox("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0]\n");
+    for args in [
+        &["sweep", &sweep, "--batch", "4"][..],
+        &["sweep", &sweep, "--ray", "local", "--batch", "0"],
+        &["sweep", &sweep, "--ray", "local", "--batch", "x"],
+    ] {
+        let out = sb.run(args);
+        out.expect_status(EXIT_BAD_INPUT);
+        assert!(out.stderr.contains("--batch"), "{args:?}: {}", out.stderr);
+    }
+    assert!(!sb.path().join("out").exists());
+}

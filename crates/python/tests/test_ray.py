@@ -61,3 +61,17 @@ def test_a_sweep_on_ray_gives_the_local_records_and_files(tmp_path: Path, cluste
     assert strip(again) == strip(local)
     changed = [r["run"] for r in again if r["seconds"] != before[r["run"]]]
     assert changed == [4]
+
+
+def test_batches_of_runs_per_task_give_the_same_records_and_files(tmp_path: Path, cluster) -> None:
+    (tmp_path / "cube.toml").write_text(CUBE)
+    spec = tmp_path / "sweep.toml"
+    spec.write_text('scene = "cube.toml"\n' + SWEEP)
+    one = softbody.sweep(spec, out=tmp_path / "one", executor="ray", progress=False)
+    # Six runs in tasks of four and two.
+    batched = softbody.sweep(spec, out=tmp_path / "four", executor="ray", batch=4, progress=False)
+    assert [r["status"] for r in batched] == ["ok"] * 6
+    assert strip(batched) == strip(one)
+    for r in batched:
+        assert (tmp_path / "one" / r["file"]).read_bytes() == (tmp_path / "four" / r["file"]).read_bytes()
+    assert len((tmp_path / "four" / "manifest.jsonl").read_text().splitlines()) == 1 + 6

@@ -108,3 +108,9 @@ def test_a_bad_sweep_raises_scene_error_with_its_line(tmp_path: Path) -> None:
     assert str(e.value).startswith(f"{path}:3:18: grid.body[0].mass: a grid parameter takes a non-empty list")
     with pytest.raises(ValueError, match="unknown executor"):
         softbody.sweep(path, executor="dask")
+    with pytest.raises(ValueError, match="batch is for executor='ray'"):
+        softbody.sweep(path, out=tmp_path / "out", batch=2)
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="batch must be a whole number of runs"):
+            softbody.sweep(path, out=tmp_path / "out", executor="ray", batch=bad)
+    assert not (tmp_path / "out").exists()

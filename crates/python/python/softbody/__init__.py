@@ -152,6 +152,7 @@ def sweep(
     address: Optional[str] = None,
     task_index: Optional[int] = None,
     task_count: Optional[int] = None,
+    batch: Optional[int] = None,
     progress: bool = True,
 ) -> List[Dict[str, Any]]:
     """Runs a parameter sweep (a sweep file, or a dict laid out as one: docs/sweeps.md) into
@@ -163,8 +164,15 @@ def sweep(
     one ``ray.init()`` finds or starts; ``"local"``: a new one on this machine). Both write the
     same manifest, resume alike (finished runs are skipped, failed ones run again), and give
     the same records. `task_index` / `task_count` take one Slurm array task's share (local
-    only)."""
+    only). `batch` (Ray only, default 1) runs that many runs in each Ray task, one after the
+    other, so that Ray schedules a task per `batch` runs (for many short runs on a cluster);
+    the records and files are the same."""
     out_dir = Path(out) if out is not None else _default_out(spec)
+    if batch is not None:
+        if executor != "ray":
+            raise ValueError("batch is for executor='ray'")
+        if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+            raise ValueError(f"batch must be a whole number of runs, at least 1; got {batch!r}")
     if executor == "local":
         return _native.sweep_local(
             spec,
@@ -179,5 +187,5 @@ def sweep(
             raise ValueError("task_index and task_count are for local (Slurm) sweeps")
         from ._ray import sweep_on_ray
 
-        return sweep_on_ray(spec, out_dir, address=address, progress=progress)
+        return sweep_on_ray(spec, out_dir, address=address, batch=batch or 1, progress=progress)
     raise ValueError(f"unknown executor {executor!r}; expected 'local' or 'ray'")

@@ -1,4 +1,4 @@
-"""``python -m softbody sweep SWEEP.toml [--ray ADDRESS] [--out DIR] [--workers N] [--quiet]``:
+"""``python -m softbody sweep SWEEP.toml [--ray ADDRESS [--batch K]] [--out DIR] [--workers N] [--quiet]``:
 the sweep command through the Python package (what ``softbody sweep --ray`` runs)."""
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("sweep")
     p.add_argument("--out")
     p.add_argument("--ray", metavar="ADDRESS", help="run on the Ray cluster at ADDRESS ('auto', 'local', HOST:6379)")
+    p.add_argument("--batch", type=int, metavar="K", help="with --ray: K runs per Ray task (default 1)")
     p.add_argument("--workers", type=int)
     p.add_argument("--quiet", "-q", action="store_true")
     args = parser.parse_args(argv)
@@ -30,9 +31,10 @@ def main(argv: Optional[List[str]] = None) -> int:
             executor="ray" if args.ray else "local",
             address=None if args.ray in (None, "auto") else args.ray,
             workers=args.workers,
+            batch=args.batch,
             progress=not args.quiet,
         )
-    except softbody.SceneError as e:
+    except (softbody.SceneError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except softbody.SoftbodyError as e:

@@ -1,9 +1,12 @@
 """The Ray executor of softbody.sweep: each run of the plan a Ray task.
 
 The driver opens the sweep's plan and manifest (``SweepPlan``: resuming as the local executor
-does), submits one task per pending run — the job, a JSON string carrying the base scene's text,
-so a worker needs no scene file — and appends each record to the manifest as its task ends
-(``ray.wait``), in the order they end. Single-file outputs (npz, jsonl, csv) come back to the
+does), submits one task per `batch` pending runs (one by default) — their jobs, JSON strings
+carrying the base scene's text, so a worker needs no scene file — and appends the records to the
+manifest as their task ends (``ray.wait``), in the order tasks end and within a task in run
+order. A task of several runs pays Ray's scheduling once for all of them (for many short runs on
+a cluster); a task that fails as a whole (its worker lost) is retried as a whole, and since runs
+are deterministic its records are the same. Single-file outputs (npz, jsonl, csv) come back to the
 driver as bytes and are written into the out directory there, so workers need no shared file
 system; series outputs (vtk, ply, obj) are written by the worker in place and need one.
 """
@@ -36,6 +39,11 @@ def _run_job(job: str) -> Tuple[str, Optional[bytes]]:
         return record, data
 
 
+def _run_jobs(jobs: List[str]) -> List[Tuple[str, Optional[bytes]]]:
+    """Runs a batch of jobs on a worker, one after the other: `_run_job`'s results, in order."""
+    return [_run_job(job) for job in jobs]
+
+
 def _put(path: Path, data: bytes) -> None:
     """Writes `data` to `path` as softbody writes files: beside it, then renamed into place."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -55,6 +63,7 @@ def sweep_on_ray(
     out: Path,
     *,
     address: Optional[str] = None,
+    batch: int = 1,
     progress: bool = True,
 ) -> List[Dict[str, Any]]:
     try:
@@ -70,19 +79,19 @@ def sweep_on_ray(
             ray.init(include_dashboard=False, log_to_driver=False)
         else:
             ray.init(address=address, include_dashboard=False, log_to_driver=False)
-    remote = ray.remote(num_cpus=plan.threads, max_retries=2)(_run_job)
-    refs = [remote.remote(job) for job in pending]
-    total, done = len(refs), 0
+    remote = ray.remote(num_cpus=plan.threads, max_retries=2)(_run_jobs)
+    refs = [remote.remote(pending[i : i + batch]) for i in range(0, len(pending), batch)]
+    total, done = len(pending), 0
     show = progress and sys.stderr.isatty()
     while refs:
         ready, refs = ray.wait(refs, num_returns=min(len(refs), 16), timeout=None)
         for ref in ready:
-            record_json, data = ray.get(ref)
-            record = json.loads(record_json)
-            if data is not None and record.get("file"):
-                _put(out / record["file"], data)
-            plan.record(record_json)
-            done += 1
+            for record_json, data in ray.get(ref):
+                record = json.loads(record_json)
+                if data is not None and record.get("file"):
+                    _put(out / record["file"], data)
+                plan.record(record_json)
+                done += 1
         if show:
             print(f"\r{done}/{total} runs on Ray", end="\n" if not refs else "", file=sys.stderr, flush=True)
     return plan.records()
