@@ -196,8 +196,9 @@ pub struct Options {
 /// side on one adapter (the figure reports which one ran: [`Measurement::kernel`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GpuRoute {
-    /// What the solver takes by itself: the fused stencil on lattice bodies (the benchmark
-    /// cube), for the explicit integrators and implicit Euler's fused product.
+    /// What the solver takes by itself: for the explicit integrators the fused stencil on
+    /// lattice bodies (the benchmark cube), for implicit Euler the fused product through the
+    /// spring list.
     #[default]
     Auto,
     /// The fused step through the spring list and the adjacency, as for bodies that are not
