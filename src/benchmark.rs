@@ -179,6 +179,12 @@ pub struct Options {
     /// Timed steps; `None` picks about [`TARGET_PARTICLE_STEPS`] particle-steps, or
     /// [`MIN_SECONDS`] of stepping where that is more, capped at [`MAX_SECONDS`].
     pub steps: Option<u64>,
+    /// Steps before timing; `None` warms up by time (one step, then pilots of about a quarter
+    /// of a second until two agree). A fixed count, with a fixed `steps`, times the same
+    /// stretch of the cube's motion in every run: implicit Euler's cost per step depends on
+    /// it (a falling cube's solves take more iterations than a resting one's), so runs that
+    /// are compared need the same stretch.
+    pub warmup_steps: Option<u64>,
     /// Spring stiffness k_s, N/m.
     pub stiffness: f64,
     /// Time step; `None` is half [`dt_max_symplectic_with`] for the size and stiffness.
@@ -238,6 +244,7 @@ impl Default for Options {
             integrator: Integrator::SymplecticEuler,
             threads: None,
             steps: None,
+            warmup_steps: None,
             stiffness: STIFFNESS,
             dt: None,
             self_contact: false,
@@ -403,7 +410,8 @@ pub enum BenchError {
 }
 
 /// Builds the n³ benchmark cube for `options`, warms the solver up (one step, then runs of
-/// about a quarter of a second until two agree on the time per step), times
+/// about a quarter of a second until two agree on the time per step; or
+/// [`Options::warmup_steps`] steps), times
 /// `options.steps` steps (by default about [`TARGET_PARTICLE_STEPS`] particle-steps and at
 /// least [`MIN_SECONDS`], at most [`MAX_SECONDS`]) with nothing else in the loop, and checks
 /// that the final state is finite.
@@ -444,6 +452,54 @@ pub fn measure(
     time(solver.as_mut(), n, dt, options, progress)
 }
 
+/// The warm-up by time: the first step pays for what happens once (pipelines, first touches
+/// of memory); then pilots of about PILOT_SECONDS run until one that lasts at least half of
+/// that agrees with the one before on the time per step: neither the first steps nor a GPU's
+/// clocks, still rising from idle after a long setup, set the step count (on an H200, a 300³
+/// cube's first pilots ran at a third of its rate). Returns the steps taken and the last
+/// pilot's seconds per step.
+fn warm_up(
+    solver: &mut dyn Solver,
+    run: &dyn Fn(&mut dyn Solver, u64) -> Result<f64, BenchError>,
+) -> Result<(u64, Option<f64>), BenchError> {
+    let mut pilot = ((PILOT_SECONDS / run(solver, 1)?.max(1e-9)) as u64).clamp(1, MAX_PILOT);
+    let mut warmup_steps = 1;
+    let mut previous: Option<f64> = None;
+    let mut runs = 0;
+    loop {
+        let seconds = run(solver, pilot)?;
+        warmup_steps += pilot;
+        runs += 1;
+        let per_step = seconds / pilot as f64;
+        let long = seconds >= 0.5 * PILOT_SECONDS || pilot == MAX_PILOT;
+        let agrees = previous.is_some_and(|p| (per_step - p).abs() <= PILOT_AGREEMENT * p);
+        if (long && agrees) || runs == MAX_PILOT_RUNS {
+            return Ok((warmup_steps, Some(per_step)));
+        }
+        previous = Some(per_step);
+        pilot = ((PILOT_SECONDS / per_step.max(1e-12)) as u64).clamp(1, MAX_PILOT);
+    }
+}
+
+/// The warm-up of exactly `steps` steps: the first alone (it pays for what happens once),
+/// then the rest, whose seconds per step are the estimate (the first's where it is the only
+/// one; none for no steps).
+fn warm_up_for(
+    solver: &mut dyn Solver,
+    steps: u64,
+    run: &dyn Fn(&mut dyn Solver, u64) -> Result<f64, BenchError>,
+) -> Result<(u64, Option<f64>), BenchError> {
+    if steps == 0 {
+        return Ok((0, None));
+    }
+    let first = run(solver, 1)?;
+    if steps == 1 {
+        return Ok((1, Some(first)));
+    }
+    let rest = run(solver, steps - 1)?;
+    Ok((steps, Some(rest / (steps - 1) as f64)))
+}
+
 /// The warm-up and the timed steps of [`measure`].
 fn time(
     solver: &mut dyn Solver,
@@ -461,41 +517,26 @@ fn time(
         solver.sync().map_err(step_error)?;
         Ok(started.elapsed().as_secs_f64())
     };
-    // The first step pays for what happens once (pipelines, first touches of memory). Then
-    // pilots of about PILOT_SECONDS run until one that lasts at least half of that agrees with
-    // the one before on the time per step: neither the first steps nor a GPU's clocks, still
-    // rising from idle after a long setup, set the step count (on an H200, a 300³ cube's
-    // first pilots ran at a third of its rate).
-    let mut pilot = ((PILOT_SECONDS / run(solver, 1)?.max(1e-9)) as u64).clamp(1, MAX_PILOT);
-    let mut warmup_steps = 1;
-    let mut previous: Option<f64> = None;
-    let mut runs = 0;
-    let per_step = loop {
-        let seconds = run(solver, pilot)?;
-        warmup_steps += pilot;
-        runs += 1;
-        let per_step = seconds / pilot as f64;
-        let long = seconds >= 0.5 * PILOT_SECONDS || pilot == MAX_PILOT;
-        let agrees = previous.is_some_and(|p| (per_step - p).abs() <= PILOT_AGREEMENT * p);
-        if (long && agrees) || runs == MAX_PILOT_RUNS {
-            break per_step;
-        }
-        previous = Some(per_step);
-        pilot = ((PILOT_SECONDS / per_step.max(1e-12)) as u64).clamp(1, MAX_PILOT);
+    let (warmup_steps, per_step) = match options.warmup_steps {
+        Some(w) => warm_up_for(solver, w, &run)?,
+        None => warm_up(solver, &run)?,
     };
     let steps = options.steps.unwrap_or_else(|| {
+        let target = (TARGET_PARTICLE_STEPS / particles as f64).ceil() as u64;
+        let Some(per_step) = per_step else {
+            return target.max(MIN_STEPS);
+        };
         let per_step = per_step.max(1e-12);
-        let target = ((TARGET_PARTICLE_STEPS / particles as f64).ceil() as u64)
-            .max((MIN_SECONDS / per_step).ceil() as u64);
+        let target = target.max((MIN_SECONDS / per_step).ceil() as u64);
         let cap = (MAX_SECONDS / per_step) as u64;
         target.min(cap).max(MIN_STEPS)
     });
     let before = solver.statistics();
     // In about a hundred batches at most, for the progress report, and of PROGRESS_SECONDS at
-    // least: each `advance` ends the GPU's submission, which must not be a few steps long.
-    let batch = steps
-        .div_ceil(100)
-        .max((PROGRESS_SECONDS / per_step.max(1e-12)) as u64);
+    // least where the warm-up timed a step: each `advance` ends the GPU's submission, which
+    // must not be a few steps long.
+    let batch =
+        (steps.div_ceil(100)).max(per_step.map_or(0, |t| (PROGRESS_SECONDS / t.max(1e-12)) as u64));
     let started = Instant::now();
     let mut done = 0;
     while done < steps {

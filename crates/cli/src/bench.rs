@@ -34,6 +34,11 @@ pub struct BenchArgs {
     /// 20 s per size).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     steps: Option<u64>,
+    /// Steps before timing (default: about a quarter of a second, until the rate settles).
+    /// With --steps, every run times the same stretch of the cube's motion, as comparisons of
+    /// implicit Euler need: its cost per step depends on whether the cube falls or rests.
+    #[arg(long)]
+    warmup_steps: Option<u64>,
     /// CPU threads (default: all cores).
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..), allow_negative_numbers = true)]
     threads: Option<u16>,
@@ -69,6 +74,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
         integrator: args.integrator,
         threads: args.threads.map(usize::from),
         steps: args.steps,
+        warmup_steps: args.warmup_steps,
         stiffness: args.stiffness.unwrap_or(benchmark::STIFFNESS),
         dt: args.dt,
         self_contact: false,
@@ -207,9 +213,10 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
         }
     }
     if !args.quiet {
+        let sizes = args.sizes.len();
         eprintln!(
-            "{} sizes timed in {:.1} s (setup and warm-up included)",
-            args.sizes.len(),
+            "{sizes} size{} timed in {:.1} s (setup and warm-up included)",
+            if sizes == 1 { "" } else { "s" },
             started.elapsed().as_secs_f64()
         );
     }

@@ -101,6 +101,49 @@ fn implicit_reports_cg_iterations_and_takes_dt_and_stiffness() {
 }
 
 #[test]
+fn warmup_steps_fix_the_stretch_of_motion_that_is_timed() {
+    // Implicit Euler's iterations per step depend on where the cube is in its fall: with the
+    // warm-up and the timed steps both given, two runs time the same steps and count the same
+    // iterations, bit for bit; another warm-up times another stretch.
+    let sandbox = Sandbox::new();
+    let run = |warmup: &str| {
+        let out = sandbox.run(&[
+            "bench",
+            "--integrator",
+            "implicit-euler",
+            "--sizes",
+            "4",
+            "--steps",
+            "12",
+            "--warmup-steps",
+            warmup,
+            "--stiffness",
+            "1e4",
+            "--dt",
+            "1/60",
+            "--threads",
+            "1",
+            "--json",
+        ]);
+        out.expect_status(EXIT_OK);
+        let v = json_lines(&out).remove(0);
+        assert_eq!(v["warmup_steps"].as_u64(), Some(warmup.parse().unwrap()));
+        assert_eq!(v["steps"].as_u64(), Some(12));
+        let figure = |key: &str| v[key].as_f64().unwrap_or_else(|| panic!("{key} in {v}"));
+        (
+            figure("cg_iterations_per_step"),
+            figure("cg_solves_per_step"),
+        )
+    };
+    let falling = run("0");
+    assert_eq!(run("0"), falling);
+    let resting = run("300");
+    assert_eq!(run("300"), resting);
+    // The first steps fall from rest onto the ground: more iterations than at rest.
+    assert!(falling.0 > resting.0, "{falling:?} {resting:?}");
+}
+
+#[test]
 fn table_names_the_columns_and_each_size() {
     let sandbox = Sandbox::new();
     let out = sandbox.run(&["bench", "--sizes", "3,4", "--steps", "10"]);
@@ -130,6 +173,8 @@ fn bad_arguments_are_bad_input() {
         &["bench", "--dt", "1/0"],
         &["bench", "--stiffness", "-5"],
         &["bench", "--steps", "0"],
+        &["bench", "--warmup-steps", "-1"],
+        &["bench", "--warmup-steps", "many"],
         &["bench", "--integrator", "leapfrog"],
         &["bench", "--gpu-route", "gather"],
         &["bench", "--backend", "gpu", "--gpu-route", "csr"],
