@@ -55,25 +55,26 @@ fn json_has_one_line_per_size_with_the_documented_keys() {
     }
 }
 
+/// Implicit Euler on the stiff 4³ cube (k_s = 1e4 N/m, dt = 1/60 s), one thread, JSON.
+const STIFF_CUBE: &[&str] = &[
+    "bench",
+    "--integrator",
+    "implicit-euler",
+    "--sizes",
+    "4",
+    "--stiffness",
+    "1e4",
+    "--dt",
+    "1/60",
+    "--threads",
+    "1",
+    "--json",
+];
+
 #[test]
 fn implicit_reports_cg_iterations_and_takes_dt_and_stiffness() {
     let sandbox = Sandbox::new();
-    let out = sandbox.run(&[
-        "bench",
-        "--integrator",
-        "implicit-euler",
-        "--sizes",
-        "4",
-        "--steps",
-        "5",
-        "--stiffness",
-        "1e4",
-        "--dt",
-        "1/60",
-        "--threads",
-        "1",
-        "--json",
-    ]);
+    let out = sandbox.run(&[STIFF_CUBE, &["--steps", "5"]].concat());
     out.expect_status(EXIT_OK);
     let lines = json_lines(&out);
     assert_eq!(lines.len(), 1);
@@ -107,24 +108,7 @@ fn warmup_steps_fix_the_stretch_of_motion_that_is_timed() {
     // iterations, bit for bit; another warm-up times another stretch.
     let sandbox = Sandbox::new();
     let run = |warmup: &str| {
-        let out = sandbox.run(&[
-            "bench",
-            "--integrator",
-            "implicit-euler",
-            "--sizes",
-            "4",
-            "--steps",
-            "12",
-            "--warmup-steps",
-            warmup,
-            "--stiffness",
-            "1e4",
-            "--dt",
-            "1/60",
-            "--threads",
-            "1",
-            "--json",
-        ]);
+        let out = sandbox.run(&[STIFF_CUBE, &["--steps", "12", "--warmup-steps", warmup]].concat());
         out.expect_status(EXIT_OK);
         let v = json_lines(&out).remove(0);
         assert_eq!(v["warmup_steps"].as_u64(), Some(warmup.parse().unwrap()));
