@@ -183,7 +183,9 @@ pub struct Options {
     /// of a second until two agree). A fixed count, with a fixed `steps`, times the same
     /// stretch of the cube's motion in every run: implicit Euler's cost per step depends on
     /// it (a falling cube's solves take more iterations than a resting one's), so runs that
-    /// are compared need the same stretch.
+    /// are compared need the same stretch. `Some(0)` times from the first step; then, with
+    /// `steps` `None`, there is no time per step to bound the count by, and the timed steps
+    /// are about [`TARGET_PARTICLE_STEPS`] particle-steps (at least [`MIN_STEPS`]).
     pub warmup_steps: Option<u64>,
     /// Spring stiffness k_s, N/m.
     pub stiffness: f64,
@@ -535,8 +537,8 @@ fn time(
     // In about a hundred batches at most, for the progress report, and of PROGRESS_SECONDS at
     // least where the warm-up timed a step: each `advance` ends the GPU's submission, which
     // must not be a few steps long.
-    let batch =
-        (steps.div_ceil(100)).max(per_step.map_or(0, |t| (PROGRESS_SECONDS / t.max(1e-12)) as u64));
+    let least = per_step.map_or(0, |t| (PROGRESS_SECONDS / t.max(1e-12)) as u64);
+    let batch = steps.div_ceil(100).max(least);
     let started = Instant::now();
     let mut done = 0;
     while done < steps {
