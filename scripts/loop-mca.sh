@@ -12,7 +12,7 @@
 #
 # FUNCTION: part of the demangled symbol; MARK: an instruction that the loop must contain (the
 # smallest loop of FUNCTION containing it is taken); MCPU: llvm-mca's -mcpu (default: native).
-# Needs objdump, nm and llvm-mca (Debian: binutils, llvm).
+# Needs objdump, nm and llvm-mca (Debian: binutils, llvm). Exit status 2: nothing to model.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-target/release/softbody}
@@ -23,7 +23,7 @@ MCA=${MCA:-$(command -v llvm-mca || ls /usr/bin/llvm-mca-* 2>/dev/null | sort -V
 [ -x "$MCA" ] || { echo "loop-mca: llvm-mca not found (apt-get install llvm)" >&2; exit 2; }
 
 # The function's address range, from the symbol table.
-read -r start size name < <(nm -C --size-sort -S "$BIN" | awk -v f="$FUNCTION" 'index($0, f) { print $1, $2, $4; exit }')
+read -r start size name < <(nm -C --size-sort -S "$BIN" | awk -v f="$FUNCTION" 'index($0, f) { print $1, $2, $4; exit }') || true
 [ -n "${start:-}" ] || { echo "loop-mca: no symbol matching '$FUNCTION' in $BIN" >&2; exit 2; }
 stop=$(printf '0x%x' $((0x$start + 0x$size)))
 
@@ -47,7 +47,8 @@ for i, (addr, ins) in enumerate(rows):
     if any(sys.argv[2] in b for _, b in body) and (best is None or len(body) < len(best)):
         best = body
 if best is None:
-    sys.exit(f"loop-mca: no loop containing {sys.argv[2]}")
+    print(f"loop-mca: no loop containing {sys.argv[2]}", file=sys.stderr)
+    sys.exit(2)
 # The closing jump's target is meaningless to llvm-mca, which models one iteration after
 # another anyway: drop it.
 print("\n".join(ins for _, ins in best[:-1]))
