@@ -134,7 +134,7 @@ mod tests {
 
     #[test]
     fn twelve_digits_drop_the_rounding_of_a_sum() {
-        // `check`'s sum over the 936 particles of torus-on-stairs.toml.
+        // `check`'s sum over the 936 particles of a 37.888 kg torus.
         let torus = 37.888000000000005;
         assert_ne!(torus, 37.888);
         assert_eq!(twelve_digits(torus).to_string(), "37.888");

@@ -151,7 +151,8 @@ pub struct ParticleSet {
 pub enum MeshMass {
     /// Total mass, kg.
     Mass(f64),
-    /// Density, kg/m³, of the lattice's volume (kept cells × h³).
+    /// Density, kg/m³, of the volume the mesh encloses ([`Voxels::enclosed_volume`]); of the
+    /// lattice's (kept cells × h³) for a mesh that is not closed.
     Density(f64),
 }
 
@@ -187,12 +188,21 @@ pub struct MeshBody {
 }
 
 impl MeshBody {
-    /// The total mass, kg: the given one, or density × the lattice's volume.
+    /// The total mass, kg: the given one, or density × the volume the mesh encloses (the
+    /// lattice's where the mesh is not closed).
     pub fn total_mass(&self) -> f64 {
         match self.mass {
             MeshMass::Mass(m) => m,
-            MeshMass::Density(rho) => rho * self.voxels.volume(),
+            MeshMass::Density(rho) => rho * self.solid_volume(),
         }
+    }
+
+    /// The volume a density applies to, m³: the one the mesh encloses, or the lattice's where
+    /// the mesh is not closed.
+    pub fn solid_volume(&self) -> f64 {
+        self.voxels
+            .enclosed_volume()
+            .unwrap_or_else(|| self.voxels.volume())
     }
 
     /// Where file coordinates `p` of the mesh are at rest, metres.

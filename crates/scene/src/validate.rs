@@ -8,7 +8,7 @@ use glam::DVec3;
 
 use crate::error::{Invalid, KeyPath};
 use crate::model;
-use crate::scene::{BodyShape, MeshMass, Scene, SpringParams, TerrainShape};
+use crate::scene::{BodyShape, MeshBody, MeshMass, Scene, SpringParams, TerrainShape};
 
 type Check = Result<(), Invalid>;
 
@@ -39,6 +39,24 @@ pub(crate) fn positive(at: KeyPath, x: f64) -> Check {
             at,
             format!("must be greater than zero, not {x}"),
         ))
+    }
+}
+
+/// The kept cells hold every point the mesh winds around, so a closed mesh wound once encloses
+/// at most their volume; more means shells nested or overlapping, counted twice by the volume
+/// that a density would weigh.
+fn enclosed_is_held(at: KeyPath, m: &MeshBody) -> Check {
+    let lattice = m.voxels.volume();
+    match m.voxels.enclosed_volume() {
+        Some(v) if v > lattice * (1.0 + 1e-9) => Err(Invalid::new(
+            at,
+            format!(
+                "the mesh encloses {v} m³, more than the {lattice} m³ of the cells that hold \
+                 it: parts of it are wound more than once (nested or overlapping shells); give \
+                 `mass` instead"
+            ),
+        )),
+        _ => Ok(()),
     }
 }
 
@@ -259,6 +277,7 @@ fn body_values(at: &KeyPath, shape: &BodyShape) -> Check {
                 MeshMass::Mass(mass) => positive(at.key("mass"), mass)?,
                 MeshMass::Density(rho) => {
                     positive(at.key("density"), rho)?;
+                    enclosed_is_held(at.key("density"), m)?;
                     // A density times a tiny volume can still underflow to no mass at all.
                     positive(at.key("density"), m.total_mass())?;
                 }

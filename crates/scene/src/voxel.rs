@@ -100,6 +100,8 @@ pub struct Voxels {
     /// Present cells whose centre is clearly inside (|w| ≥ ¾).
     inside_cells: u64,
     closed: bool,
+    /// The volume the scaled mesh encloses, m³, where it is closed.
+    enclosed: Option<f64>,
 }
 
 /// The generalised winding number of the triangles at `p`: Σ Ω_t / 4π, Ω_t the signed solid
@@ -329,6 +331,8 @@ impl Voxels {
         };
         let winding = |at: usize| winding_number(&local, &mesh.triangles, centre_of(at));
         let closed = is_closed(&mesh);
+        // Translation leaves a closed mesh's volume as it is; an inside-out one is negative.
+        let enclosed = closed.then(|| enclosed_volume(&local, &mesh.triangles).abs());
         // |w| at the centre of every cell no triangle crosses.
         let mut w = vec![0.0f64; nx * ny * nz];
         if closed {
@@ -505,6 +509,7 @@ impl Voxels {
             embedding,
             inside_cells,
             closed,
+            enclosed,
         })
     }
 
@@ -567,6 +572,12 @@ impl Voxels {
     /// The lattice's volume: kept cells × h³, m³.
     pub fn volume(&self) -> f64 {
         self.present_cells() as f64 * self.cell.powi(3)
+    }
+
+    /// The volume the scaled mesh encloses, m³ ([`enclosed_volume`], its size): `None` for a
+    /// mesh that is not closed, which encloses no definite volume.
+    pub fn enclosed_volume(&self) -> Option<f64> {
+        self.enclosed
     }
 
     /// Number of particles.

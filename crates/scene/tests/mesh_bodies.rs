@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 use softbody_scene::topology;
 use softbody_scene::voxel::{LatticeSize, Voxels, enclosed_volume};
-use softbody_scene::{BodyShape, Model, Scene, SceneError, TriangleMesh};
+use softbody_scene::{BodyShape, MeshBody, Model, Scene, SceneError, TriangleMesh};
 
 /// Writes `mesh` as `name` in `dir` and returns its path.
 fn write_obj(dir: &Path, name: &str, mesh: &TriangleMesh) -> PathBuf {
@@ -240,6 +240,118 @@ fn springs_do_not_bridge_a_gap() {
     // Each box has the springs of a 5³ cuboid.
     let one = topology::grid_spring_counts([5, 5, 5]);
     assert_eq!(model.spring_counts, one + one);
+}
+
+/// The mesh body of a scene of one.
+fn mesh_body(scene: &Scene) -> &MeshBody {
+    match &scene.bodies[0].shape {
+        BodyShape::Mesh(m) => m,
+        other => panic!("not a mesh body: {other:?}"),
+    }
+}
+
+/// A density weighs the volume the mesh encloses, whatever the cell: a box scaled to
+/// 0.4 × 0.3 × 0.2 m at a cell that does not divide it (its kept cells hold more), and a torus,
+/// whose lattice holds half again its volume; the particles share that mass evenly. A mesh that
+/// is not closed (a cube less one triangle) encloses no definite volume and weighs its kept
+/// cells. Two shells one inside the other, both wound outwards, enclose 1.125 m³ in 1 m³ of
+/// cells: refused, naming both volumes.
+#[test]
+fn density_weighs_the_volume_the_mesh_encloses() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_obj(
+        d,
+        "box.obj",
+        &TriangleMesh::cube(DVec3::new(3.0, -1.0, 2.0), 1.0),
+    );
+    let torus = TriangleMesh::torus(0.2, 0.08, 32, 16);
+    write_obj(d, "torus.obj", &torus);
+    let mut open = TriangleMesh::cube(DVec3::ZERO, 1.0);
+    open.triangles.pop();
+    write_obj(d, "open.obj", &open);
+    let mut nested = TriangleMesh::cube(DVec3::ZERO, 1.0);
+    let inner = TriangleMesh::cube(DVec3::splat(0.25), 0.5);
+    let base = nested.vertices.len() as u32;
+    nested.vertices.extend(inner.vertices);
+    (nested.triangles).extend(inner.triangles.iter().map(|t| t.map(|i| i + base)));
+    write_obj(d, "nested.obj", &nested);
+    let rho = 500.0;
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b;
+
+    let boxed = load(
+        d,
+        &scene_text(&format!(
+            "file = \"box.obj\"\nscale = [0.4, 0.3, 0.2]\ncell = 0.07\ndensity = {rho}\n"
+        )),
+    )
+    .unwrap();
+    let m = mesh_body(&boxed);
+    // 6 × 5 × 3 cells of 7 cm hold 0.0309 m³ around the box's 0.024.
+    assert!(
+        close(m.voxels.volume(), 90.0 * 0.07f64.powi(3)),
+        "{}",
+        m.voxels.volume()
+    );
+    assert!(
+        close(m.total_mass(), rho * 0.4 * 0.3 * 0.2),
+        "{}",
+        m.total_mass()
+    );
+    let (model, _) = Model::build(&boxed);
+    let each = m.total_mass() / model.len() as f64;
+    assert!(model.mass.iter().all(|&mass| mass == each));
+
+    let ring = load(
+        d,
+        &scene_text(&format!(
+            "file = \"torus.obj\"\ncell = 0.04\ndensity = {rho}\n"
+        )),
+    )
+    .unwrap();
+    let m = mesh_body(&ring);
+    let v = enclosed_volume(&torus.vertices, &torus.triangles);
+    assert!(
+        close(m.total_mass(), rho * v),
+        "{} against {}",
+        m.total_mass(),
+        rho * v
+    );
+    assert!(
+        m.voxels.volume() > 1.4 * v,
+        "{} against {v}",
+        m.voxels.volume()
+    );
+
+    let open = load(
+        d,
+        &scene_text(&format!(
+            "file = \"open.obj\"\ncell = 0.25\ndensity = {rho}\n"
+        )),
+    )
+    .unwrap();
+    let m = mesh_body(&open);
+    assert_eq!(m.voxels.enclosed_volume(), None);
+    assert_eq!(m.total_mass(), rho * m.voxels.volume());
+    assert_eq!(m.voxels.volume(), 1.0);
+
+    let e = error(
+        d,
+        &format!("file = \"nested.obj\"\ncell = 0.25\ndensity = {rho}\n"),
+    );
+    assert_eq!(
+        e,
+        "10: body[0].density: the mesh encloses 1.125 m³, more than the 1 m³ of the cells that \
+         hold it: parts of it are wound more than once (nested or overlapping shells); give \
+         `mass` instead"
+    );
+    // With a mass there is no volume to weigh.
+    let nested = load(
+        d,
+        &scene_text("file = \"nested.obj\"\ncell = 0.25\nmass = 2.0\n"),
+    )
+    .unwrap();
+    assert_eq!(mesh_body(&nested).total_mass(), 2.0);
 }
 
 /// The located error of a scene, as `line: key: message`.
