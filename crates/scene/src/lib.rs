@@ -32,6 +32,7 @@ pub mod solver;
 pub mod topology;
 mod validate;
 pub mod voxel;
+mod winding;
 
 use std::fmt;
 use std::str::FromStr;
