@@ -58,7 +58,15 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
             "total_mass": scene.total_mass(),
             "stable_dt": stable_dt,
             "stable_dt_estimate": stable_dt_estimate,
-            "bodies": model.bodies.iter().map(|b| serde_json::json!({"name": b.name, "first": b.first, "count": b.count})).collect::<Vec<_>>(),
+            "bodies": model.bodies.iter().zip(&scene.bodies).map(|(b, body)| {
+                let mut v = serde_json::json!({"name": b.name, "first": b.first, "count": b.count, "mass": body.mass()});
+                if let Some(weighed) = weighed(body) {
+                    v["density"] = weighed.density.into();
+                    v["volume"] = weighed.volume.into();
+                    v["volume_of"] = weighed.of.into();
+                }
+                v
+            }).collect::<Vec<_>>(),
             "terrain": terrain,
             "integrator": sim.integrator.name(),
             "dt": sim.dt,
@@ -71,8 +79,25 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
     }
     line!("{}: valid", args.scene.display());
     line!("  particles   {}", model.len());
-    for b in &model.bodies {
-        line!("    {:<10} {} particles from {}", b.name, b.count, b.first);
+    for (b, body) in model.bodies.iter().zip(&scene.bodies) {
+        let how = weighed(body).map_or(String::new(), |w| {
+            let of = match w.of {
+                "mesh" => "the mesh encloses",
+                _ => "of its kept cells: the mesh is not closed",
+            };
+            format!(
+                " ({} kg/m³ × {} m³ {of})",
+                w.density,
+                twelve_digits(w.volume)
+            )
+        });
+        line!(
+            "    {:<10} {} particles from {}, {} kg{how}",
+            b.name,
+            b.count,
+            b.first,
+            twelve_digits(body.mass())
+        );
     }
     line!(
         "  springs     {} ({} structural, {} shear, {} bending)",
@@ -108,6 +133,33 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
         line!("  warning     {w}");
     }
     emit(&out)
+}
+
+/// A mesh body's mass given as a density: the density and the volume it weighed, "mesh" (the
+/// volume the mesh encloses) or "cells" (its kept cells', for a mesh that is not closed).
+struct Weighed {
+    density: f64,
+    volume: f64,
+    of: &'static str,
+}
+
+fn weighed(body: &softbody::scene::Body) -> Option<Weighed> {
+    use softbody::scene::{BodyShape, MeshMass};
+    match &body.shape {
+        BodyShape::Mesh(m) => match m.mass {
+            MeshMass::Density(density) => Some(Weighed {
+                density,
+                volume: m.solid_volume(),
+                of: if m.voxels.enclosed_volume().is_some() {
+                    "mesh"
+                } else {
+                    "cells"
+                },
+            }),
+            MeshMass::Mass(_) => None,
+        },
+        _ => None,
+    }
 }
 
 /// `x` to twelve significant digits, shortest: a sum of the particles' masses shows the mass

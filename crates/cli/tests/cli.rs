@@ -770,8 +770,57 @@ fn check_json_counts_particles_springs_and_mass() {
     assert_eq!(v["springs"]["shear"], shear);
     assert_eq!(v["springs"]["bending"], bending);
     assert_eq!(f64_of(&v["total_mass"]), 3.0);
+    assert_eq!(f64_of(&v["bodies"][0]["mass"]), 2.5);
+    assert_eq!(f64_of(&v["bodies"][1]["mass"]), 0.5);
+    assert!(v["bodies"][0].get("volume").is_none(), "{v}");
     let stable = f64_of(&v["stable_dt"]);
     assert!(stable.is_finite() && stable > 0.0, "{v}");
+}
+
+/// A mesh body given a density: `check` says what volume it weighed, the box's 0.4 × 0.3 ×
+/// 0.2 m (not the 0.0309 m³ of its 6 × 5 × 3 cells of 7 cm), in the text and the JSON.
+#[test]
+fn check_says_what_a_density_weighed() {
+    let sb = Sandbox::new();
+    let mut obj = String::new();
+    for i in 0..8 {
+        let [x, y, z] = [i & 1, i >> 1 & 1, i >> 2 & 1];
+        obj += &format!("v {x} {y} {z}\n");
+    }
+    // Each face as two triangles, counter-clockwise seen from outside (OBJ counts from 1).
+    for [a, b, c, d] in [
+        [1, 3, 4, 2],
+        [5, 6, 8, 7],
+        [1, 2, 6, 5],
+        [3, 7, 8, 4],
+        [1, 5, 7, 3],
+        [2, 4, 8, 6],
+    ] {
+        obj += &format!("f {a} {b} {c}\nf {a} {c} {d}\n");
+    }
+    sb.write("box.obj", &obj);
+    let scene = sb.write(
+        "s.toml",
+        "[simulation]\ndt = 0.001\nduration = 0.01\n[[body]]\nname = \"box\"\nkind = \"mesh\"\n\
+         file = \"box.obj\"\nscale = [0.4, 0.3, 0.2]\ncell = 0.07\ndensity = 500.0\n",
+    );
+    let run = sb.run(&["check", scene.to_str().unwrap()]);
+    run.expect_status(EXIT_OK);
+    let text = run.stdout_text();
+    assert!(
+        text.contains(
+            "    box        168 particles from 0, 12 kg (500 kg/m³ × 0.024 m³ the mesh encloses)\n"
+        ),
+        "{text}"
+    );
+    let run = sb.run(&["check", scene.to_str().unwrap(), "--json"]);
+    run.expect_status(EXIT_OK);
+    let v: Value = serde_json::from_str(&run.stdout_text()).unwrap();
+    let body = &v["bodies"][0];
+    assert!((f64_of(&body["mass"]) - 12.0).abs() < 1e-12, "{v}");
+    assert!((f64_of(&body["volume"]) - 0.024).abs() < 1e-15, "{v}");
+    assert_eq!(f64_of(&body["density"]), 500.0);
+    assert_eq!(body["volume_of"], "mesh");
 }
 
 #[test]

@@ -244,6 +244,15 @@ pub struct Body {
 }
 
 impl Body {
+    /// The body's mass, kg: a cuboid's or mesh body's total, a particle set's sum.
+    pub fn mass(&self) -> f64 {
+        match &self.shape {
+            BodyShape::Cuboid(c) => c.mass,
+            BodyShape::Particles(p) => p.masses.iter().sum(),
+            BodyShape::Mesh(m) => m.total_mass(),
+        }
+    }
+
     /// The contact radius of the body's particles: the given one, or the default (half the
     /// smallest lattice spacing of a cuboid, half the cell of a mesh body, 0 for a `particles`
     /// body).
@@ -481,14 +490,7 @@ impl Scene {
 
     /// Total mass, kg.
     pub fn total_mass(&self) -> f64 {
-        self.bodies
-            .iter()
-            .map(|b| match &b.shape {
-                BodyShape::Cuboid(c) => c.mass,
-                BodyShape::Particles(p) => p.masses.iter().sum(),
-                BodyShape::Mesh(m) => m.total_mass(),
-            })
-            .sum()
+        self.bodies.iter().map(Body::mass).sum()
     }
 
     /// Checks every value; the error names the key the file would use.
