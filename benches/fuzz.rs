@@ -1,6 +1,7 @@
 //! Hostile inputs for the three readers of untrusted files: the scene parser (and, for the
-//! scenes it accepts, the model and a few CPU steps), the OBJ loader (and the terrain query
-//! structure it feeds), and the JSON Lines reader. Every input must be accepted or refused with
+//! scenes it accepts, the model and a few CPU steps), the OBJ loader (and what it feeds: the
+//! terrain query structure, and the voxelisation of a mesh body with its winding numbers, the
+//! fast ones of an open mesh), and the JSON Lines reader. Every input must be accepted or refused with
 //! an error; a panic is a defect.
 //!
 //! ```text
@@ -25,6 +26,7 @@ use std::time::{Duration, Instant};
 use softbody::output::jsonl::Reader;
 use softbody::output::{self, Format};
 use softbody::scene::mesh::load_obj;
+use softbody::scene::voxel::{LatticeSize, Voxels};
 use softbody::scene::{FrictionModel, Terrain, TerrainShape};
 use softbody::terrain::Surface;
 use softbody::{Backend, CpuSolver, Model, Scene, Solver};
@@ -373,7 +375,8 @@ fn scene(text: &str, origin: &Path) -> bool {
 }
 
 /// Loads an OBJ file holding `text` and, if it loads, builds the terrain surface of it and
-/// queries it. Whether it was accepted.
+/// queries it, and voxelises it as a mesh body (6 cells along its longest side) and embeds
+/// its vertices. Whether it was accepted as an OBJ file.
 fn obj(text: &str, dir: &Path) -> bool {
     let path = dir.join("fuzzed.obj");
     if std::fs::write(&path, text).is_err() {
@@ -382,6 +385,13 @@ fn obj(text: &str, dir: &Path) -> bool {
     let Ok(mesh) = load_obj(&path) else {
         return false;
     };
+    if let Ok(voxels) = Voxels::new(mesh.clone(), glam::DVec3::ONE, LatticeSize::Resolution(6)) {
+        let _ = (
+            voxels.embedding(),
+            voxels.enclosed_volume(),
+            voxels.lattice_surface(),
+        );
+    }
     let surface = Surface::new(&Terrain {
         shape: TerrainShape::Mesh(mesh),
         restitution: 0.5,
