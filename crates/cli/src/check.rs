@@ -63,7 +63,7 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
                 if let Some(weighed) = weighed(body) {
                     v["density"] = weighed.density.into();
                     v["volume"] = weighed.volume.into();
-                    v["volume_of"] = weighed.of.into();
+                    v["volume_of"] = weighed.of().into();
                 }
                 v
             }).collect::<Vec<_>>(),
@@ -81,9 +81,10 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
     line!("  particles   {}", model.len());
     for (b, body) in model.bodies.iter().zip(&scene.bodies) {
         let how = weighed(body).map_or(String::new(), |w| {
-            let of = match w.of {
-                "mesh" => "the mesh encloses",
-                _ => "of its kept cells: the mesh is not closed",
+            let of = if w.enclosed {
+                "the mesh encloses"
+            } else {
+                "of its kept cells: the mesh is not closed"
             };
             format!(
                 " ({} kg/m³ × {} m³ {of})",
@@ -135,12 +136,19 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
     emit(&out)
 }
 
-/// A mesh body's mass given as a density: the density and the volume it weighed, "mesh" (the
-/// volume the mesh encloses) or "cells" (its kept cells', for a mesh that is not closed).
+/// A mesh body's mass given as a density: the density and the volume it weighed, the one the
+/// mesh encloses or, for a mesh that is not closed, its kept cells'.
 struct Weighed {
     density: f64,
     volume: f64,
-    of: &'static str,
+    enclosed: bool,
+}
+
+impl Weighed {
+    /// The JSON's name for what the volume is of.
+    fn of(&self) -> &'static str {
+        if self.enclosed { "mesh" } else { "cells" }
+    }
 }
 
 fn weighed(body: &softbody::scene::Body) -> Option<Weighed> {
@@ -150,11 +158,7 @@ fn weighed(body: &softbody::scene::Body) -> Option<Weighed> {
             MeshMass::Density(density) => Some(Weighed {
                 density,
                 volume: m.solid_volume(),
-                of: if m.voxels.enclosed_volume().is_some() {
-                    "mesh"
-                } else {
-                    "cells"
-                },
+                enclosed: m.voxels.enclosed_volume().is_some(),
             }),
             MeshMass::Mass(_) => None,
         },
