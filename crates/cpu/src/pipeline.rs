@@ -34,7 +34,7 @@
 //! Each spring is computed once, by the same kernel, from the same inputs, and every sum has
 //! the gather's order, so the result does not depend on the number of chunks or threads.
 //!
-//! Models whose bodies are all cuboids take the stencil route instead
+//! Models whose bodies are all lattices (cuboids, mesh bodies) take the stencil route instead
 //! ([`crate::spring_forces::stencil`]): one slab of planes per chunk, partners at constant
 //! offsets, the sums again in the gather's order. Models that are not forward take the plain
 //! route: every spring force into a buffer, then a gather per particle. All three give the
@@ -102,7 +102,8 @@ impl Clone for Route {
 /// The routes a plan can take ([`Plan::with_route`]), by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RouteKind {
-    /// [`crate::spring_forces::stencil`], for models of cuboids only.
+    /// [`crate::spring_forces::stencil`], for models of lattice bodies only (cuboids, mesh
+    /// bodies).
     Stencil,
     /// The fused sweep over springs sorted by their first end, for forward models.
     Sweep,
@@ -139,11 +140,11 @@ impl Plan {
         Plan::with_route(model, route)
     }
 
-    /// Whether the stencil applies: every body is a cuboid ([`all_cuboids`]). A mesh body's
-    /// masked lattice would make the stencil work at its empty points too: the sweep is faster
-    /// there (ARCHITECTURE.md, issue 12).
+    /// Whether the stencil applies: every body is a lattice (a cuboid, or a mesh body's
+    /// masked lattice, whose rows the stencil takes by their runs of particles).
     fn stencil_applies(model: &Model) -> bool {
-        all_cuboids(model)
+        let lattices = model.lattices();
+        !lattices.is_empty() && lattices.len() == model.bodies.len()
     }
 
     /// The plan of `model` for the current rayon pool by `route`; panics if it does not apply.
@@ -152,19 +153,30 @@ impl Plan {
         let threads = rayon::current_num_threads();
         let (bounds, route) = match route {
             RouteKind::Stencil => {
-                assert!(Plan::stencil_applies(model), "a model of cuboids only");
+                assert!(Plan::stencil_applies(model), "a model of lattices only");
                 // About one slab per thread on the whole, in proportion to each body's
                 // particles; each costs its thread the springs from the two planes below it
-                // again.
+                // again. A body's slabs hold about equal numbers of its particles.
                 let stencils: Vec<Stencil> = model.lattices().iter().map(Stencil::new).collect();
                 let mut bounds = vec![0];
                 let mut slabs = Vec::new();
                 for (l, stencil) in stencils.iter().enumerate() {
                     let planes = stencil.planes();
-                    let share = (threads * planes * stencil.plane_particles() + n / 2) / n.max(1);
+                    let (first, end) = (stencil.plane_start(0), stencil.plane_start(planes));
+                    let share = (threads * (end - first) + n / 2) / n.max(1);
                     let count = share.clamp(1, planes);
-                    for c in 0..count {
-                        let (k0, k1) = (c * planes / count, (c + 1) * planes / count);
+                    let mut cuts: Vec<usize> = (0..=count)
+                        .map(|c| {
+                            let target = first + c * (end - first) / count;
+                            (0..planes)
+                                .find(|&k| stencil.plane_start(k) >= target)
+                                .unwrap_or(planes)
+                        })
+                        .collect();
+                    (cuts[0], cuts[count]) = (0, planes);
+                    cuts.dedup();
+                    for c in cuts.windows(2) {
+                        let (k0, k1) = (c[0], c[1]);
                         let slab = Slab::new(stencil, l, k0, k1);
                         let (first, end) = slab.particles(stencil);
                         assert_eq!(first, *bounds.last().expect("bounds start at 0"));
@@ -239,7 +251,7 @@ impl Plan {
     pub(crate) fn kernel_name(&self) -> &'static str {
         let avx2 = crate::spring_forces::avx2();
         match (self.route(), avx2) {
-            (RouteKind::Stencil, _) => match Isa::detect() {
+            (RouteKind::Stencil, _) => match self.stencil_isa() {
                 Isa::Avx512 => "stencil-avx512",
                 Isa::Avx2 => "stencil-avx2",
                 Isa::Scalar => "stencil",
@@ -248,6 +260,15 @@ impl Plan {
             (RouteKind::Sweep, false) => "sweep",
             (RouteKind::Gather, _) => "gather",
         }
+    }
+
+    /// The narrowest path the stencil's bodies take (a mesh body's stops at AVX2).
+    fn stencil_isa(&self) -> Isa {
+        let Route::Stencil { stencils, .. } = &self.route else {
+            return Isa::detect();
+        };
+        let isas = stencils.iter().map(Stencil::isa);
+        isas.min_by_key(|&isa| isa as u8).unwrap_or(Isa::Scalar)
     }
 
     /// The route the plan takes.
@@ -693,9 +714,7 @@ mod tests {
     /// Cuboids of `resolutions` side by side (one body each), with every particle moved and
     /// moving differently, and one spring crushed to zero length.
     fn perturbed_bodies(resolutions: &[[u32; 3]]) -> (Model, Vec<DVec3>, Vec<DVec3>) {
-        let mut text = String::from(
-            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-5\nduration = 0.0\n",
-        );
+        let mut text = String::new();
         for (b, [nx, ny, nz]) in resolutions.iter().enumerate() {
             text += &format!(
                 "[[body]]\nname = \"b{b}\"\nkind = \"cuboid\"\ncenter = [{x}, 1.0, 0.0]\n\
@@ -706,7 +725,18 @@ mod tests {
                 x = 3.0 * b as f64,
             );
         }
-        let scene = Scene::from_toml(&text, Path::new("test.toml")).expect("valid scene");
+        perturbed(&text)
+    }
+
+    /// The bodies of `bodies` (TOML, beside the example scenes: mesh bodies may name their
+    /// meshes), with every particle moved and moving differently, and one spring crushed to
+    /// zero length.
+    fn perturbed(bodies: &str) -> (Model, Vec<DVec3>, Vec<DVec3>) {
+        let text = format!(
+            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-5\nduration = 0.0\n{bodies}"
+        );
+        let at = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/test.toml");
+        let scene = Scene::from_toml(&text, &at).expect("valid scene");
         let (model, state) = Model::build(&scene);
         let wobble = |i: usize, a: f64, b: f64, c: f64| {
             let t = i as f64;
@@ -722,7 +752,7 @@ mod tests {
     }
 
     /// A 13×11×17 cube (2431 particles, up to 9 chunks), perturbed.
-    fn perturbed() -> (Model, Vec<DVec3>, Vec<DVec3>) {
+    fn perturbed_cube() -> (Model, Vec<DVec3>, Vec<DVec3>) {
         perturbed_bodies(&[[13, 11, 17]])
     }
 
@@ -764,7 +794,7 @@ mod tests {
     /// the bits of `spring_force`, including no force for the crushed spring.
     #[test]
     fn kernels_are_spring_force_bit_for_bit() {
-        let (model, x, v) = perturbed();
+        let (model, x, v) = perturbed_cube();
         let s = model.springs();
         let expected = scalar_forces(&model, &x, &v);
         assert_eq!(expected[s.len() / 2], DVec3::ZERO);
@@ -814,12 +844,12 @@ mod tests {
         })
     }
 
-    /// Every route (the stencil and the fused sweep for models of cuboids, the plain route for
+    /// Every route (the stencil and the fused sweep for models of lattices, the plain route for
     /// any) hands every particle the bits of the scalar gather, for any number of threads and
     /// so of chunks.
     #[test]
     fn pass_sums_are_the_gather_for_any_thread_count() {
-        let (forward, x, v) = perturbed();
+        let (forward, x, v) = perturbed_cube();
         assert_eq!(Plan::new(&forward).route(), RouteKind::Stencil);
         // The same springs with every third one reversed: no longer forward.
         let mut plain = forward.clone();
@@ -870,6 +900,47 @@ mod tests {
                     let route = (RouteKind::Stencil, Some(isa));
                     let got = pass_sums(&model, &x, &v, route, threads);
                     let what = format!("{resolutions:?}, {isa:?}, {threads} threads");
+                    assert_eq!(bits(&got), expected, "{what}");
+                }
+            }
+        }
+    }
+
+    /// Mesh bodies' masked lattices on the stencil (each path the CPU runs for them: scalar,
+    /// AVX2) equal the scalar definition: rows of several runs (the torus's hole, the star's
+    /// points), rows and planes without particles, next to a cuboid, for 1 to 7 threads.
+    #[test]
+    fn the_stencil_is_the_gather_on_mesh_bodies() {
+        let mesh = |name: &str, file: &str, cell: f64, x: f64, rotation: [f64; 3]| {
+            format!(
+                "[[body]]\nname = \"{name}\"\nkind = \"mesh\"\nfile = \"{file}\"\ncell = {cell}\n\
+                 center = [{x}, 1.0, 0.0]\nrotation = {rotation:?}\nmass = 3.0\n\
+                 structural = {{ stiffness = 2000.0, damping = 5.0 }}\n\
+                 shear = {{ stiffness = 1500.0, damping = 4.0 }}\n\
+                 bending = {{ stiffness = 700.0, damping = 3.0 }}\n"
+            )
+        };
+        let cuboid = "[[body]]\nname = \"c\"\nkind = \"cuboid\"\ncenter = [3.0, 1.0, 0.0]\n\
+                      size = [0.5, 0.4, 0.3]\nresolution = [5, 4, 3]\nmass = 2.0\n\
+                      structural = { stiffness = 900.0, damping = 2.0 }\n";
+        let bodies = [
+            mesh("torus", "torus.obj", 0.05, 0.0, [0.0, 0.0, 0.0]),
+            mesh("torus", "torus.obj", 0.04, 0.0, [30.0, 20.0, 10.0])
+                + &mesh("star", "star.obj", 0.06, 1.5, [10.0, 0.0, 70.0])
+                + cuboid,
+        ];
+        let isas = [Isa::Scalar, Isa::Avx2];
+        let isas: Vec<Isa> = isas.into_iter().filter(|isa| isa.runs()).collect();
+        for text in &bodies {
+            let (model, x, v) = perturbed(text);
+            assert!(model.lattices().iter().any(|l| l.mask.is_some()));
+            assert_eq!(Plan::new(&model).route(), RouteKind::Stencil);
+            let expected = bits(&reference(&model, &x, &v));
+            for threads in 1..=7 {
+                for &isa in &isas {
+                    let route = (RouteKind::Stencil, Some(isa));
+                    let got = pass_sums(&model, &x, &v, route, threads);
+                    let what = format!("{} particles, {isa:?}, {threads} threads", model.len());
                     assert_eq!(bits(&got), expected, "{what}");
                 }
             }

@@ -475,7 +475,7 @@ pub struct Model {
     pub mass: Vec<f64>,
     /// 1/m_i, and 0 for pinned particles (so they never accelerate).
     pub inv_mass: Vec<f64>,
-    /// The springs of the bodies without a lattice (`particles` and mesh bodies), in body
+    /// The springs of the bodies without a lattice (`particles` bodies), in body
     /// order; all of them once [`Model::springs_mut`] has turned the lattices into a list.
     listed: Springs,
     /// The lattice bodies' springs (cuboids and mesh bodies), as stencils on their lattices
@@ -864,7 +864,7 @@ impl Model {
         &self.lattices
     }
 
-    /// The springs of the bodies without a lattice (`particles` and mesh bodies), in body
+    /// The springs of the bodies without a lattice (`particles` bodies), in body
     /// order: with [`Model::lattices`], every spring.
     pub fn listed_springs(&self) -> &Springs {
         &self.listed

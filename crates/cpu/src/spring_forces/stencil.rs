@@ -23,14 +23,20 @@
 //! springs that reach into its slab from the two planes below (computed again, with the same
 //! bits, by the thread below): the result does not depend on how many slabs there are.
 //!
+//! A mesh body's lattice is masked: points without a particle, and springs missing between
+//! points that have one. Its rows are taken by their runs of particles ([`Run`]): only the
+//! spans of slots that its runs and the rows its springs reach need are computed
+//! ([`Stencil::computed`]), each lane's mask made from the point's spring bits, and the sums
+//! and the rows handed on are the runs'.
+//!
 //! The copy is a window of [`WINDOW`] planes moving up the slab (and the two above it, which
 //! its springs reach; the next window copies those two again), so that a thread holds a few
 //! planes whatever the body's size: the lean model's bytes per particle stay those of the
 //! state.
 
 use glam::DVec3;
-use softbody_scene::Lattice;
 use softbody_scene::topology::OFFSETS;
+use softbody_scene::{Lattice, LatticeMask};
 
 use super::{Isa, spring_force};
 
@@ -43,6 +49,8 @@ const GUARD: usize = LINE;
 const ROW_MULTIPLE: usize = LINE;
 /// f64 slots per cache line (64 bytes).
 const LINE: usize = 8;
+/// Particles side by side on the AVX2 path: the groups a masked lattice's spans are made of.
+const AVX2_LANES: usize = 4;
 /// Planes of a slab whose sums one copy of the state serves.
 const WINDOW: usize = 8;
 
@@ -56,9 +64,21 @@ struct Offset {
     /// Its records in the ring: one more than the rows from a spring's start to its end in
     /// the sweep's order, dk·ny + dj.
     depth: usize,
+    /// Its bit in a masked lattice's spring bits (1 << its index in [`OFFSETS`]).
+    bit: u16,
     rest: f64,
     ks: f64,
     kd: f64,
+}
+
+/// A grid row's run of points that hold particles: points `i0..i1`, the first of them the
+/// body's particle `p` (a masked lattice numbers its particles in point order, so a run's
+/// particles are consecutive).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Run {
+    i0: u32,
+    i1: u32,
+    p: u32,
 }
 
 /// A lattice body's stencil: its geometry in the padded layout and its offsets.
@@ -78,8 +98,23 @@ pub(crate) struct Stencil {
     backward: Vec<usize>,
     /// Per offset and slot of a row (offset after offset): whether a spring of that offset
     /// starts there (all ones) or none does (zero), whatever the row; the vector paths load
-    /// their lane masks from it.
+    /// a cuboid's lane masks from it.
     lane_masks: Vec<u64>,
+    /// A mesh body's spring bits per lattice point ([`softbody_scene::LatticeMask::springs`]),
+    /// from which its lanes' masks are made; `None` for a cuboid.
+    bits: Option<Vec<u16>>,
+    /// Row j + ny·k's runs are `runs[row_runs[row]..row_runs[row + 1]]`.
+    row_runs: Vec<u32>,
+    runs: Vec<Run>,
+    /// Row j + ny·k's slots whose forces are computed are the spans
+    /// `computed[row_computed[row]..row_computed[row + 1]]`, `[lo, hi)` each, apart and
+    /// ascending: its runs' slots, and every slot that a row its springs reach reads back at,
+    /// so that no record a sum reads is left from an earlier row; in whole groups of the
+    /// AVX2 path (a cuboid: the whole row, one span).
+    row_computed: Vec<u32>,
+    computed: Vec<[u32; 2]>,
+    /// Per plane, and one past the last, the body's particles before it.
+    plane_first: Vec<u32>,
     /// The path the rows take.
     isa: Isa,
 }
@@ -88,7 +123,7 @@ impl Stencil {
     /// The stencil of `lattice`.
     pub(crate) fn new(lattice: &Lattice) -> Stencil {
         let dims = lattice.dims.map(|d| d as usize);
-        let [nx, ny, _] = dims;
+        let [nx, ny, nz] = dims;
         let row = (nx + 2).next_multiple_of(ROW_MULTIPLE);
         let mut ring = GUARD;
         let offsets: Vec<Offset> = (lattice.springs.iter())
@@ -103,6 +138,7 @@ impl Stencil {
                     o,
                     ring: first,
                     depth,
+                    bit: 1 << s.offset,
                     rest: s.rest,
                     ks: s.stiffness,
                     kd: s.damping,
@@ -125,6 +161,102 @@ impl Stencil {
                 })
             })
             .collect();
+        let rows = ny * nz;
+        let (mut row_runs, mut runs) = (vec![0], Vec::new());
+        let mut plane_first = vec![0];
+        let (bits, row_computed, computed) = match &lattice.mask {
+            None => {
+                for r in 0..rows {
+                    let p = u32::try_from(nx * r).expect("particles are u32");
+                    runs.push(Run {
+                        i0: 0,
+                        i1: nx as u32,
+                        p,
+                    });
+                    row_runs.push(runs.len() as u32);
+                }
+                plane_first.extend((1..=nz).map(|k| (k * nx * ny) as u32));
+                let whole = (0..=rows as u32).collect();
+                (None, whole, vec![[0, row as u32]; rows])
+            }
+            Some(mask) => {
+                let mut count = 0;
+                for r in 0..rows {
+                    let particle = |i: usize| mask.particle_of[nx * r + i];
+                    let mut i = 0;
+                    while i < nx {
+                        if particle(i) == LatticeMask::NONE {
+                            i += 1;
+                            continue;
+                        }
+                        let i0 = i;
+                        while i < nx && particle(i) != LatticeMask::NONE {
+                            i += 1;
+                        }
+                        runs.push(Run {
+                            i0: i0 as u32,
+                            i1: i as u32,
+                            p: particle(i0),
+                        });
+                        count += (i - i0) as u32;
+                    }
+                    row_runs.push(runs.len() as u32);
+                    if (r + 1) % ny == 0 {
+                        plane_first.push(count);
+                    }
+                }
+                let (mut row_computed, mut computed): (Vec<u32>, Vec<[u32; 2]>) =
+                    (vec![0], Vec::new());
+                let mut spans: Vec<[i64; 2]> = Vec::new();
+                for r in 0..rows {
+                    let (j, k) = ((r % ny) as i64, (r / ny) as i64);
+                    let row_of = |dj: i64, dk: i64| {
+                        let (j, k) = (j + dj, k + dk);
+                        let inside = (0..ny as i64).contains(&j) && (0..nz as i64).contains(&k);
+                        let q = (j + ny as i64 * k) as usize;
+                        let runs =
+                            inside.then(|| &runs[row_runs[q] as usize..row_runs[q + 1] as usize]);
+                        runs.unwrap_or_default().iter()
+                    };
+                    // A spring of offset o from slot i of this row ends at slot i + di of the
+                    // row o reaches, whose sums read this row's record there.
+                    spans.clear();
+                    spans.extend(row_of(0, 0).map(|run| [run.i0 as i64, run.i1 as i64]));
+                    for off in &offsets {
+                        let [di, dj, dk] = off.o.map(i64::from);
+                        let shifted = row_of(dj, dk).map(|run| {
+                            [
+                                (run.i0 as i64 - di).max(0),
+                                (run.i1 as i64 - di).min(nx as i64),
+                            ]
+                        });
+                        spans.extend(shifted.filter(|[lo, hi]| lo < hi));
+                    }
+                    // Whole groups of four, merged where they touch.
+                    let group = AVX2_LANES as i64;
+                    spans.iter_mut().for_each(|[lo, hi]| {
+                        *lo -= lo.rem_euclid(group);
+                        *hi += (-*hi).rem_euclid(group);
+                    });
+                    spans.sort_unstable();
+                    let row_start = computed.len();
+                    for &[lo, hi] in &spans {
+                        match computed[row_start..].last_mut() {
+                            Some([_, end]) if i64::from(*end) >= lo => *end = (*end).max(hi as u32),
+                            _ => computed.push([lo as u32, hi as u32]),
+                        }
+                    }
+                    row_computed.push(computed.len() as u32);
+                }
+                (Some(mask.springs.clone()), row_computed, computed)
+            }
+        };
+        // A masked lattice's lanes take their masks from bits, which the AVX2 path tests in
+        // its loop; the AVX-512 path has no such loop (yet), so a mesh body stops at AVX2.
+        let isa = match (Isa::detect(), &bits) {
+            (Isa::Avx512, Some(_)) => Isa::Avx2,
+            (isa, _) => isa,
+        };
         Stencil {
             first: lattice.first as usize,
             dims,
@@ -132,7 +264,13 @@ impl Stencil {
             offsets,
             backward,
             lane_masks,
-            isa: Isa::detect(),
+            bits,
+            row_runs,
+            runs,
+            row_computed,
+            computed,
+            plane_first,
+            isa,
         }
     }
 
@@ -141,7 +279,14 @@ impl Stencil {
     #[cfg(test)]
     pub(crate) fn with_isa(&mut self, isa: Isa) {
         assert!(isa.runs(), "{isa:?} on a CPU without it");
-        self.isa = isa;
+        if !(isa == Isa::Avx512 && self.bits.is_some()) {
+            self.isa = isa;
+        }
+    }
+
+    /// The path the rows take.
+    pub(crate) fn isa(&self) -> Isa {
+        self.isa
     }
 
     /// Slots of the ring: every offset's records, between guards.
@@ -150,19 +295,26 @@ impl Stencil {
         GUARD + records * 3 * self.row + GUARD
     }
 
-    /// Particles of one plane.
-    pub(crate) fn plane_particles(&self) -> usize {
-        self.dims[0] * self.dims[1]
-    }
-
     /// Planes (k).
     pub(crate) fn planes(&self) -> usize {
         self.dims[2]
     }
 
-    /// Global index of the first particle of plane k.
+    /// Global index of the first particle of plane k (or past it, of the next plane's).
     pub(crate) fn plane_start(&self, k: usize) -> usize {
-        self.first + k * self.plane_particles()
+        self.first + self.plane_first[k] as usize
+    }
+
+    /// Row (j, k)'s runs of particles.
+    fn runs(&self, j: usize, k: usize) -> &[Run] {
+        let r = j + self.dims[1] * k;
+        &self.runs[self.row_runs[r] as usize..self.row_runs[r + 1] as usize]
+    }
+
+    /// Row (j, k)'s spans of slots whose forces are computed.
+    fn computed(&self, j: usize, k: usize) -> &[[u32; 2]] {
+        let r = j + self.dims[1] * k;
+        &self.computed[self.row_computed[r] as usize..self.row_computed[r + 1] as usize]
     }
 
     /// Slots of one padded plane.
@@ -253,7 +405,8 @@ pub(crate) struct Slab {
     kb: usize,
     /// First plane of the window copied into `state`.
     base: usize,
-    /// Slots of each of the six state arrays (x, y, z of x; x, y, z of v).
+    /// Slots of each of the state arrays (x, y, z of x; x, y, z of v; a masked lattice's
+    /// spring bits, as the bits of f64).
     len: usize,
     state: Lines,
     /// Slots between the components of a record in the ring: a padded row.
@@ -280,7 +433,7 @@ impl Slab {
             kb,
             base: kb,
             len,
-            state: Lines::zeroed(6 * len),
+            state: Lines::zeroed((6 + usize::from(stencil.bits.is_some())) * len),
             ring_len,
             ring: Lines::zeroed(stencil.ring_slots()),
             sums: Lines::zeroed(3 * stencil.row),
@@ -337,7 +490,7 @@ impl Slab {
         v: &[DVec3],
         done: &mut impl FnMut(&Row<'_>),
     ) {
-        let [nx, ny, _] = stencil.dims;
+        let ny = stencil.dims[1];
         self.window(stencil, x, v, self.kb, self.k0);
         let mut records = Records::start();
         // The springs from the two planes below that reach into the slab.
@@ -355,16 +508,20 @@ impl Slab {
             let plane = self.plane_ring(stencil, k);
             for j in 0..ny {
                 self.compute_row(stencil, &plane, &records, (j, k), 0);
-                self.sum_row(stencil, &plane, &records, j);
-                let s0 = self.slot(stencil, 0, j, k);
-                let state = |c: usize| &self.state[c * self.len + s0..][..nx];
-                let sums = |c: usize| &self.sums[c * stencil.row..][..nx];
-                done(&Row {
-                    p0: stencil.first + nx * (j + ny * k),
-                    x: [state(0), state(1), state(2)],
-                    v: [state(3), state(4), state(5)],
-                    f: [sums(0), sums(1), sums(2)],
-                });
+                let runs = stencil.runs(j, k);
+                self.sum_row(stencil, &plane, &records, j, runs);
+                for run in runs {
+                    let (i0, n) = (run.i0 as usize, (run.i1 - run.i0) as usize);
+                    let s0 = self.slot(stencil, i0, j, k);
+                    let state = |c: usize| &self.state[c * self.len + s0..][..n];
+                    let sums = |c: usize| &self.sums[c * stencil.row + i0..][..n];
+                    done(&Row {
+                        p0: stencil.first + run.p as usize,
+                        x: [state(0), state(1), state(2)],
+                        v: [state(3), state(4), state(5)],
+                        f: [sums(0), sums(1), sums(2)],
+                    });
+                }
                 records.advance(stencil);
             }
         }
@@ -376,15 +533,27 @@ impl Slab {
         let [nx, ny, nz] = stencil.dims;
         let end = ((from + WINDOW).min(self.k1) + 2).min(nz);
         self.base = base;
-        let mut arrays = split6(&mut self.state, self.len);
+        let (state, bits) = self.state.split_at_mut(6 * self.len);
+        let mut arrays = split6(state, self.len);
         for k in base..end {
             for j in 0..ny {
-                let p0 = stencil.first + nx * (j + ny * k);
-                let s0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - base);
-                let (xs, vs) = (&x[p0..p0 + nx], &v[p0..p0 + nx]);
-                let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + nx]);
-                transpose(stencil.isa, xs, [r0, r1, r2]);
-                transpose(stencil.isa, vs, [r3, r4, r5]);
+                let row0 = GUARD + stencil.row * j + stencil.plane_slots() * (k - base);
+                // A masked lattice's slots without a particle keep what an earlier window
+                // left there: their lanes' bits are zero, which masks whatever they compute.
+                for run in stencil.runs(j, k) {
+                    let (p0, n) = (stencil.first + run.p as usize, (run.i1 - run.i0) as usize);
+                    let s0 = row0 + run.i0 as usize;
+                    let (xs, vs) = (&x[p0..p0 + n], &v[p0..p0 + n]);
+                    let [r0, r1, r2, r3, r4, r5] = arrays.each_mut().map(|c| &mut c[s0..s0 + n]);
+                    transpose(stencil.isa, xs, [r0, r1, r2]);
+                    transpose(stencil.isa, vs, [r3, r4, r5]);
+                }
+                if let Some(point_bits) = &stencil.bits {
+                    let from = &point_bits[nx * (j + ny * k)..][..nx];
+                    for (slot, &b) in bits[row0..row0 + nx].iter_mut().zip(from) {
+                        *slot = f64::from_bits(u64::from(b));
+                    }
+                }
             }
         }
     }
@@ -407,19 +576,30 @@ impl Slab {
             Isa::Avx512 => return unsafe { avx512::compute_row(self, stencil, &springs) },
             // SAFETY: AVX2 was detected at run time (`Isa::runs`); `row_springs` checked the
             // slots.
-            Isa::Avx2 => return unsafe { avx::compute_row(self, stencil, &springs) },
+            Isa::Avx2 if stencil.bits.is_some() => {
+                return unsafe { avx::compute_row::<true>(self, stencil, &springs) };
+            }
+            // SAFETY: as above.
+            Isa::Avx2 => return unsafe { avx::compute_row::<false>(self, stencil, &springs) },
             Isa::Scalar => {}
         }
         let a0 = springs.a0;
         for &RowSpring { r, b0, out } in springs.springs() {
             let off = &stencil.offsets[r];
-            let masks = &stencil.lane_masks[r * stencil.row..(r + 1) * stencil.row];
-            for (i, &lane) in masks.iter().enumerate() {
+            for i in springs
+                .lanes
+                .iter()
+                .flat_map(|&[lo, hi]| lo as usize..hi as usize)
+            {
                 let at = |s: usize| {
                     let c = |c: usize| self.state[c * self.len + s];
                     (DVec3::new(c(0), c(1), c(2)), DVec3::new(c(3), c(4), c(5)))
                 };
-                let f = if lane != 0 {
+                let live = match stencil.bits {
+                    Some(_) => self.state[6 * self.len + a0 + i].to_bits() & u64::from(off.bit),
+                    None => stencil.lane_masks[r * stencil.row + i],
+                };
+                let f = if live != 0 {
                     let ((xa, va), (xb, vb)) = (at(a0 + i), at(b0 + i));
                     spring_force(xa, xb, va, vb, off.rest, off.ks, off.kd)
                 } else {
@@ -433,20 +613,22 @@ impl Slab {
     }
 
     /// The springs of offsets with dk ≥ `min_dk` starting in row (j, k): where the row starts
-    /// in the state arrays and, per offset, where its partners do and where its forces go in
-    /// the ring (x component).
-    fn row_springs(
+    /// in the state arrays, its slots to compute and, per offset, where its partners do and
+    /// where its forces go in the ring (x component).
+    fn row_springs<'s>(
         &self,
-        stencil: &Stencil,
+        stencil: &'s Stencil,
         plane: &PlaneRing,
         records: &Records,
         (j, k): (usize, usize),
         min_dk: i32,
-    ) -> RowSprings {
+    ) -> RowSprings<'s> {
         let row = stencil.row;
         let a0 = self.slot(stencil, 0, j, k);
+        let lanes = stencil.computed(j, k);
         let mut springs = RowSprings {
             a0,
+            lanes,
             springs: [RowSpring {
                 r: 0,
                 b0: 0,
@@ -454,12 +636,15 @@ impl Slab {
             }; 16],
             count: 0,
         };
+        let Some(&[_, end]) = lanes.last() else {
+            return springs;
+        };
         // What the vector paths read and write lies in the buffers: a's row and b's row are
         // rows of the state buffer (b's row is in the grid: `PlaneRing::starts`), and b's
         // slots are at most two before its row's start (GUARD) or after a's slots (the
         // padding); a spring's forces fill a row of each ring array; the lane masks hold a row
         // per offset.
-        assert!(a0 >= GUARD && a0 + row <= self.len);
+        assert!(a0 >= GUARD && a0 + row <= self.len && end as usize <= row);
         assert_eq!(stencil.lane_masks.len(), row * stencil.offsets.len());
         for (r, off) in stencil.offsets.iter().enumerate() {
             if off.o[2] < min_dk || !plane.starts(r, j) {
@@ -516,31 +701,52 @@ impl Slab {
         sources
     }
 
-    /// The sums of row (j, k) into `sums`: −f of the springs ending there, then +f of those
-    /// starting there.
-    fn sum_row(&mut self, stencil: &Stencil, plane: &PlaneRing, records: &Records, j: usize) {
+    /// The sums of row (j, k) into `sums`, at least at the slots of its `runs`: −f of the
+    /// springs ending there, then +f of those starting there.
+    fn sum_row(
+        &mut self,
+        stencil: &Stencil,
+        plane: &PlaneRing,
+        records: &Records,
+        j: usize,
+        runs: &[Run],
+    ) {
+        if runs.is_empty() {
+            return;
+        }
         let sources = self.sources(stencil, plane, records, j);
+        for run in runs {
+            self.sum_run(stencil, &sources, (run.i0 as usize, run.i1 as usize));
+        }
+    }
+
+    /// The sums of slots `lanes.0..lanes.1` of a row (at least: the vector paths sum whole
+    /// groups) from its `sources`.
+    fn sum_run(&mut self, stencil: &Stencil, sources: &Sources, lanes: (usize, usize)) {
+        assert!(lanes.1 <= stencil.row);
         #[cfg(target_arch = "x86_64")]
         match stencil.isa {
             // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `sources` checked the
-            // slots.
-            Isa::Avx512 => return unsafe { avx512::sum_row(self, stencil.row, &sources) },
+            // slots. Only a cuboid takes this path, and its rows are one run, summed whole.
+            Isa::Avx512 => return unsafe { avx512::sum_row(self, stencil.row, sources) },
             // SAFETY: AVX2 was detected at run time (`Isa::runs`); `sources` checked the slots.
-            Isa::Avx2 => return unsafe { avx::sum_row(self, stencil.row, &sources) },
+            Isa::Avx2 => return unsafe { avx::sum_row(self, stencil.row, lanes, sources) },
             Isa::Scalar => {}
         }
         let r = stencil.row;
         for (c, sums) in self.sums.chunks_mut(r).enumerate() {
             let component = c * self.ring_len;
+            let sums = &mut sums[lanes.0..lanes.1];
             sums.fill(0.0);
-            for &at in sources.back() {
-                for (i, s) in sums.iter_mut().enumerate() {
-                    *s -= self.ring[at + component + i];
+            let at = |a: usize| a + component + lanes.0;
+            for &a in sources.back() {
+                for (s, f) in sums.iter_mut().zip(&self.ring[at(a)..]) {
+                    *s -= f;
                 }
             }
-            for &at in sources.forth() {
-                for (i, s) in sums.iter_mut().enumerate() {
-                    *s += self.ring[at + component + i];
+            for &a in sources.forth() {
+                for (s, f) in sums.iter_mut().zip(&self.ring[at(a)..]) {
+                    *s += f;
                 }
             }
         }
@@ -584,14 +790,16 @@ struct RowSpring {
 }
 
 /// A row's springs ([`Slab::row_springs`]).
-struct RowSprings {
+struct RowSprings<'a> {
     /// Slot of the row's first particle in the state arrays.
     a0: usize,
+    /// The row's spans of slots to compute ([`Stencil::computed`]).
+    lanes: &'a [[u32; 2]],
     springs: [RowSpring; 16],
     count: usize,
 }
 
-impl RowSprings {
+impl RowSprings<'_> {
     fn springs(&self) -> &[RowSpring] {
         &self.springs[..self.count]
     }
@@ -726,8 +934,15 @@ mod avx {
     /// # Safety
     /// AVX2 is available, and `springs` were made by [`Slab::row_springs`] for this slab and
     /// stencil.
+    ///
+    /// `BITS`: the lanes' masks are made from a masked lattice's spring bits (the slab's
+    /// seventh state array) rather than loaded from the stencil's `lane_masks`.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn compute_row(slab: &mut Slab, stencil: &Stencil, springs: &RowSprings) {
+    pub(super) unsafe fn compute_row<const BITS: bool>(
+        slab: &mut Slab,
+        stencil: &Stencil,
+        springs: &RowSprings,
+    ) {
         let row = stencil.row;
         let (len, rl) = (slab.len, slab.ring_len);
         let state = slab.state.as_ptr();
@@ -739,25 +954,40 @@ mod avx {
                 _mm256_set1_pd(off.ks),
                 _mm256_set1_pd(off.kd),
             );
-            // SAFETY: `Slab::row_springs` checked that rows a0.., b0.. of every state array,
-            // row out.. of every ring array and this offset's row of lane masks hold `row`
-            // slots, a multiple of four.
+            let bit = _mm256_set1_epi64x(i64::from(off.bit));
+            // SAFETY: `Slab::row_springs` checked that rows a0.., b0.. of every state array
+            // (with BITS, the seventh too), row out.. of every ring array and this offset's
+            // row of lane masks hold `row` slots, a multiple of four.
             unsafe {
                 let pa: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + springs.a0));
+                let bits_row = if BITS {
+                    state.add(6 * len + springs.a0)
+                } else {
+                    state
+                };
                 let pb: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + b0));
                 let dst = [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)];
                 let masks = stencil.lane_masks.as_ptr().add(r * row).cast::<f64>();
-                for g in 0..row / LANES {
-                    let i = LANES * g;
-                    let d = |c: usize| _mm256_sub_pd(load(pa[c].add(i)), load(pb[c].add(i)));
-                    let (dx, dy, dz) = (d(0), d(1), d(2));
-                    let (wx, wy, wz) = (d(3), d(4), d(5));
-                    // Lanes without a spring exert no force.
-                    let mask = load(masks.add(i));
-                    let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], rest, ks, kd, mask);
-                    _mm256_storeu_pd(dst[0].add(i), fx);
-                    _mm256_storeu_pd(dst[1].add(i), fy);
-                    _mm256_storeu_pd(dst[2].add(i), fz);
+                // Whole groups over the spans to compute: they lie in the padded row.
+                for &[lo, hi] in springs.lanes {
+                    for g in lo as usize / LANES..(hi as usize).div_ceil(LANES) {
+                        let i = LANES * g;
+                        let d = |c: usize| _mm256_sub_pd(load(pa[c].add(i)), load(pb[c].add(i)));
+                        let (dx, dy, dz) = (d(0), d(1), d(2));
+                        let (wx, wy, wz) = (d(3), d(4), d(5));
+                        // Lanes without a spring exert no force.
+                        let mask = if BITS {
+                            let bits = _mm256_castpd_si256(load(bits_row.add(i)));
+                            let set = _mm256_cmpeq_epi64(_mm256_and_si256(bits, bit), bit);
+                            _mm256_castsi256_pd(set)
+                        } else {
+                            load(masks.add(i))
+                        };
+                        let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], rest, ks, kd, mask);
+                        _mm256_storeu_pd(dst[0].add(i), fx);
+                        _mm256_storeu_pd(dst[1].add(i), fy);
+                        _mm256_storeu_pd(dst[2].add(i), fz);
+                    }
                 }
             }
         }
@@ -766,11 +996,17 @@ mod avx {
     /// # Safety
     /// AVX2 is available, and `sources` were made by [`Slab::sources`] for this slab.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn sum_row(slab: &mut Slab, r: usize, sources: &Sources) {
+    pub(super) unsafe fn sum_row(
+        slab: &mut Slab,
+        r: usize,
+        lanes: (usize, usize),
+        sources: &Sources,
+    ) {
         let ring = slab.ring.as_ptr();
         let sums = slab.sums.as_mut_ptr();
         let rl = slab.ring_len;
-        for g in 0..r / LANES {
+        // Whole groups over the slots asked for: they lie in the padded row.
+        for g in lanes.0 / LANES..lanes.1.div_ceil(LANES) {
             let (mut sx, mut sy, mut sz) = (
                 _mm256_setzero_pd(),
                 _mm256_setzero_pd(),
