@@ -4,13 +4,16 @@
 //! the multi-body pile (`benchmark::pile`: 27 cubes of 6³ and of 10³ touching in a bowl), timed
 //! once the cubes have landed on each other (0.1 s simulated first), on the CPU and, where an
 //! adapter opens, on the GPU (`gpu n^3`: 64 steps per iteration, one submission, as a run
-//! submits them).
+//! submits them). And one step of a mesh body (`mesh body/torus 8 mm`: `scenes/torus.obj` at
+//! 8 mm cells, 62,168 particles, falling) on the CPU's lattice stencil and, for comparison,
+//! through its spring list (the sweep that stepped mesh bodies before 2026-11-30).
 //!
 //! `cargo bench --bench step`; the figures are recorded in BENCHMARKS.md.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use softbody::benchmark::{STIFFNESS, cube, dt_max_symplectic};
-use softbody::{Backend, Integrator};
+use softbody::scene::{Model, Solver};
+use softbody::{Backend, CpuSolver, Integrator};
 
 fn step(c: &mut Criterion) {
     for (integrator, sizes) in [
@@ -91,5 +94,36 @@ fn pile(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, step, pile);
+fn mesh_body(c: &mut Criterion) {
+    let mut group = c.benchmark_group("mesh body/torus 8 mm");
+    group.sample_size(10);
+    let text = "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 5e-6\nduration = 1.0\n\
+                [[body]]\nname = \"torus\"\nkind = \"mesh\"\nfile = \"torus.obj\"\n\
+                cell = 0.008\ncenter = [0.0, 2.0, 0.0]\ndensity = 1000.0\n\
+                structural = { stiffness = 640.0, damping = 6.4 }\n\
+                shear = { stiffness = 640.0, damping = 6.4 }\n\
+                bending = { stiffness = 640.0, damping = 6.4 }\n\
+                [[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\n";
+    let at = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/bench.toml");
+    let scene = softbody::scene::Scene::from_toml(text, at.as_ref()).expect("valid scene");
+    let (model, state) = Model::build(&scene);
+    let mut listed = model.clone();
+    listed.springs_mut();
+    for (name, model) in [("stencil", model), ("spring list", listed)] {
+        let n = model.len() as u64;
+        let mut solver = CpuSolver::new(model, state.clone(), None).expect("CPU solver");
+        solver.advance(3).expect("stable");
+        eprintln!(
+            "  torus 8 mm, {name}: kernel {}",
+            solver.statistics().kernel
+        );
+        group.throughput(Throughput::Elements(n));
+        group.bench_function(BenchmarkId::from_parameter(name), |b| {
+            b.iter(|| solver.advance(1).expect("stable"))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, step, pile, mesh_body);
 criterion_main!(benches);

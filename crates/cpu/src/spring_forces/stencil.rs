@@ -106,13 +106,12 @@ pub(crate) struct Stencil {
     /// Row j + ny·k's runs are `runs[row_runs[row]..row_runs[row + 1]]`.
     row_runs: Vec<u32>,
     runs: Vec<Run>,
-    /// Row j + ny·k's slots whose forces are computed are the spans
-    /// `computed[row_computed[row]..row_computed[row + 1]]`, `[lo, hi)` each, apart and
-    /// ascending: its runs' slots, and every slot that a row its springs reach reads back at,
-    /// so that no record a sum reads is left from an earlier row; in whole groups of the
-    /// AVX2 path (a cuboid: the whole row, one span).
-    row_computed: Vec<u32>,
-    computed: Vec<[u32; 2]>,
+    /// Per row, the slots whose forces are computed: its runs' (a cuboid: the whole row).
+    computed: Spans,
+    /// Per row, the slots that rows its springs reach read back at where it has no
+    /// particle, so no force is computed there: its records are zeroed there, so that none
+    /// that a sum reads is left from an earlier row (a cuboid: none).
+    zeroed: Spans,
     /// Per plane, and one past the last, the body's particles before it.
     plane_first: Vec<u32>,
     /// The path the rows take.
@@ -164,7 +163,7 @@ impl Stencil {
         let rows = ny * nz;
         let (mut row_runs, mut runs) = (vec![0], Vec::new());
         let mut plane_first = vec![0];
-        let (bits, row_computed, computed) = match &lattice.mask {
+        let (bits, computed, zeroed) = match &lattice.mask {
             None => {
                 for r in 0..rows {
                     let p = u32::try_from(nx * r).expect("particles are u32");
@@ -176,8 +175,15 @@ impl Stencil {
                     row_runs.push(runs.len() as u32);
                 }
                 plane_first.extend((1..=nz).map(|k| (k * nx * ny) as u32));
-                let whole = (0..=rows as u32).collect();
-                (None, whole, vec![[0, row as u32]; rows])
+                let whole = Spans {
+                    row_start: (0..=rows as u32).collect(),
+                    spans: vec![[0, row as u32]; rows],
+                };
+                let none = Spans {
+                    row_start: vec![0; rows + 1],
+                    spans: Vec::new(),
+                };
+                (None, whole, none)
             }
             Some(mask) => {
                 let mut count = 0;
@@ -205,9 +211,7 @@ impl Stencil {
                         plane_first.push(count);
                     }
                 }
-                let (mut row_computed, mut computed): (Vec<u32>, Vec<[u32; 2]>) =
-                    (vec![0], Vec::new());
-                let mut spans: Vec<[i64; 2]> = Vec::new();
+                let (mut computed, mut zeroed) = (Spans::new(), Spans::new());
                 for r in 0..rows {
                     let (j, k) = ((r % ny) as i64, (r / ny) as i64);
                     let row_of = |dj: i64, dk: i64| {
@@ -218,37 +222,25 @@ impl Stencil {
                             inside.then(|| &runs[row_runs[q] as usize..row_runs[q + 1] as usize]);
                         runs.unwrap_or_default().iter()
                     };
+                    let own = row_of(0, 0).map(|run| [run.i0 as i64, run.i1 as i64]);
+                    let own = groups(own);
                     // A spring of offset o from slot i of this row ends at slot i + di of the
-                    // row o reaches, whose sums read this row's record there.
-                    spans.clear();
-                    spans.extend(row_of(0, 0).map(|run| [run.i0 as i64, run.i1 as i64]));
-                    for off in &offsets {
+                    // row o reaches, whose sums read this row's record there: where this row
+                    // has no particle, a zero.
+                    let read = offsets.iter().flat_map(|off| {
                         let [di, dj, dk] = off.o.map(i64::from);
-                        let shifted = row_of(dj, dk).map(|run| {
+                        row_of(dj, dk).map(move |run| {
                             [
                                 (run.i0 as i64 - di).max(0),
                                 (run.i1 as i64 - di).min(nx as i64),
                             ]
-                        });
-                        spans.extend(shifted.filter(|[lo, hi]| lo < hi));
-                    }
-                    // Whole groups of four, merged where they touch.
-                    let group = AVX2_LANES as i64;
-                    spans.iter_mut().for_each(|[lo, hi]| {
-                        *lo -= lo.rem_euclid(group);
-                        *hi += (-*hi).rem_euclid(group);
+                        })
                     });
-                    spans.sort_unstable();
-                    let row_start = computed.len();
-                    for &[lo, hi] in &spans {
-                        match computed[row_start..].last_mut() {
-                            Some([_, end]) if i64::from(*end) >= lo => *end = (*end).max(hi as u32),
-                            _ => computed.push([lo as u32, hi as u32]),
-                        }
-                    }
-                    row_computed.push(computed.len() as u32);
+                    let read = groups(read.filter(|[lo, hi]| lo < hi));
+                    zeroed.push(difference(&read, &own));
+                    computed.push(own);
                 }
-                (Some(mask.springs.clone()), row_computed, computed)
+                (Some(mask.springs.clone()), computed, zeroed)
             }
         };
         // A masked lattice's lanes take their masks from bits, which the AVX2 path tests in
@@ -267,8 +259,8 @@ impl Stencil {
             bits,
             row_runs,
             runs,
-            row_computed,
             computed,
+            zeroed,
             plane_first,
             isa,
         }
@@ -313,14 +305,80 @@ impl Stencil {
 
     /// Row (j, k)'s spans of slots whose forces are computed.
     fn computed(&self, j: usize, k: usize) -> &[[u32; 2]] {
-        let r = j + self.dims[1] * k;
-        &self.computed[self.row_computed[r] as usize..self.row_computed[r + 1] as usize]
+        self.computed.row(j + self.dims[1] * k)
+    }
+
+    /// Row (j, k)'s spans of slots whose records are zeroed.
+    fn zeroed(&self, j: usize, k: usize) -> &[[u32; 2]] {
+        self.zeroed.row(j + self.dims[1] * k)
     }
 
     /// Slots of one padded plane.
     fn plane_slots(&self) -> usize {
         self.row * self.dims[1]
     }
+}
+
+/// Spans of slots `[lo, hi)` per row, apart and ascending: row r's are
+/// `spans[row_start[r]..row_start[r + 1]]`.
+#[derive(Debug, Clone)]
+struct Spans {
+    row_start: Vec<u32>,
+    spans: Vec<[u32; 2]>,
+}
+
+impl Spans {
+    fn new() -> Spans {
+        Spans {
+            row_start: vec![0],
+            spans: Vec::new(),
+        }
+    }
+
+    /// Appends the next row's.
+    fn push(&mut self, spans: Vec<[u32; 2]>) {
+        self.spans.extend(spans);
+        self.row_start.push(self.spans.len() as u32);
+    }
+
+    fn row(&self, r: usize) -> &[[u32; 2]] {
+        &self.spans[self.row_start[r] as usize..self.row_start[r + 1] as usize]
+    }
+}
+
+/// The slots of `spans` in whole groups of the AVX2 path (four), apart and ascending.
+fn groups(spans: impl Iterator<Item = [i64; 2]>) -> Vec<[u32; 2]> {
+    let group = AVX2_LANES as i64;
+    let mut spans: Vec<[i64; 2]> = spans
+        .map(|[lo, hi]| [lo - lo.rem_euclid(group), hi + (-hi).rem_euclid(group)])
+        .collect();
+    spans.sort_unstable();
+    let mut merged: Vec<[u32; 2]> = Vec::new();
+    for [lo, hi] in spans {
+        match merged.last_mut() {
+            Some([_, end]) if i64::from(*end) >= lo => *end = (*end).max(hi as u32),
+            _ => merged.push([lo as u32, hi as u32]),
+        }
+    }
+    merged
+}
+
+/// The slots of `all` not in `some` (both apart and ascending).
+fn difference(all: &[[u32; 2]], some: &[[u32; 2]]) -> Vec<[u32; 2]> {
+    let mut out = Vec::new();
+    for &[lo, hi] in all {
+        let mut at = lo;
+        for &[a, b] in some.iter().filter(|[a, b]| *a < hi && *b > lo) {
+            if a > at {
+                out.push([at, a]);
+            }
+            at = at.max(b);
+        }
+        if at < hi {
+            out.push([at, hi]);
+        }
+    }
+    out
 }
 
 /// Which rows of one plane k have springs of each offset (worked out once per plane): the rows
@@ -569,6 +627,14 @@ impl Slab {
         min_dk: i32,
     ) {
         let springs = self.row_springs(stencil, plane, records, (j, k), min_dk);
+        for &RowSpring { out, .. } in springs.springs() {
+            for &[lo, hi] in springs.zeroed {
+                for c in 0..3 {
+                    let at = out + c * self.ring_len;
+                    self.ring[at + lo as usize..at + hi as usize].fill(0.0);
+                }
+            }
+        }
         #[cfg(target_arch = "x86_64")]
         match stencil.isa {
             // SAFETY: AVX-512F was detected at run time (`Isa::runs`); `row_springs` checked
@@ -625,10 +691,11 @@ impl Slab {
     ) -> RowSprings<'s> {
         let row = stencil.row;
         let a0 = self.slot(stencil, 0, j, k);
-        let lanes = stencil.computed(j, k);
+        let (lanes, zeroed) = (stencil.computed(j, k), stencil.zeroed(j, k));
         let mut springs = RowSprings {
             a0,
             lanes,
+            zeroed,
             springs: [RowSpring {
                 r: 0,
                 b0: 0,
@@ -636,9 +703,11 @@ impl Slab {
             }; 16],
             count: 0,
         };
-        let Some(&[_, end]) = lanes.last() else {
+        let ends = [lanes, zeroed].map(|spans| spans.last().map_or(0, |&[_, end]| end));
+        let end = ends[0].max(ends[1]);
+        if end == 0 {
             return springs;
-        };
+        }
         // What the vector paths read and write lies in the buffers: a's row and b's row are
         // rows of the state buffer (b's row is in the grid: `PlaneRing::starts`), and b's
         // slots are at most two before its row's start (GUARD) or after a's slots (the
@@ -795,6 +864,8 @@ struct RowSprings<'a> {
     a0: usize,
     /// The row's spans of slots to compute ([`Stencil::computed`]).
     lanes: &'a [[u32; 2]],
+    /// The row's spans of slots whose records are zeroed ([`Stencil::zeroed`]).
+    zeroed: &'a [[u32; 2]],
     springs: [RowSpring; 16],
     count: usize,
 }
