@@ -706,7 +706,7 @@ pub(crate) fn all_cuboids(model: &Model) -> bool {
 mod tests {
     use std::path::Path;
 
-    use softbody_scene::Scene;
+    use softbody_scene::{Scene, TriangleMesh};
 
     use super::*;
     use crate::spring_forces::{gather, spring_force};
@@ -732,11 +732,18 @@ mod tests {
     /// meshes), with every particle moved and moving differently, and one spring crushed to
     /// zero length.
     fn perturbed(bodies: &str) -> (Model, Vec<DVec3>, Vec<DVec3>) {
+        perturbed_in(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes"),
+            bodies,
+        )
+    }
+
+    /// [`perturbed`], mesh files named from `dir`.
+    fn perturbed_in(dir: &Path, bodies: &str) -> (Model, Vec<DVec3>, Vec<DVec3>) {
         let text = format!(
             "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-5\nduration = 0.0\n{bodies}"
         );
-        let at = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/test.toml");
-        let scene = Scene::from_toml(&text, &at).expect("valid scene");
+        let scene = Scene::from_toml(&text, &dir.join("test.toml")).expect("valid scene");
         let (model, state) = Model::build(&scene);
         let wobble = |i: usize, a: f64, b: f64, c: f64| {
             let t = i as f64;
@@ -908,7 +915,8 @@ mod tests {
 
     /// Mesh bodies' masked lattices on the stencil (each path the CPU runs for them: scalar,
     /// AVX2) equal the scalar definition: rows of several runs (the torus's hole, the star's
-    /// points), rows and planes without particles, next to a cuboid, for 1 to 7 threads.
+    /// points), rows and planes without particles (three cubes apart in one mesh: empty planes
+    /// between them, slabs of one cube or of none), next to a cuboid, for 1 to 7 threads.
     #[test]
     fn the_stencil_is_the_gather_on_mesh_bodies() {
         let mesh = |name: &str, file: &str, cell: f64, x: f64, rotation: [f64; 3]| {
@@ -929,11 +937,33 @@ mod tests {
                 + &mesh("star", "star.obj", 0.06, 1.5, [10.0, 0.0, 70.0])
                 + cuboid,
         ];
+        // Three 0.3 m cubes, 0.3 m apart along z, as one mesh.
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let mut cubes = TriangleMesh::cube(DVec3::ZERO, 0.3);
+        for lo in [DVec3::new(0.0, 0.05, 0.6), DVec3::new(0.0, 0.1, 1.2)] {
+            let cube = TriangleMesh::cube(lo, 0.3);
+            let first = cubes.vertices.len() as u32;
+            cubes.vertices.extend(cube.vertices);
+            (cubes.triangles).extend(cube.triangles.iter().map(|t| t.map(|v| v + first)));
+        }
+        let obj = cubes.to_obj("three cubes apart");
+        std::fs::write(dir.path().join("cubes.obj"), obj).expect("written");
+        let cubes = mesh("cubes", "cubes.obj", 0.05, 0.0, [0.0, 0.0, 10.0]);
         let isas = [Isa::Scalar, Isa::Avx2];
         let isas: Vec<Isa> = isas.into_iter().filter(|isa| isa.runs()).collect();
-        for text in &bodies {
-            let (model, x, v) = perturbed(text);
+        let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+        let cases = bodies
+            .iter()
+            .map(|text| (scenes.as_path(), text))
+            .chain([(dir.path(), &cubes)]);
+        for (dir, text) in cases {
+            let (model, x, v) = perturbed_in(dir, text);
             assert!(model.lattices().iter().any(|l| l.mask.is_some()));
+            if text == &cubes {
+                let stencil = Stencil::new(&model.lattices()[0]);
+                let empty = |k: usize| stencil.plane_start(k) == stencil.plane_start(k + 1);
+                assert!((0..stencil.planes()).any(empty), "planes without particles");
+            }
             assert_eq!(Plan::new(&model).route(), RouteKind::Stencil);
             let expected = bits(&reference(&model, &x, &v));
             for threads in 1..=7 {
