@@ -25,9 +25,10 @@
 //!
 //! A mesh body's lattice is masked: points without a particle, and springs missing between
 //! points that have one. Its rows are taken by their runs of particles ([`Run`]): only the
-//! spans of slots that its runs and the rows its springs reach need are computed
-//! ([`Stencil::computed`]), each lane's mask made from the point's spring bits, and the sums
-//! and the rows handed on are the runs'.
+//! runs' slots are computed ([`Stencil::computed`]), each lane's mask made from the point's
+//! spring bits; a row's records are zeroed where it has no particle but a row its springs reach
+//! reads back ([`Stencil::zeroed`]), so no sum reads a record left from an earlier row; and
+//! the sums and the rows handed on are the runs'.
 //!
 //! The copy is a window of [`WINDOW`] planes moving up the slab (and the two above it, which
 //! its springs reach; the next window copies those two again), so that a thread holds a few
@@ -267,7 +268,7 @@ impl Stencil {
     }
 
     /// Takes the path of `isa`, which the CPU must run, rather than the widest it runs (for
-    /// tests of every path).
+    /// tests of every path); a mesh body stays at AVX2 when given AVX-512 (no bit-mask loop).
     #[cfg(test)]
     pub(crate) fn with_isa(&mut self, isa: Isa) {
         assert!(isa.runs(), "{isa:?} on a CPU without it");
