@@ -104,15 +104,14 @@ pub(crate) struct Stencil {
     /// A mesh body's spring bits per lattice point ([`softbody_scene::LatticeMask::springs`]),
     /// from which its lanes' masks are made; `None` for a cuboid.
     bits: Option<Vec<u16>>,
-    /// Row j + ny·k's runs are `runs[row_runs[row]..row_runs[row + 1]]`.
-    row_runs: Vec<u32>,
-    runs: Vec<Run>,
+    /// Per row (j + ny·k), its runs of particles.
+    runs: PerRow<Run>,
     /// Per row, the slots whose forces are computed: its runs' (a cuboid: the whole row).
-    computed: Spans,
+    computed: PerRow<[u32; 2]>,
     /// Per row, the slots that rows its springs reach read back at where it has no
     /// particle, so no force is computed there: its records are zeroed there, so that none
     /// that a sum reads is left from an earlier row (a cuboid: none).
-    zeroed: Spans,
+    zeroed: PerRow<[u32; 2]>,
     /// Per plane, and one past the last, the body's particles before it.
     plane_first: Vec<u32>,
     /// The path the rows take.
@@ -162,34 +161,26 @@ impl Stencil {
             })
             .collect();
         let rows = ny * nz;
-        let (mut row_runs, mut runs) = (vec![0], Vec::new());
+        let mut runs = PerRow::new();
         let mut plane_first = vec![0];
         let (bits, computed, zeroed) = match &lattice.mask {
             None => {
+                let (mut whole, mut none) = (PerRow::new(), PerRow::new());
                 for r in 0..rows {
                     let p = u32::try_from(nx * r).expect("particles are u32");
-                    runs.push(Run {
-                        i0: 0,
-                        i1: nx as u32,
-                        p,
-                    });
-                    row_runs.push(runs.len() as u32);
+                    let i1 = nx as u32;
+                    runs.push([Run { i0: 0, i1, p }]);
+                    whole.push([[0, row as u32]]);
+                    none.push([]);
                 }
                 plane_first.extend((1..=nz).map(|k| (k * nx * ny) as u32));
-                let whole = Spans {
-                    row_start: (0..=rows as u32).collect(),
-                    spans: vec![[0, row as u32]; rows],
-                };
-                let none = Spans {
-                    row_start: vec![0; rows + 1],
-                    spans: Vec::new(),
-                };
                 (None, whole, none)
             }
             Some(mask) => {
                 let mut count = 0;
                 for r in 0..rows {
                     let particle = |i: usize| mask.particle_of[nx * r + i];
+                    let mut row_runs = Vec::new();
                     let mut i = 0;
                     while i < nx {
                         if particle(i) == LatticeMask::NONE {
@@ -200,28 +191,26 @@ impl Stencil {
                         while i < nx && particle(i) != LatticeMask::NONE {
                             i += 1;
                         }
-                        runs.push(Run {
+                        row_runs.push(Run {
                             i0: i0 as u32,
                             i1: i as u32,
                             p: particle(i0),
                         });
                         count += (i - i0) as u32;
                     }
-                    row_runs.push(runs.len() as u32);
+                    runs.push(row_runs);
                     if (r + 1) % ny == 0 {
                         plane_first.push(count);
                     }
                 }
-                let (mut computed, mut zeroed) = (Spans::new(), Spans::new());
+                let (mut computed, mut zeroed) = (PerRow::new(), PerRow::new());
                 for r in 0..rows {
                     let (j, k) = ((r % ny) as i64, (r / ny) as i64);
                     let row_of = |dj: i64, dk: i64| {
                         let (j, k) = (j + dj, k + dk);
                         let inside = (0..ny as i64).contains(&j) && (0..nz as i64).contains(&k);
                         let q = (j + ny as i64 * k) as usize;
-                        let runs =
-                            inside.then(|| &runs[row_runs[q] as usize..row_runs[q + 1] as usize]);
-                        runs.unwrap_or_default().iter()
+                        if inside { runs.row(q) } else { &[] }.iter()
                     };
                     let own = row_of(0, 0).map(|run| [run.i0 as i64, run.i1 as i64]);
                     let own = groups(own);
@@ -258,7 +247,6 @@ impl Stencil {
             backward,
             lane_masks,
             bits,
-            row_runs,
             runs,
             computed,
             zeroed,
@@ -300,8 +288,7 @@ impl Stencil {
 
     /// Row (j, k)'s runs of particles.
     fn runs(&self, j: usize, k: usize) -> &[Run] {
-        let r = j + self.dims[1] * k;
-        &self.runs[self.row_runs[r] as usize..self.row_runs[r + 1] as usize]
+        self.runs.row(j + self.dims[1] * k)
     }
 
     /// Row (j, k)'s spans of slots whose forces are computed.
@@ -320,30 +307,30 @@ impl Stencil {
     }
 }
 
-/// Spans of slots `[lo, hi)` per row, apart and ascending: row r's are
-/// `spans[row_start[r]..row_start[r + 1]]`.
+/// Items per grid row, row after row (runs of particles; spans of slots `[lo, hi)`, apart and
+/// ascending): row r's are `items[row_start[r]..row_start[r + 1]]`.
 #[derive(Debug, Clone)]
-struct Spans {
+struct PerRow<T> {
     row_start: Vec<u32>,
-    spans: Vec<[u32; 2]>,
+    items: Vec<T>,
 }
 
-impl Spans {
-    fn new() -> Spans {
-        Spans {
+impl<T> PerRow<T> {
+    fn new() -> PerRow<T> {
+        PerRow {
             row_start: vec![0],
-            spans: Vec::new(),
+            items: Vec::new(),
         }
     }
 
     /// Appends the next row's.
-    fn push(&mut self, spans: Vec<[u32; 2]>) {
-        self.spans.extend(spans);
-        self.row_start.push(self.spans.len() as u32);
+    fn push(&mut self, row: impl IntoIterator<Item = T>) {
+        self.items.extend(row);
+        self.row_start.push(self.items.len() as u32);
     }
 
-    fn row(&self, r: usize) -> &[[u32; 2]] {
-        &self.spans[self.row_start[r] as usize..self.row_start[r + 1] as usize]
+    fn row(&self, r: usize) -> &[T] {
+        &self.items[self.row_start[r] as usize..self.row_start[r + 1] as usize]
     }
 }
 
@@ -715,6 +702,13 @@ impl Slab {
         // padding); a spring's forces fill a row of each ring array; the lane masks hold a row
         // per offset.
         assert!(a0 >= GUARD && a0 + row <= self.len && end as usize <= row);
+        // The bits, a seventh state array, exist for the path that reads them; the AVX-512
+        // path reads the lane-mask table alone, so it never takes a masked lattice.
+        assert_eq!(
+            self.state.len(),
+            (6 + usize::from(stencil.bits.is_some())) * self.len
+        );
+        assert!(stencil.isa != Isa::Avx512 || stencil.bits.is_none());
         assert_eq!(stencil.lane_masks.len(), row * stencil.offsets.len());
         for (r, off) in stencil.offsets.iter().enumerate() {
             if off.o[2] < min_dk || !plane.starts(r, j) {
