@@ -5,6 +5,7 @@
 use std::fmt;
 
 use glam::DVec3;
+use softbody_cpu::stable_step::stable_dt_estimate;
 use softbody_scene::{Integrator, Model};
 use softbody_terrain::Surface;
 
@@ -30,7 +31,7 @@ pub enum Warning {
         depth: f64,
     },
     /// An explicit integrator's dt is above the estimate of the largest stable step
-    /// ([`Model::stable_dt_estimate`], from the stiffest mode of the springs).
+    /// ([`stable_dt_estimate`], from the stiffest mode of the springs).
     StepAboveStable {
         /// The scene's dt, seconds.
         dt: f64,
@@ -67,6 +68,17 @@ impl fmt::Display for Warning {
 /// The warnings about running `model` from the positions `x` (its initial state's), bodies
 /// before the step.
 pub fn warnings(model: &Model, x: &[DVec3]) -> Vec<Warning> {
+    warnings_given(model, x, || stable_dt_estimate(model, x))
+}
+
+/// [`warnings`], with the stable step's estimate ([`stable_dt_estimate`] at `x`) from
+/// `estimate`, called only where the step is above the guaranteed bound: for a caller that
+/// needs the estimate anyway (`softbody check` prints it).
+pub fn warnings_given(
+    model: &Model,
+    x: &[DVec3],
+    estimate: impl FnOnce() -> Option<f64>,
+) -> Vec<Warning> {
     let mut found = Vec::new();
     for (t, terrain) in model.terrain.iter().enumerate() {
         let surface = Surface::new(terrain);
@@ -94,7 +106,7 @@ pub fn warnings(model: &Model, x: &[DVec3]) -> Vec<Warning> {
     // large bodies they take seconds.
     if sim.integrator != Integrator::ImplicitEuler
         && model.stable_dt().is_some_and(|bound| sim.dt > bound)
-        && let Some(stable) = model.stable_dt_estimate(x)
+        && let Some(stable) = estimate()
         && sim.dt > stable
     {
         found.push(Warning::StepAboveStable { dt: sim.dt, stable });
@@ -151,7 +163,7 @@ mod tests {
     #[test]
     fn a_step_above_the_stable_estimate_is_named() {
         let (model, state) = Model::build(&scene(2.0, 1e-3));
-        let stable = model.stable_dt_estimate(&state.x).unwrap();
+        let stable = stable_dt_estimate(&model, &state.x).unwrap();
         let (model, state) = {
             let (mut m, s) = (model, state);
             m.simulation.dt = 2.0 * stable;
@@ -174,7 +186,7 @@ mod tests {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/jelly-on-ground.toml");
         let scene = Scene::from_file(path).unwrap();
         let (model, state) = Model::build(&scene);
-        let estimate = model.stable_dt_estimate(&state.x).unwrap();
+        let estimate = stable_dt_estimate(&model, &state.x).unwrap();
         let bound = model.stable_dt().unwrap();
         assert!(estimate > 3.5 * bound, "{estimate} vs {bound}");
         let run = |dt: f64| {

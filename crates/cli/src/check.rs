@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use softbody::Model;
+use softbody::cpu::stable_step::stable_dt_estimate;
 
 use crate::args::StepOverrides;
 use crate::{Failure, emit, load_with};
@@ -36,11 +37,11 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
         }};
     }
     let (model, state) = Model::build(&scene);
-    let warnings = softbody::warnings::warnings(&model, &state.x);
+    let stable_dt = model.stable_dt();
+    let stable_dt_estimate = stable_dt_estimate(&model, &state.x);
+    let warnings = softbody::warnings::warnings_given(&model, &state.x, || stable_dt_estimate);
     let counts = model.spring_counts;
     let sim = &scene.simulation;
-    let stable_dt = model.stable_dt();
-    let stable_dt_estimate = model.stable_dt_estimate(&state.x);
     let terrain: Vec<&str> = scene
         .terrain
         .iter()

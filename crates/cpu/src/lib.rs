@@ -40,6 +40,7 @@ mod pipeline;
 pub mod reduce;
 mod solver;
 pub mod spring_forces;
+pub mod stable_step;
 
 use rayon::prelude::*;
 use softbody_scene::State;

@@ -246,6 +246,15 @@ impl Plan {
         }
     }
 
+    /// The spring kernel of the plan's route for `model`: the stencil reads each offset's
+    /// parameters from the lattice, the others the list.
+    pub(crate) fn kernel(&self, model: &Model) -> Kernel {
+        match self.route() {
+            RouteKind::Stencil => Kernel::per_spring(),
+            _ => Kernel::new(model.springs()),
+        }
+    }
+
     /// The route's name, with the instruction set its kernel uses
     /// ([`softbody_scene::Statistics::kernel`]).
     pub(crate) fn kernel_name(&self) -> &'static str {
@@ -372,7 +381,7 @@ impl<'a> Shared<'a> {
     }
 }
 
-/// Per-particle output arrays that a pass writes: a tuple of two or four `&mut [DVec3]`.
+/// Per-particle output arrays that a pass writes: one `&mut [DVec3]`, or a tuple of two or four.
 pub(crate) trait Outputs {
     /// The arrays, or a range of particles of them.
     type Chunk: Send;
@@ -386,6 +395,24 @@ pub(crate) trait Outputs {
     fn split_at(c: Self::Chunk, mid: usize) -> (Self::Chunk, Self::Chunk);
     /// Element k of each.
     fn item(c: &mut Self::Chunk, k: usize) -> Self::Item<'_>;
+}
+
+impl<'o> Outputs for &'o mut [DVec3] {
+    type Chunk = &'o mut [DVec3];
+    type Item<'a> = &'a mut DVec3;
+    fn whole(self) -> Self::Chunk {
+        self
+    }
+    fn len(c: &Self::Chunk) -> usize {
+        c.len()
+    }
+    fn split_at(c: Self::Chunk, mid: usize) -> (Self::Chunk, Self::Chunk) {
+        c.split_at_mut(mid)
+    }
+    #[inline(always)]
+    fn item(c: &mut Self::Chunk, k: usize) -> Self::Item<'_> {
+        &mut c[k]
+    }
 }
 
 impl<'o> Outputs for (&'o mut [DVec3], &'o mut [DVec3]) {

@@ -43,6 +43,7 @@ pub use format::SurfaceKind;
 pub use implicit::Preconditioner;
 pub use model::{
     Adjacency, BodyRange, Contacts, Lattice, LatticeMask, LatticeSpring, Model, Springs, State,
+    largest_stable_step,
 };
 pub use scene::{
     Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, MeshBody, MeshMass,

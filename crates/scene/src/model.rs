@@ -642,9 +642,14 @@ impl Contacts {
     }
 }
 
-/// Power iterations of [`Model::stable_dt_estimate`]: its Rayleigh quotient is within about
-/// 1 % of the largest eigenvalue of the benchmark cubes from 10³ to 46³ after this many.
-pub const POWER_ITERATIONS: usize = 60;
+/// The largest step h of symplectic Euler on a mode of M⁻¹K eigenvalue λ and damping rate c:
+/// the root of h²λ + 2hc = 4 (2/c without stiffness); `None` for a mode with neither.
+pub fn largest_stable_step(lambda: f64, c: f64) -> Option<f64> {
+    if lambda == 0.0 {
+        return (c > 0.0).then(|| 2.0 / c);
+    }
+    Some((-c + (c * c + 4.0 * lambda).sqrt()) / lambda)
+}
 
 impl Model {
     /// Builds the model and its initial state from a validated scene. Pinned particles start at
@@ -952,6 +957,15 @@ impl Model {
     /// step (their energy grows), and implicit Euler is stable at any step. `None` without
     /// springs.
     pub fn stable_dt(&self) -> Option<f64> {
+        self.stable_dt_bounds()
+            .and_then(|(lambda, c)| largest_stable_step(lambda, c))
+    }
+
+    /// Gershgorin's bounds on the λ and c of [`Model::stable_dt`]; `None` without springs.
+    pub fn stable_dt_bounds(&self) -> Option<(f64, f64)> {
+        if self.spring_count() == 0 {
+            return None;
+        }
         // Each particle's sums in ascending spring order, as a gather over its adjacency would
         // add them, without building it.
         let mut sums = vec![(0.0f64, 0.0f64); self.len()];
@@ -966,76 +980,39 @@ impl Model {
             lambda = lambda.max(2.0 * k / m);
             c = c.max(2.0 * d / m);
         }
-        if lambda == 0.0 {
-            return if c > 0.0 { Some(2.0 / c) } else { None };
-        }
-        Some((-c + (c * c + 4.0 * lambda).sqrt()) / lambda)
+        Some((lambda, c))
     }
 
-    /// A tight estimate of the largest stable step of the explicit integrators from the
-    /// positions `x` (the initial state's): the bound of [`Model::stable_dt`], h²λ + 2hc ≤ 4, on
-    /// the stiffest mode itself instead of Gershgorin's bounds. λ is the largest eigenvalue of
-    /// M⁻¹K for the springs linearised at `x` (K = Σ k_s l lᵀ over the springs' unit directions
-    /// l; the geometric stiffness, zero at rest length, is left out; pinned particles do not
-    /// move), found by [`POWER_ITERATIONS`] power iterations on M^-½KM^-½ from a fixed
-    /// pseudo-random start, and c = uᵀDu/uᵀMu on the same vector (D = Σ k_d l lᵀ). The
-    /// Rayleigh quotient approaches λ from below, so this is an estimate, not a bound: within a
-    /// few per cent of the step where the jelly cube of `scenes/jelly-on-ground.toml` starts to
-    /// diverge, where [`Model::stable_dt`] is four times lower. `None` without springs.
-    pub fn stable_dt_estimate(&self, x: &[DVec3]) -> Option<f64> {
-        if self.spring_count() == 0 {
-            return None;
+    /// The bodies and springs of this model, with every spring's stiffness and damping
+    /// (k_s, k_d) replaced by `coefficients(k_s, k_d)`; no terrain, surfaces, embedded meshes
+    /// or contact between bodies. A spring kernel run on it computes other linear operators
+    /// of the springs: with (0, k_s), the damper forces at velocities w are −K w, the product
+    /// of the stiffness matrix linearised at the positions (the stable-step estimate's power
+    /// iteration, `softbody_cpu::stable_step`).
+    pub fn with_spring_coefficients(&self, coefficients: impl Fn(f64, f64) -> (f64, f64)) -> Model {
+        let mut listed = self.listed.clone();
+        for (k, d) in listed.stiffness.iter_mut().zip(&mut listed.damping) {
+            (*k, *d) = coefficients(*k, *d);
         }
-        let scale: Vec<f64> = self.inv_mass.iter().map(|w| w.sqrt()).collect();
-        // A spring's unit direction l and its stretch rate l·(u_a − u_b) of w = M^½u, worked
-        // out again in every sweep instead of stored: a cuboid's springs are no list.
-        let stretch = |w: &[DVec3], a: u32, b: u32| {
-            let (a, b) = (a as usize, b as usize);
-            let l = (x[a] - x[b]).normalize_or_zero();
-            (l, l.dot(w[a] * scale[a] - w[b] * scale[b]))
-        };
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut sign = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            if seed >> 63 == 0 { 1.0 } else { -1.0 }
-        };
-        let mut w: Vec<DVec3> = scale
-            .iter()
-            .map(|&sc| DVec3::new(sign(), sign(), sign()) * f64::from(u8::from(sc > 0.0)))
-            .collect();
-        let mut next = vec![DVec3::ZERO; w.len()];
-        for _ in 0..POWER_ITERATIONS {
-            next.fill(DVec3::ZERO);
-            self.for_each_spring(|a, b, _, stiffness, _| {
-                let (l, rate) = stretch(&w, a, b);
-                let f = stiffness * rate * l;
-                next[a as usize] += f * scale[a as usize];
-                next[b as usize] -= f * scale[b as usize];
-            });
-            let norm = next.iter().map(|v| v.length_squared()).sum::<f64>().sqrt();
-            if norm == 0.0 {
-                break;
-            }
-            w.iter_mut().zip(&next).for_each(|(w, n)| *w = *n / norm);
+        let mut lattices = self.lattices.clone();
+        for s in lattices.iter_mut().flat_map(|l| &mut l.springs) {
+            (s.stiffness, s.damping) = coefficients(s.stiffness, s.damping);
         }
-        let length = w.iter().map(|v| v.length_squared()).sum::<f64>();
-        if length == 0.0 {
-            return self.stable_dt();
+        Model {
+            simulation: self.simulation,
+            mass: self.mass.clone(),
+            inv_mass: self.inv_mass.clone(),
+            listed,
+            lattices,
+            all_springs: Derived::default(),
+            adjacency: Derived::default(),
+            spring_counts: self.spring_counts,
+            bodies: self.bodies.clone(),
+            surface: Vec::new(),
+            embedded: Embedded::default(),
+            terrain: Vec::new(),
+            contact: Contacts::default(),
         }
-        // The quadratic forms of K and D on w.
-        let (mut k, mut d) = (0.0, 0.0);
-        self.for_each_spring(|a, b, _, stiffness, damping| {
-            let rate2 = stretch(&w, a, b).1.powi(2);
-            k += stiffness * rate2;
-            d += damping * rate2;
-        });
-        let (lambda, c) = (k / length, d / length);
-        if lambda == 0.0 {
-            return if c > 0.0 { Some(2.0 / c) } else { None };
-        }
-        Some((-c + (c * c + 4.0 * lambda).sqrt()) / lambda)
     }
 
     /// Whether particle i is pinned.
@@ -1110,10 +1087,7 @@ mod tests {
             "t.toml".as_ref(),
         )
         .unwrap();
-        let (model, state) = Model::build(&scene);
+        let (model, _) = Model::build(&scene);
         assert!((model.stable_dt().unwrap() - 2.0 / 100f64.sqrt()).abs() < 1e-15);
-        // The one mode is the stiffest: the estimate is the same bound.
-        let estimate = model.stable_dt_estimate(&state.x).unwrap();
-        assert!((estimate - 2.0 / 100f64.sqrt()).abs() < 1e-12, "{estimate}");
     }
 }

@@ -26,7 +26,7 @@ use softbody_terrain::{PlaneGeometry, Surface};
 use crate::body_contact::{NoPairs, PairForces, Partners};
 use crate::collision_response::respond_one;
 use crate::forces::{acceleration_of, acceleration_with};
-use crate::pipeline::{PerParticle, Plan, RouteKind, RowUpdate, pass_rows};
+use crate::pipeline::{PerParticle, Plan, RowUpdate, pass_rows};
 use crate::spring_forces::stencil::Row;
 use crate::spring_forces::{Isa, Kernel};
 use crate::vec_bytes;
@@ -183,11 +183,7 @@ impl Passes {
     pub(crate) fn new(model: &Model) -> Passes {
         let n = model.len();
         let plan = Plan::new(model);
-        // The stencil reads each offset's parameters from the lattice, the others the list.
-        let kernel = match plan.route() {
-            RouteKind::Stencil => Kernel::per_spring(),
-            _ => Kernel::new(model.springs()),
-        };
+        let kernel = plan.kernel(model);
         Passes {
             plan,
             kernel,
