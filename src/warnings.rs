@@ -5,6 +5,7 @@
 use std::fmt;
 
 use glam::DVec3;
+use rayon::prelude::*;
 use softbody_cpu::stable_step::stable_dt_estimate;
 use softbody_scene::{Integrator, Model};
 use softbody_terrain::Surface;
@@ -79,30 +80,10 @@ pub fn warnings_given(
     x: &[DVec3],
     estimate: impl FnOnce() -> Option<f64>,
 ) -> Vec<Warning> {
-    let mut found = Vec::new();
-    for (t, terrain) in model.terrain.iter().enumerate() {
-        let surface = Surface::new(terrain);
-        for body in &model.bodies {
-            let range = body.first as usize..(body.first + body.count) as usize;
-            let depths: Vec<f64> = x[range]
-                .iter()
-                .filter_map(|&x| surface.query(x, -INSIDE))
-                .map(|c| -c.phi)
-                .collect();
-            if !depths.is_empty() {
-                found.push(Warning::InsideTerrain {
-                    body: body.name.clone(),
-                    terrain: t,
-                    inside: depths.len(),
-                    of: body.count,
-                    depth: depths.iter().copied().fold(0.0, f64::max),
-                });
-            }
-        }
-    }
+    let mut found = inside_terrain(model, x);
     let sim = &model.simulation;
     // Below the guaranteed bound (never above the estimate: λ and c bounded from above, where
-    // the power iteration approaches them from below) the estimate's sweeps are skipped: on
+    // the power iteration approaches them from below) the estimate's products are skipped: on
     // large bodies they take seconds.
     if sim.integrator != Integrator::ImplicitEuler
         && model.stable_dt().is_some_and(|bound| sim.dt > bound)
@@ -110,6 +91,36 @@ pub fn warnings_given(
         && sim.dt > stable
     {
         found.push(Warning::StepAboveStable { dt: sim.dt, stable });
+    }
+    found
+}
+
+/// The bodies of `model` that start inside a terrain shape at the positions `x`
+/// ([`Warning::InsideTerrain`]), bodies before shapes; what `softbody run` warns of (it leaves
+/// the step's estimate to `check`: a run that becomes unstable says so itself, with the step).
+pub fn inside_terrain(model: &Model, x: &[DVec3]) -> Vec<Warning> {
+    let mut found = Vec::new();
+    for (t, terrain) in model.terrain.iter().enumerate() {
+        let surface = Surface::new(terrain);
+        for body in &model.bodies {
+            let range = body.first as usize..(body.first + body.count) as usize;
+            // Each particle's depth, and the deepest: order-free (max of values), so the
+            // parallel sweep gives what the serial one would.
+            let (inside, depth) = x[range]
+                .par_iter()
+                .filter_map(|&x| surface.query(x, -INSIDE))
+                .map(|c| (1usize, -c.phi))
+                .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
+            if inside > 0 {
+                found.push(Warning::InsideTerrain {
+                    body: body.name.clone(),
+                    terrain: t,
+                    inside,
+                    of: body.count,
+                    depth,
+                });
+            }
+        }
     }
     found
 }

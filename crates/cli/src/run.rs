@@ -10,7 +10,6 @@ use softbody::Backend;
 use softbody::checkpoint::Checkpoints;
 use softbody::output::{Format, FrameSink, Output, WithSceneText};
 use softbody::run::RunError;
-use softbody::warnings::Warning;
 
 use crate::args::StepOverrides;
 use crate::{
@@ -102,11 +101,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         })?
         .x
         .clone();
-    let warnings = softbody::warnings::warnings(solver.model(), &x);
-    for w in warnings
-        .iter()
-        .filter(|w| matches!(w, Warning::InsideTerrain { .. }))
-    {
+    for w in softbody::warnings::inside_terrain(solver.model(), &x) {
         eprintln!("warning: {w}");
     }
 
