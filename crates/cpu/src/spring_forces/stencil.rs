@@ -976,7 +976,6 @@ mod avx {
     //! its order (nothing fused), and the sums' additions in the scalar path's order.
 
     use std::arch::x86_64::*;
-    use std::ops::Range;
 
     use super::{ROW_MULTIPLE, RowSpring, RowSprings, Slab, Sources, Stencil};
     use crate::spring_forces::avx::forces;
@@ -1016,103 +1015,63 @@ mod avx {
         let ring = slab.ring.as_mut_ptr();
         for &RowSpring { r, b0, out } in springs.springs() {
             let off = &stencil.offsets[r];
-            let coefficients = Coefficients {
-                rest: _mm256_set1_pd(off.rest),
-                ks: _mm256_set1_pd(off.ks),
-                kd: _mm256_set1_pd(off.kd),
-                bit: _mm256_set1_epi64x(i64::from(off.bit)),
-            };
+            let (rest, ks, kd) = (
+                _mm256_set1_pd(off.rest),
+                _mm256_set1_pd(off.ks),
+                _mm256_set1_pd(off.kd),
+            );
+            let bit = _mm256_set1_epi64x(i64::from(off.bit));
+            // The partners' slots less the first ends': the partner rows are addressed from
+            // the first ends' pointers (ten streams in registers instead of sixteen).
+            let partner = b0 as isize - springs.a0 as isize;
             // SAFETY: `Slab::row_springs` checked that rows a0.., b0.. of every state array
             // (with BITS, the seventh too), row out.. of every ring array and this offset's
             // row of lane masks hold `row` slots, a multiple of four.
             unsafe {
-                let row_start = Groups {
-                    a: std::array::from_fn(|c| state.add(c * len + springs.a0)),
-                    partner: b0 as isize - springs.a0 as isize,
-                    dst: [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)],
-                    mask: if BITS {
-                        state.add(6 * len + springs.a0)
-                    } else {
-                        stencil.lane_masks.as_ptr().add(r * row).cast::<f64>()
-                    },
+                let a: [*const f64; 6] = std::array::from_fn(|c| state.add(c * len + springs.a0));
+                let dst = [ring.add(out), ring.add(out + rl), ring.add(out + 2 * rl)];
+                let masks = if BITS {
+                    state.add(6 * len + springs.a0)
+                } else {
+                    stencil.lane_masks.as_ptr().add(r * row).cast::<f64>()
                 };
                 // Whole groups over the spans to compute: they lie in the padded row.
                 for &[lo, hi] in springs.lanes {
-                    let g = lo as usize / LANES..(hi as usize).div_ceil(LANES);
-                    groups::<BITS>(&row_start, g, &coefficients);
+                    for g in lo as usize / LANES..(hi as usize).div_ceil(LANES) {
+                        let i = opaque(LANES * g);
+                        let b = i as isize + partner;
+                        let d = |c: usize| _mm256_sub_pd(load(a[c].add(i)), load(a[c].offset(b)));
+                        let (dx, dy, dz) = (d(0), d(1), d(2));
+                        let (wx, wy, wz) = (d(3), d(4), d(5));
+                        // Lanes without a spring exert no force.
+                        let mask = if BITS {
+                            let bits = _mm256_castpd_si256(load(masks.add(i)));
+                            let set = _mm256_cmpeq_epi64(_mm256_and_si256(bits, bit), bit);
+                            _mm256_castsi256_pd(set)
+                        } else {
+                            load(masks.add(i))
+                        };
+                        let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], rest, ks, kd, mask);
+                        _mm256_storeu_pd(dst[0].add(i), fx);
+                        _mm256_storeu_pd(dst[1].add(i), fy);
+                        _mm256_storeu_pd(dst[2].add(i), fz);
+                    }
                 }
             }
         }
     }
 
-    /// One offset's constants, in every lane.
-    struct Coefficients {
-        rest: __m256d,
-        ks: __m256d,
-        kd: __m256d,
-        /// The offset's spring bit (masked lattices).
-        bit: __m256i,
-    }
-
-    /// Where a row's groups of one offset's springs start: its first ends' state (x, v by
-    /// axis), its partners', its forces' place in the ring (by axis), and its lanes' masks
-    /// (with `BITS`, the first ends' spring bits).
-    struct Groups {
-        a: [*const f64; 6],
-        /// The partners' slots less the first ends': one index for both, where a pointer per
-        /// partner array spilled (sixteen streams do not fit in the registers).
-        partner: isize,
-        dst: [*mut f64; 3],
-        mask: *const f64,
-    }
-
-    /// The forces of groups `g` of four springs of `at`.
-    ///
-    /// Its own function, not inlined, with pointers to the first group and a loop from zero,
-    /// so that its loop keeps one index for all its streams: inlined into the loop over the
-    /// spans, LLVM gave each stream its own pointer, spilled them, and the 46³ cube's step ran
-    /// 1.3× slower (2026-11-30).
-    ///
-    /// # Safety
-    /// AVX2 is available, and every pointer of `at` is good for the groups `g`.
-    #[target_feature(enable = "avx2")]
-    #[inline(never)]
-    unsafe fn groups<const BITS: bool>(at: &Groups, g: Range<usize>, k: &Coefficients) {
-        let i0 = LANES * g.start;
-        // SAFETY: the caller's promise.
-        let (a, dst, mask) = unsafe {
-            (
-                at.a.map(|p| p.add(i0)),
-                at.dst.map(|p| p.add(i0)),
-                at.mask.add(i0),
-            )
-        };
-        for g in 0..g.len() {
-            let mut i = LANES * g;
-            // SAFETY: an empty block that only hides from LLVM that i counts up, so that it
-            // addresses every stream with it rather than keeping a pointer per stream (sixteen
-            // do not fit in the registers: spilled, they cost the step 1.3×).
-            unsafe { std::arch::asm!("/* {0} */", inout(reg) i, options(pure, nomem, nostack)) };
-            // SAFETY: the caller's promise.
-            unsafe {
-                let b = i as isize + at.partner;
-                let d = |c: usize| _mm256_sub_pd(load(a[c].add(i)), load(a[c].offset(b)));
-                let (dx, dy, dz) = (d(0), d(1), d(2));
-                let (wx, wy, wz) = (d(3), d(4), d(5));
-                // Lanes without a spring exert no force.
-                let mask = if BITS {
-                    let bits = _mm256_castpd_si256(load(mask.add(i)));
-                    let set = _mm256_cmpeq_epi64(_mm256_and_si256(bits, k.bit), k.bit);
-                    _mm256_castsi256_pd(set)
-                } else {
-                    load(mask.add(i))
-                };
-                let [fx, fy, fz] = forces(dx, dy, dz, [wx, wy, wz], k.rest, k.ks, k.kd, mask);
-                _mm256_storeu_pd(dst[0].add(i), fx);
-                _mm256_storeu_pd(dst[1].add(i), fy);
-                _mm256_storeu_pd(dst[2].add(i), fz);
-            }
-        }
+    /// `i`, through an empty `asm!` block that hides from LLVM where it comes from. A loop
+    /// addressing many arrays with a counted index is otherwise rewritten by LLVM's loop
+    /// strength reduction into a pointer per array, each incremented every iteration: the
+    /// springs' loop has more streams than there are registers, and in the loop over a row's
+    /// spans they were spilled, which made the 46³ cube's step 1.3× slower (2026-11-30,
+    /// BENCHMARKS.md).
+    #[inline(always)]
+    fn opaque(mut i: usize) -> usize {
+        // SAFETY: the block is empty: it reads and writes nothing but `i`'s register.
+        unsafe { std::arch::asm!("/* {0} */", inout(reg) i, options(pure, nomem, nostack)) };
+        i
     }
 
     /// # Safety
