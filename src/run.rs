@@ -177,7 +177,7 @@ pub fn run_until(
         return Err(RunError::Overflow(e0));
     }
     // Dropped once written: its spring arrays are as large as the state.
-    sink.header(&Header::new(solver, frames, scene))?;
+    sink.header(&Header::new(solver, frames, scene, sink.wants_springs()))?;
 
     let mut summary = Summary {
         frames: 0,
@@ -363,6 +363,62 @@ mod tests {
         assert_eq!((frames, steps), (3, scene.simulation.frame_step(2)));
         let expected: Vec<&str> = text.lines().take(1 + 3).collect();
         assert_eq!(partial.lines().collect::<Vec<_>>(), expected);
+    }
+
+    /// The header's spring arrays are built for a sink that reads them and left empty for one
+    /// that does not: every spring in the model's order, or none.
+    #[test]
+    fn the_header_carries_the_springs_only_to_a_sink_that_wants_them() {
+        struct Springs {
+            wants: bool,
+            got: Option<(usize, usize, usize, usize)>,
+        }
+        impl FrameSink for Springs {
+            fn header(&mut self, h: &Header) -> std::io::Result<()> {
+                self.got = Some((
+                    h.springs.len(),
+                    h.rest.len(),
+                    h.stiffness.len(),
+                    h.damping.len(),
+                ));
+                Ok(())
+            }
+            fn frame(&mut self, _: &Frame<'_>) -> std::io::Result<()> {
+                Ok(())
+            }
+            fn finish(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+            fn wants_springs(&self) -> bool {
+                self.wants
+            }
+        }
+        let mut scene = softbody_scene::Scene::from_file(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenes/jelly-on-ground.toml"
+        ))
+        .unwrap();
+        scene.simulation.duration = 0.01;
+        for wants in [true, false] {
+            let mut solver = crate::open(&scene, crate::Backend::Cpu, Some(1)).unwrap();
+            let n = solver.model().spring_count();
+            assert!(n > 0);
+            let mut sink = Springs { wants, got: None };
+            run(solver.as_mut(), None, &mut sink, &mut |_, _| {}).unwrap();
+            let expected = if wants { n } else { 0 };
+            assert_eq!(
+                sink.got,
+                Some((expected, expected, expected, expected)),
+                "{wants}"
+            );
+        }
+        // The formats that write no springs say so.
+        for format in [Format::Jsonl, Format::Csv] {
+            let sink = output::sink(format, Box::new(std::io::sink())).unwrap();
+            assert!(!sink.wants_springs(), "{format:?}");
+        }
+        let npz = output::sink(Format::Npz, Box::new(std::io::sink())).unwrap();
+        assert!(npz.wants_springs());
     }
 
     /// An energy-guard instability is reported at the first step whose energy exceeds the

@@ -655,6 +655,9 @@ impl FrameSink for Tee<'_> {
             None => Ok(()),
         }
     }
+    fn wants_springs(&self) -> bool {
+        self.metrics.strain || self.sink.as_ref().is_some_and(|s| s.wants_springs())
+    }
     fn finish(&mut self) -> io::Result<()> {
         match &mut self.sink {
             Some(s) => s.finish(),

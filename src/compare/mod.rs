@@ -555,6 +555,10 @@ impl FrameSink for CompareSink<'_> {
         Ok(())
     }
 
+    fn wants_springs(&self) -> bool {
+        false
+    }
+
     fn finish(&mut self) -> std::io::Result<()> {
         Ok(())
     }

@@ -35,6 +35,10 @@ impl FrameSink for CsvSink<'_> {
         self.out.flush()
     }
 
+    fn wants_springs(&self) -> bool {
+        false
+    }
+
     fn finish(&mut self) -> std::io::Result<()> {
         self.out.flush()
     }

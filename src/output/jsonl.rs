@@ -94,6 +94,10 @@ impl FrameSink for JsonlSink<'_> {
         })
     }
 
+    fn wants_springs(&self) -> bool {
+        false
+    }
+
     fn finish(&mut self) -> std::io::Result<()> {
         self.out.flush()
     }

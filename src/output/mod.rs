@@ -242,20 +242,23 @@ pub struct Header {
 impl Header {
     /// The header of a run of `solver` writing `frames` frames of the scene in file `scene`
     /// (made absolute when it can be); its `scene_text` is that file's text, which
-    /// [`WithSceneText`] replaces where settings changed the scene.
-    pub fn new(solver: &dyn Solver, frames: u64, scene: Option<&Path>) -> Header {
+    /// [`WithSceneText`] replaces where settings changed the scene. Its spring arrays are
+    /// empty unless `springs` ([`FrameSink::wants_springs`]).
+    pub fn new(solver: &dyn Solver, frames: u64, scene: Option<&Path>, springs: bool) -> Header {
         let model = solver.model();
         // Visited rather than taken from `Model::springs`, which would keep the list for the
         // rest of the run: a cuboid's model holds its springs as a stencil only.
-        let count = model.spring_count();
+        let count = if springs { model.spring_count() } else { 0 };
         let (mut springs, mut rest) = (Vec::with_capacity(count), Vec::with_capacity(count));
         let (mut stiffness, mut damping) = (Vec::with_capacity(count), Vec::with_capacity(count));
-        model.for_each_spring(|a, b, r, k, d| {
-            springs.push([a, b]);
-            rest.push(r);
-            stiffness.push(k);
-            damping.push(d);
-        });
+        if count > 0 {
+            model.for_each_spring(|a, b, r, k, d| {
+                springs.push([a, b]);
+                rest.push(r);
+                stiffness.push(k);
+                damping.push(d);
+            });
+        }
         Header {
             softbody_frames: 1,
             particles: model.len(),
@@ -318,6 +321,12 @@ pub trait FrameSink {
     fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()>;
     /// Completes the output (also after a run stopped early).
     fn finish(&mut self) -> std::io::Result<()>;
+    /// Whether the sink reads the header's spring arrays (`springs`, `rest`, `stiffness`,
+    /// `damping`). A sink that does not says false, and the run leaves them empty: they take
+    /// 40 bytes a spring, about three times a lattice body's whole model.
+    fn wants_springs(&self) -> bool {
+        true
+    }
 }
 
 /// A sink that passes everything on to another, giving the header the text of the scene that
@@ -350,6 +359,10 @@ impl FrameSink for WithSceneText<'_> {
 
     fn finish(&mut self) -> std::io::Result<()> {
         self.sink.finish()
+    }
+
+    fn wants_springs(&self) -> bool {
+        self.sink.wants_springs()
     }
 }
 

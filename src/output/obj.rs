@@ -62,6 +62,10 @@ impl FrameSink for ObjSink {
         })
     }
 
+    fn wants_springs(&self) -> bool {
+        false
+    }
+
     fn finish(&mut self) -> io::Result<()> {
         Ok(())
     }

@@ -97,6 +97,10 @@ impl FrameSink for PlySink {
         })
     }
 
+    fn wants_springs(&self) -> bool {
+        false
+    }
+
     fn finish(&mut self) -> io::Result<()> {
         Ok(())
     }

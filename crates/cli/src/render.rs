@@ -406,6 +406,10 @@ impl FrameSink for Sink<'_, '_> {
             .map_err(std::io::Error::other)
     }
 
+    fn wants_springs(&self) -> bool {
+        false
+    }
+
     fn finish(&mut self) -> std::io::Result<()> {
         Ok(())
     }
