@@ -7,9 +7,11 @@
 //! TOML of the scene that ran) and `scene_file` where the run had them. Strings are NumPy
 //! unicode (`<U`), so `str(d["integrator"])` is `"rk4"`.
 //!
-//! The frame count is only known at the end (a run may stop early), and `.npy` headers carry
-//! the shape, so frames are spooled to two temporary files and the archive is written by
-//! [`FrameSink::finish`]. Memory stays at one frame whatever the run's length.
+//! The archive is staged in a temporary file (zip needs Seek) and copied to the output by
+//! [`FrameSink::finish`]. What the run was goes in when the header comes, so that the sink keeps
+//! none of it (the springs' arrays are 40 bytes a spring). The frame count is only known at the
+//! end (a run may stop early), and `.npy` headers carry the shape, so frames are spooled to two
+//! temporary files and go in at the end. Memory stays at one frame whatever the run's length.
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
@@ -25,8 +27,11 @@ pub struct NpzSink<'w> {
     times: Vec<f64>,
     /// Kinetic, gravitational and elastic energy of each frame.
     energies: [Vec<f64>; 3],
-    /// The run's header (for its metadata); set by `header`.
-    header: Option<Header>,
+    /// The staged archive, buffered (npyz writes a value per call: unbuffered, a 100³ cube's
+    /// 13 M springs took 100 s of write calls); opened by `header`.
+    zip: Option<zip::ZipWriter<BufWriter<File>>>,
+    /// Particles per frame, from the header.
+    particles: u64,
     /// Spooled frames; taken by `finish`.
     spools: Option<(BufWriter<File>, BufWriter<File>)>,
 }
@@ -38,7 +43,8 @@ impl<'w> NpzSink<'w> {
             out: Some(out),
             times: Vec::new(),
             energies: Default::default(),
-            header: None,
+            zip: None,
+            particles: 0,
             spools: Some((
                 BufWriter::new(tempfile::tempfile()?),
                 BufWriter::new(tempfile::tempfile()?),
@@ -62,12 +68,10 @@ fn copy_spooled<W: Write + Seek>(
     name: &str,
     shape: &[u64],
     spool: BufWriter<File>,
-    options: SimpleFileOptions,
 ) -> io::Result<()> {
     let mut file = spool.into_inner().map_err(|e| e.into_error())?;
     file.seek(SeekFrom::Start(0))?;
-    zip.start_file(format!("{name}.npy"), options)
-        .map_err(io::Error::other)?;
+    start(zip, name, shape, 8)?;
     let mut writer = npyz::WriteOptions::new()
         .default_dtype()
         .shape(shape)
@@ -85,7 +89,32 @@ fn copy_spooled<W: Write + Seek>(
 
 impl FrameSink for NpzSink<'_> {
     fn header(&mut self, header: &Header) -> io::Result<()> {
-        self.header = Some(header.clone());
+        let mut zip = zip::ZipWriter::new(BufWriter::new(tempfile::tempfile()?));
+        let n = header.particles as u64;
+        let mut arrays = Arrays { zip: &mut zip };
+        arrays.f64("dt", &[], &[header.dt])?;
+        arrays.f64("frame_rate", &[], &[header.frame_rate])?;
+        arrays.strings("integrator", &[], &[&header.integrator])?;
+        arrays.strings("backend", &[], &[&header.backend])?;
+        arrays.strings("device", &[], &[&header.device])?;
+        arrays.f64("masses", &[n], &header.masses)?;
+        let s = header.springs.len() as u64;
+        arrays.u32("springs", &[s, 2], header.springs.iter().flatten())?;
+        arrays.f64("rest_lengths", &[s], &header.rest)?;
+        arrays.f64("stiffness", &[s], &header.stiffness)?;
+        arrays.f64("damping", &[s], &header.damping)?;
+        let b = header.bodies.len() as u64;
+        let names: Vec<&str> = header.bodies.iter().map(|b| b.name.as_str()).collect();
+        arrays.strings("body_names", &[b], &names)?;
+        arrays.u32("body_first", &[b], header.bodies.iter().map(|b| &b.first))?;
+        arrays.u32("body_count", &[b], header.bodies.iter().map(|b| &b.count))?;
+        if let Some(text) = &header.scene_text {
+            arrays.strings("scene_text", &[], &[text])?;
+        }
+        if let Some(file) = &header.scene {
+            arrays.strings("scene_file", &[], &[file])?;
+        }
+        (self.zip, self.particles) = (Some(zip), n);
         Ok(())
     }
 
@@ -111,58 +140,18 @@ impl FrameSink for NpzSink<'_> {
         else {
             return Ok(());
         };
-        let Some(header) = self.header.take() else {
+        let Some(mut zip) = self.zip.take() else {
             return Err(io::Error::other("finish without a header"));
         };
-        // zip needs Seek; stage the archive in a temporary file, then copy it out. Buffered:
-        // npyz hands the archive one value at a time, a write call each (a 100³ cube's header,
-        // 13 M springs, took 100 s unbuffered).
-        let mut zip = zip::ZipWriter::new(BufWriter::new(tempfile::tempfile()?));
-        let frames = self.times.len() as u64;
-        let n = header.particles as u64;
-        let big = frames * n * 24 > u32::MAX as u64 / 2;
-        let options = SimpleFileOptions::default()
-            .compression_method(zip::CompressionMethod::Stored)
-            .large_file(big);
-        let mut arrays = Arrays {
-            zip: &mut zip,
-            options,
-        };
+        let (frames, n) = (self.times.len() as u64, self.particles);
+        let mut arrays = Arrays { zip: &mut zip };
         arrays.f64("time", &[frames], &self.times)?;
-        copy_spooled(arrays.zip, "positions", &[frames, n, 3], positions, options)?;
-        copy_spooled(
-            arrays.zip,
-            "velocities",
-            &[frames, n, 3],
-            velocities,
-            options,
-        )?;
+        copy_spooled(arrays.zip, "positions", &[frames, n, 3], positions)?;
+        copy_spooled(arrays.zip, "velocities", &[frames, n, 3], velocities)?;
         let [kinetic, gravitational, elastic] = &self.energies;
         arrays.f64("energy_kinetic", &[frames], kinetic)?;
         arrays.f64("energy_gravitational", &[frames], gravitational)?;
         arrays.f64("energy_elastic", &[frames], elastic)?;
-        arrays.f64("dt", &[], &[header.dt])?;
-        arrays.f64("frame_rate", &[], &[header.frame_rate])?;
-        arrays.strings("integrator", &[], &[&header.integrator])?;
-        arrays.strings("backend", &[], &[&header.backend])?;
-        arrays.strings("device", &[], &[&header.device])?;
-        arrays.f64("masses", &[n], &header.masses)?;
-        let s = header.springs.len() as u64;
-        arrays.u32("springs", &[s, 2], header.springs.iter().flatten())?;
-        arrays.f64("rest_lengths", &[s], &header.rest)?;
-        arrays.f64("stiffness", &[s], &header.stiffness)?;
-        arrays.f64("damping", &[s], &header.damping)?;
-        let b = header.bodies.len() as u64;
-        let names: Vec<&str> = header.bodies.iter().map(|b| b.name.as_str()).collect();
-        arrays.strings("body_names", &[b], &names)?;
-        arrays.u32("body_first", &[b], header.bodies.iter().map(|b| &b.first))?;
-        arrays.u32("body_count", &[b], header.bodies.iter().map(|b| &b.count))?;
-        if let Some(text) = &header.scene_text {
-            arrays.strings("scene_text", &[], &[text])?;
-        }
-        if let Some(file) = &header.scene {
-            arrays.strings("scene_file", &[], &[file])?;
-        }
         let archive = zip.finish().map_err(io::Error::other)?;
         let mut archive = archive
             .into_inner()
@@ -173,21 +162,30 @@ impl FrameSink for NpzSink<'_> {
     }
 }
 
+/// Starts the entry of array `name` of `shape` and elements of `size` bytes: stored (NumPy
+/// maps stored entries), with zip64 sizes where it may pass 2 GiB.
+fn start<W: Write + Seek>(
+    zip: &mut zip::ZipWriter<W>,
+    name: &str,
+    shape: &[u64],
+    size: u64,
+) -> io::Result<()> {
+    let bytes = shape.iter().product::<u64>() * size;
+    let options = SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Stored)
+        .large_file(bytes > u64::from(u32::MAX) / 2);
+    zip.start_file(format!("{name}.npy"), options)
+        .map_err(io::Error::other)
+}
+
 /// Writes whole arrays into the archive, one `.npy` entry each.
 struct Arrays<'z, W: Write + Seek> {
     zip: &'z mut zip::ZipWriter<W>,
-    options: SimpleFileOptions,
 }
 
 impl<W: Write + Seek> Arrays<'_, W> {
-    fn start(&mut self, name: &str) -> io::Result<()> {
-        self.zip
-            .start_file(format!("{name}.npy"), self.options)
-            .map_err(io::Error::other)
-    }
-
     fn f64(&mut self, name: &str, shape: &[u64], values: &[f64]) -> io::Result<()> {
-        self.start(name)?;
+        start(self.zip, name, shape, 8)?;
         let mut w = npyz::WriteOptions::new()
             .default_dtype()
             .shape(shape)
@@ -203,7 +201,7 @@ impl<W: Write + Seek> Arrays<'_, W> {
         shape: &[u64],
         values: impl IntoIterator<Item = &'a u32>,
     ) -> io::Result<()> {
-        self.start(name)?;
+        start(self.zip, name, shape, 4)?;
         let mut w = npyz::WriteOptions::new()
             .default_dtype()
             .shape(shape)
@@ -227,7 +225,7 @@ impl<W: Write + Seek> Arrays<'_, W> {
                 .parse::<TypeStr>()
                 .map_err(io::Error::other)?,
         );
-        self.start(name)?;
+        start(self.zip, name, shape, 4 * width as u64)?;
         let mut w = npyz::WriteOptions::<str>::new()
             .dtype(dtype)
             .shape(shape)
