@@ -1,6 +1,7 @@
-//! What a valid scene may still get wrong, said before it runs (`softbody check` lists it,
-//! `softbody run` prints it): bodies that start inside the terrain, and a time step above the
-//! explicit integrators' stable estimate.
+//! What a valid scene may still get wrong, said before it runs: bodies that start inside the
+//! terrain (`softbody check` lists them, `softbody run` prints them), and a time step above the
+//! explicit integrators' stable estimate (`check` only: a run that becomes unstable says so
+//! itself, with the step).
 
 use std::fmt;
 
