@@ -6,6 +6,7 @@
 #   scripts/ab-bench.sh REV [SIZES] [THREADS] [ROUNDS]
 #   scripts/ab-bench.sh HEAD~1                 # 46³, one and two threads, three rounds
 #   scripts/ab-bench.sh e680531 "46 100" 2 5
+#   BENCH_ARGS="--integrator rk4" scripts/ab-bench.sh HEAD
 #
 # REV is built once in a worktree of its own with its own target directory (a cold build of
 # the workspace: minutes), under $AB_DIR (default /tmp/softbody-ab); OLD_BIN=path skips that
@@ -34,7 +35,8 @@ fi
 cargo build --release -p softbody-cli
 new=target/release/softbody
 rate() {
-  "$1" bench --sizes "$2" --threads "$3" --json --quiet |
+  # shellcheck disable=SC2086 # BENCH_ARGS is a list of arguments
+  "$1" bench --sizes "$2" --threads "$3" --json --quiet ${BENCH_ARGS:-} |
     python3 -c 'import json,sys; print(json.loads(sys.stdin.read())["particle_steps_per_s"]/1e6)'
 }
 results=$(mktemp)
