@@ -41,6 +41,10 @@ pub enum RunError {
         .0.kinetic, .0.gravitational, .0.elastic
     )]
     Overflow(Energies),
+    /// The output's header does not fit in the memory left: its spring arrays, for a sink
+    /// that reads them ([`FrameSink::wants_springs`]). Nothing was written.
+    #[error("{0}")]
+    TooLarge(String),
     /// The device failed.
     #[error("{0}")]
     Device(String),
@@ -58,6 +62,33 @@ pub enum RunError {
     /// Writing or resuming the checkpoint failed.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+}
+
+impl RunError {
+    /// Whether the scene (with its output) cannot run as given, found before anything was
+    /// written: [`RunError::Overflow`] and [`RunError::TooLarge`], bad input to the caller.
+    pub fn is_bad_input(&self) -> bool {
+        matches!(self, RunError::Overflow(_) | RunError::TooLarge(_))
+    }
+}
+
+/// Bytes a run's header takes per spring for a sink that reads its spring arrays: the ends
+/// (2 × 4), the rest length, the stiffness and the damping (3 × 8).
+pub const HEADER_BYTES_PER_SPRING: u64 = 40;
+
+/// Refuses a header whose spring arrays would not fit in the memory left
+/// ([`softbody_scene::model::available_memory`]), before they are allocated.
+fn header_fits(model: &Model) -> Result<(), RunError> {
+    let springs = model.spring_count() as u64;
+    let need = springs * HEADER_BYTES_PER_SPRING;
+    match softbody_scene::model::available_memory() {
+        Some((have, what)) if need > have => Err(RunError::TooLarge(format!(
+            "the output takes every spring's ends, rest length and coefficients ({springs} springs, {:.2} GiB) and {:.2} GiB are {what}; JSON Lines and CSV do without them",
+            need as f64 / (1u64 << 30) as f64,
+            have as f64 / (1u64 << 30) as f64
+        ))),
+        _ => Ok(()),
+    }
 }
 
 impl From<StepError> for RunError {
@@ -177,7 +208,11 @@ pub fn run_until(
         return Err(RunError::Overflow(e0));
     }
     // Dropped once written: its spring arrays are as large as the state.
-    sink.header(&Header::new(solver, frames, scene, sink.wants_springs()))?;
+    let springs = sink.wants_springs();
+    if springs {
+        header_fits(solver.model())?;
+    }
+    sink.take_header(Header::new(solver, frames, scene, springs))?;
 
     let mut summary = Summary {
         frames: 0,

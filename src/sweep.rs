@@ -655,6 +655,13 @@ impl FrameSink for Tee<'_> {
             None => Ok(()),
         }
     }
+    fn take_header(&mut self, header: Header) -> io::Result<()> {
+        self.metrics.header(&header);
+        match &mut self.sink {
+            Some(s) => s.take_header(header),
+            None => Ok(()),
+        }
+    }
     fn wants_springs(&self) -> bool {
         self.metrics.strain || self.sink.as_ref().is_some_and(|s| s.wants_springs())
     }
@@ -839,7 +846,11 @@ impl Job {
             .map(|m| (m.name().to_owned(), metrics.value(*m)))
             .collect();
         // As `softbody run`: the frames before an instability or a device failure are kept.
-        let keep = !matches!(result, Err(RunError::Io(_) | RunError::Overflow(_)));
+        let keep = match &result {
+            Err(RunError::Io(_)) => false,
+            Err(e) => !e.is_bad_input(),
+            Ok(_) => true,
+        };
         if keep && let Some(output) = output {
             if let Err(e) = output.commit() {
                 return end(record, Status::Failed, 1, e.to_string());
@@ -850,7 +861,7 @@ impl Job {
         match result {
             Ok(_) => record,
             Err(RunError::Unstable(i)) => end(record, Status::Unstable, 3, i.to_string()),
-            Err(e @ RunError::Overflow(_)) => end(record, Status::Invalid, 2, e.to_string()),
+            Err(e) if e.is_bad_input() => end(record, Status::Invalid, 2, e.to_string()),
             Err(e @ RunError::Device(_)) => end(record, Status::Failed, 4, e.to_string()),
             Err(e) => end(record, Status::Failed, 1, format!("{e:#}")),
         }

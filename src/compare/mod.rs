@@ -453,7 +453,9 @@ fn measure_run(
         Ok(_) => None,
         Err(RunError::Unstable(i)) => Some(i),
         Err(RunError::Device(d)) => return Err(StudyError::Device(d)),
-        Err(e @ RunError::Overflow(_)) => return Err(StudyError::Invalid(e.to_string())),
+        Err(e @ (RunError::Overflow(_) | RunError::TooLarge(_))) => {
+            return Err(StudyError::Invalid(e.to_string()));
+        }
         // The sink writes nothing; its only error is a frame time without a reference state.
         // `run` is never stopped, nor checkpointed.
         Err(e @ (RunError::Io(_) | RunError::Stopped { .. } | RunError::Checkpoint(_))) => {

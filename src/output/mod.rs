@@ -315,8 +315,13 @@ pub struct Frame<'a> {
 
 /// Where frames go.
 pub trait FrameSink {
-    /// Called once, first.
+    /// Called once, first (or [`FrameSink::take_header`] is).
     fn header(&mut self, header: &Header) -> std::io::Result<()>;
+    /// [`FrameSink::header`], given the header to keep: what a run calls, so that a sink that
+    /// keeps large parts of it (the springs) moves them instead of copying them.
+    fn take_header(&mut self, header: Header) -> std::io::Result<()> {
+        self.header(&header)
+    }
     /// Called per frame, in order.
     fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()>;
     /// Completes the output (also after a run stopped early).
@@ -351,6 +356,13 @@ impl FrameSink for WithSceneText<'_> {
             ..header.clone()
         };
         self.sink.header(&header)
+    }
+
+    fn take_header(&mut self, header: Header) -> std::io::Result<()> {
+        self.sink.take_header(Header {
+            scene_text: Some(self.text.clone()),
+            ..header
+        })
     }
 
     fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()> {

@@ -167,6 +167,10 @@ pub fn strains(springs: &[[u32; 2]], rest: &[f64], x: &[glam::DVec3]) -> Vec<f64
 
 impl FrameSink for VtkSink {
     fn header(&mut self, header: &Header) -> io::Result<()> {
+        self.take_header(header.clone())
+    }
+
+    fn take_header(&mut self, mut header: Header) -> io::Result<()> {
         let n = header.particles;
         check_indices(&header.springs, n, "spring")?;
         check_indices(&header.surface, n, "surface triangle")?;
@@ -192,8 +196,8 @@ impl FrameSink for VtkSink {
             )));
         }
         self.particles = n;
-        self.springs = header.springs.clone();
-        self.rest = header.rest.clone();
+        self.springs = std::mem::take(&mut header.springs);
+        self.rest = std::mem::take(&mut header.rest);
         self.triangles = header.surface.len() + embedded.triangles.len();
         self.embedded = embedded.clone();
 

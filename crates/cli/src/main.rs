@@ -210,7 +210,7 @@ fn run_failure(e: RunError, integrator: Integrator, kept: &str) -> Failure {
             status: status::UNSTABLE,
             error: anyhow::anyhow!("{i}; {}\n{kept}", softbody::Instability::advice(integrator)),
         },
-        RunError::Overflow(_) => bad_input(e),
+        RunError::Overflow(_) | RunError::TooLarge(_) => bad_input(e),
         RunError::Stopped { .. } => Failure {
             status: status::INTERRUPTED,
             error: anyhow::anyhow!("{e}\n{kept}"),

@@ -171,7 +171,7 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
                         .context("cannot write the pictures")
                         .into());
                 }
-                Err(e @ RunError::Overflow(_)) => return Err(bad_input(e)),
+                Err(e) if e.is_bad_input() => return Err(bad_input(e)),
                 _ => {}
             }
             // The frames before an instability are drawn and kept, as `run` keeps them.

@@ -166,7 +166,8 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     // untouched); a run stopped by an instability, a device failure or a signal keeps the
     // frames before it.
     let keep = match &result {
-        Err(RunError::Io(_) | RunError::Overflow(_)) => false,
+        Err(RunError::Io(_)) => false,
+        Err(e) if e.is_bad_input() => false,
         Err(RunError::Stopped { frames, .. }) => *frames > 0,
         _ => true,
     };
@@ -177,10 +178,9 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     // signal, a device or a file system can go on from it.
     let mut resumable = String::new();
     if let Some(c) = checkpoints.take() {
-        if matches!(
-            result,
-            Ok(_) | Err(RunError::Unstable(_) | RunError::Overflow(_))
-        ) {
+        if matches!(result, Ok(_) | Err(RunError::Unstable(_)))
+            || result.as_ref().is_err_and(RunError::is_bad_input)
+        {
             c.remove().map_err(Failure::from)?;
         } else {
             resumable = format!(

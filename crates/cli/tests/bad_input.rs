@@ -778,4 +778,32 @@ fn a_scene_beyond_the_address_space_limit_is_refused() {
         ["big.toml", "implicit.toml", "lean.toml"],
         "nothing written"
     );
+    // The output's header: NPZ holds every spring's ends, rest length and coefficients (40 B a
+    // spring, 0.58 GiB here), refused where the header is made, with what it needs and what
+    // is left, and nothing written; JSON Lines, which does without them, runs in the same room.
+    let one_step = "--dt 1e-6 --duration 1e-6 --threads 1";
+    let out = limited_to(640 << 10, &format!("run lean.toml --out f.npz {one_step}"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(EXIT_BAD_INPUT), "{stderr}");
+    assert!(
+        stderr.contains("the output takes every spring's ends")
+            && stderr.contains("15671796 springs, 0.58 GiB")
+            && stderr.contains("address-space limit"),
+        "{stderr}"
+    );
+    assert_eq!(
+        entries(sb.path()),
+        ["big.toml", "implicit.toml", "lean.toml"],
+        "nothing written"
+    );
+    let out = limited_to(
+        640 << 10,
+        &format!("run lean.toml --out g.jsonl {one_step}"),
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(
+        entries(sb.path()),
+        ["big.toml", "g.jsonl", "implicit.toml", "lean.toml"]
+    );
 }

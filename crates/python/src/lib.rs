@@ -550,7 +550,10 @@ struct Collect {
 
 impl FrameSink for Collect {
     fn header(&mut self, header: &Header) -> std::io::Result<()> {
-        self.header = Some(header.clone());
+        self.take_header(header.clone())
+    }
+    fn take_header(&mut self, header: Header) -> std::io::Result<()> {
+        self.header = Some(header);
         Ok(())
     }
     fn frame(&mut self, f: &Frame<'_>) -> std::io::Result<()> {
@@ -651,7 +654,7 @@ fn run<'py>(
             }
             Err(err)
         }
-        Err(Ok(e @ RunError::Overflow(_))) => Err(SceneError::new_err(e.to_string())),
+        Err(Ok(e)) if e.is_bad_input() => Err(SceneError::new_err(e.to_string())),
         Err(Ok(e)) => Err(DeviceError::new_err(e.to_string())),
     }
 }
