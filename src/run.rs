@@ -207,7 +207,8 @@ pub fn run_until(
     if !e0.total().is_finite() {
         return Err(RunError::Overflow(e0));
     }
-    // Dropped once written: its spring arrays are as large as the state.
+    // Handed over: its spring arrays are as large as the state, so a sink that keeps them
+    // moves them, and the run keeps none.
     let springs = sink.wants_springs();
     if springs {
         header_fits(solver.model())?;
