@@ -642,11 +642,7 @@ struct Tee<'a> {
 
 impl FrameSink for Tee<'_> {
     fn header(&mut self, header: &Header) -> io::Result<()> {
-        self.metrics.header(header);
-        match &mut self.sink {
-            Some(s) => s.header(header),
-            None => Ok(()),
-        }
+        self.take_header(header.clone())
     }
     fn frame(&mut self, frame: &Frame<'_>) -> io::Result<()> {
         self.metrics.frame(frame);

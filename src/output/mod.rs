@@ -351,11 +351,7 @@ impl<'s> WithSceneText<'s> {
 
 impl FrameSink for WithSceneText<'_> {
     fn header(&mut self, header: &Header) -> std::io::Result<()> {
-        let header = Header {
-            scene_text: Some(self.text.clone()),
-            ..header.clone()
-        };
-        self.sink.header(&header)
+        self.take_header(header.clone())
     }
 
     fn take_header(&mut self, header: Header) -> std::io::Result<()> {
