@@ -15,19 +15,24 @@
 //! point data shared by both. Arrays are inline `binary` (base64 of a `UInt64` byte count
 //! followed by the little-endian values, `header_type="UInt64"`): a third of the size of ASCII
 //! decimals, exact f64 bits, and still well-formed XML any parser reads. Connectivity, offsets
-//! and types are `Int64`/`UInt8`, VTK's own types, and the same every frame, so they are
-//! encoded once.
+//! and types are `Int64`/`UInt8`, VTK's own types. Every array is encoded as it is written
+//! (the `base64` crate's streaming encoder), the cells too: keeping their encoding between
+//! frames would cost 35 B a spring for the run's length, to spare encoding a third of a file
+//! that is written anyway.
 //!
 //! The `.pvd` lists each frame as `<DataSet timestep="t" file="<stem>/<stem>_000000.vtu"/>`
 //! with t the frame time; it is written when the run ends, listing exactly the frames written.
 //!
-//! Written by hand: the `vtkio` crate's last release is a 2023 release candidate (0.7.0-rc2)
+//! The XML is written by hand: the `vtkio` crate's last release is a 2023 release candidate (0.7.0-rc2)
 //! whose default features build the C libraries of lz4 and xz, for files that are a few
 //! lines of XML around base64.
 
-use std::io::{self, Write};
+use std::io::{self, BufWriter, Write};
 use std::path::PathBuf;
 
+use base64::engine::general_purpose::STANDARD;
+use base64::write::EncoderWriter;
+use glam::DVec3;
 use softbody_scene::model::Embedded;
 
 use super::series::{self, check_indices, frame_file_name, write_file};
@@ -43,6 +48,11 @@ pub const KIND_SPRING: u8 = 0;
 pub const KIND_SURFACE: u8 = 1;
 
 /// Writes a ParaView series: `.vtu` frames into a directory and the `.pvd` at the end.
+///
+/// A frame is encoded as it is written: the sink keeps the springs' ends and rest lengths
+/// (16 B a spring, within the header's share that `run` checks against the memory left) and
+/// builds no per-frame array, so a frame of a 100³ cube (15.7 M springs, 0.7 GB of XML) takes
+/// no more memory than the sink holds already.
 pub struct VtkSink {
     dir: PathBuf,
     stem: String,
@@ -52,12 +62,11 @@ pub struct VtkSink {
     particles: usize,
     springs: Vec<[u32; 2]>,
     rest: Vec<f64>,
-    triangles: usize,
+    /// The surface triangles over the particles, then the mesh bodies' own, over the points
+    /// after the particles.
+    triangles: Vec<[i64; 3]>,
     /// The mesh bodies' meshes, whose vertices are points after the particles.
     embedded: Embedded,
-    /// `<Cells>` and the `kind` cell array: the same every frame.
-    cells: String,
-    kind: String,
     /// (time, file) of every frame written.
     written: Vec<(f64, String)>,
 }
@@ -74,70 +83,129 @@ impl VtkSink {
             particles: 0,
             springs: Vec::new(),
             rest: Vec::new(),
-            triangles: 0,
+            triangles: Vec::new(),
             embedded: Embedded::default(),
-            cells: String::new(),
-            kind: String::new(),
             written: Vec::new(),
         }
     }
-}
 
-/// Appends `bytes` to `out` in base64 (RFC 4648, padded).
-fn base64(out: &mut String, bytes: &[u8]) {
-    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    out.reserve(bytes.len().div_ceil(3) * 4);
-    for chunk in bytes.chunks(3) {
-        let b = [
-            chunk[0],
-            chunk.get(1).copied().unwrap_or(0),
-            chunk.get(2).copied().unwrap_or(0),
-        ];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for (k, shift) in [18, 12, 6, 0].into_iter().enumerate() {
-            if k <= chunk.len() {
-                out.push(ALPHABET[(n >> shift) as usize & 63] as char);
-            } else {
-                out.push('=');
-            }
-        }
+    /// One `.vtu` of the frame at positions `x` (the particles' then the embedded vertices')
+    /// and velocities `v`, to `out`.
+    fn write_frame(
+        &self,
+        out: &mut impl Write,
+        time: f64,
+        x: &[&[DVec3]; 2],
+        v: &[&[DVec3]; 2],
+    ) -> io::Result<()> {
+        let points = x[0].len() + x[1].len();
+        let springs = self.springs.len();
+        let cells = springs + self.triangles.len();
+        let particles = x[0];
+        let x = || x[0].iter().chain(x[1]);
+        let v = || v[0].iter().chain(v[1]);
+        // Rust's `{}` prints the shortest decimal that reads back to the same f64.
+        write!(
+            out,
+            "<?xml version=\"1.0\"?>\n\
+             <VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" \
+             header_type=\"UInt64\">\n<UnstructuredGrid>\n<FieldData>\n\
+             <DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" \
+             format=\"ascii\">{time}</DataArray>\n</FieldData>\n\
+             <Piece NumberOfPoints=\"{points}\" NumberOfCells=\"{cells}\">\n\
+             <PointData Scalars=\"speed\" Vectors=\"velocity\">\n"
+        )?;
+        let components = |v: &DVec3| v.to_array().map(f64::to_le_bytes);
+        data_array(
+            out,
+            "Float64",
+            "velocity",
+            3,
+            3 * points,
+            v().flat_map(components),
+        )?;
+        let speed = v().map(|v| v.length().to_le_bytes());
+        data_array(out, "Float64", "speed", 1, points, speed)?;
+        out.write_all(b"</PointData>\n<CellData Scalars=\"strain\">\n")?;
+        let kind = std::iter::repeat_n(KIND_SPRING, springs)
+            .chain(std::iter::repeat_n(KIND_SURFACE, self.triangles.len()));
+        data_array(out, "UInt8", "kind", 1, cells, kind.map(u8::to_le_bytes))?;
+        let ends = |[a, b]: [u32; 2]| (particles[a as usize], particles[b as usize]);
+        let strain = (self.springs.iter().zip(&self.rest))
+            .map(|(&s, &rest)| strain(ends(s), rest))
+            .chain(std::iter::repeat_n(f64::NAN, self.triangles.len()));
+        data_array(
+            out,
+            "Float64",
+            "strain",
+            1,
+            cells,
+            strain.map(f64::to_le_bytes),
+        )?;
+        out.write_all(b"</CellData>\n<Points>\n")?;
+        data_array(
+            out,
+            "Float64",
+            "Points",
+            3,
+            3 * points,
+            x().flat_map(components),
+        )?;
+        out.write_all(b"</Points>\n<Cells>\n")?;
+        let connectivity = (self.springs.iter().flatten().map(|&i| i64::from(i)))
+            .chain(self.triangles.iter().flatten().copied());
+        let corners = 2 * springs + 3 * self.triangles.len();
+        let connectivity = connectivity.map(i64::to_le_bytes);
+        data_array(out, "Int64", "connectivity", 1, corners, connectivity)?;
+        let offsets = (1..=springs)
+            .map(|s| 2 * s as i64)
+            .chain((1..=self.triangles.len()).map(|t| (2 * springs + 3 * t) as i64));
+        data_array(
+            out,
+            "Int64",
+            "offsets",
+            1,
+            cells,
+            offsets.map(i64::to_le_bytes),
+        )?;
+        let types = std::iter::repeat_n(VTK_LINE, springs)
+            .chain(std::iter::repeat_n(VTK_TRIANGLE, self.triangles.len()));
+        data_array(out, "UInt8", "types", 1, cells, types.map(u8::to_le_bytes))?;
+        out.write_all(b"</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n")
     }
 }
 
-/// A `<DataArray>` in VTK's inline binary encoding: base64 of the byte count (`UInt64`) and
-/// the values' little-endian bytes, one stream.
-fn data_array(
-    out: &mut String,
+/// Writes a `<DataArray>` of `count` values in VTK's inline binary encoding: base64 of the
+/// byte count (`UInt64`) and the values' little-endian bytes, one stream, encoded as the
+/// values come.
+fn data_array<const B: usize>(
+    out: &mut impl Write,
     vtk_type: &str,
-    name: Option<&str>,
+    name: &str,
     components: usize,
-    values: &[u8],
-) {
-    out.push_str("<DataArray type=\"");
-    out.push_str(vtk_type);
-    out.push('"');
-    if let Some(name) = name {
-        out.push_str(" Name=\"");
-        out.push_str(name);
-        out.push('"');
-    }
+    count: usize,
+    values: impl Iterator<Item = [u8; B]>,
+) -> io::Result<()> {
+    write!(out, "<DataArray type=\"{vtk_type}\" Name=\"{name}\"")?;
     if components != 1 {
-        out.push_str(&format!(" NumberOfComponents=\"{components}\""));
+        write!(out, " NumberOfComponents=\"{components}\"")?;
     }
-    out.push_str(" format=\"binary\">");
-    let mut raw = Vec::with_capacity(8 + values.len());
-    raw.extend_from_slice(&(values.len() as u64).to_le_bytes());
-    raw.extend_from_slice(values);
-    base64(out, &raw);
-    out.push_str("</DataArray>\n");
-}
-
-fn f64_bytes(values: impl IntoIterator<Item = f64>) -> Vec<u8> {
-    values.into_iter().flat_map(f64::to_le_bytes).collect()
-}
-
-fn i64_bytes(values: impl IntoIterator<Item = i64>) -> Vec<u8> {
-    values.into_iter().flat_map(i64::to_le_bytes).collect()
+    out.write_all(b" format=\"binary\">")?;
+    let mut encoder = BufWriter::with_capacity(1 << 16, EncoderWriter::new(&mut *out, &STANDARD));
+    encoder.write_all(&((count * B) as u64).to_le_bytes())?;
+    let mut written = 0;
+    for value in values {
+        encoder.write_all(&value)?;
+        written += 1;
+    }
+    if written != count {
+        // The byte count is already out: a wrong count would make the file unreadable.
+        return Err(io::Error::other(format!(
+            "the VTK array {name} has {written} values, not {count}"
+        )));
+    }
+    encoder.into_inner().map_err(|e| e.into_error())?.finish()?;
+    out.write_all(b"</DataArray>\n")
 }
 
 /// `s` escaped for an XML attribute value in double quotes.
@@ -156,13 +224,9 @@ fn escape_attribute(s: &str) -> String {
     out
 }
 
-/// The strain of each spring at `x`: (|x_a − x_b| − rest) / rest.
-pub fn strains(springs: &[[u32; 2]], rest: &[f64], x: &[glam::DVec3]) -> Vec<f64> {
-    springs
-        .iter()
-        .zip(rest)
-        .map(|(&[a, b], &r)| ((x[a as usize] - x[b as usize]).length() - r) / r)
-        .collect()
+/// The strain of a spring between `a` and `b`: (|a − b| − rest) / rest.
+fn strain((a, b): (DVec3, DVec3), rest: f64) -> f64 {
+    ((a - b).length() - rest) / rest
 }
 
 impl FrameSink for VtkSink {
@@ -198,38 +262,11 @@ impl FrameSink for VtkSink {
         self.particles = n;
         self.springs = std::mem::take(&mut header.springs);
         self.rest = std::mem::take(&mut header.rest);
-        self.triangles = header.surface.len() + embedded.triangles.len();
-        self.embedded = embedded.clone();
-
         // The embedded vertices are points after the particles.
-        let lines = self.springs.iter().flatten().map(|&i| i64::from(i));
-        let triangles = header.surface.iter().flatten().map(|&i| i64::from(i));
-        let meshes = embedded
-            .triangles
-            .iter()
-            .flatten()
-            .map(|&i| (n + i as usize) as i64);
-        let connectivity = i64_bytes(lines.chain(triangles).chain(meshes));
-        let offsets = i64_bytes(
-            (1..=self.springs.len())
-                .map(|s| 2 * s as i64)
-                .chain((1..=self.triangles).map(|t| (2 * self.springs.len() + 3 * t) as i64)),
-        );
-        let types: Vec<u8> = std::iter::repeat_n(VTK_LINE, self.springs.len())
-            .chain(std::iter::repeat_n(VTK_TRIANGLE, self.triangles))
-            .collect();
-        let mut cells = String::from("<Cells>\n");
-        data_array(&mut cells, "Int64", Some("connectivity"), 1, &connectivity);
-        data_array(&mut cells, "Int64", Some("offsets"), 1, &offsets);
-        data_array(&mut cells, "UInt8", Some("types"), 1, &types);
-        cells.push_str("</Cells>\n");
-        self.cells = cells;
-
-        let kind: Vec<u8> = std::iter::repeat_n(KIND_SPRING, self.springs.len())
-            .chain(std::iter::repeat_n(KIND_SURFACE, self.triangles))
-            .collect();
-        self.kind.clear();
-        data_array(&mut self.kind, "UInt8", Some("kind"), 1, &kind);
+        let surface = header.surface.iter().map(|t| t.map(i64::from));
+        let meshes = (embedded.triangles.iter()).map(|t| t.map(|i| (n + i as usize) as i64));
+        self.triangles = surface.chain(meshes).collect();
+        self.embedded = std::mem::take(&mut header.embedded);
         Ok(())
     }
 
@@ -242,68 +279,14 @@ impl FrameSink for VtkSink {
                 self.particles
             )));
         }
-        let strain = strains(&self.springs, &self.rest, f.positions)
-            .into_iter()
-            .chain(std::iter::repeat_n(f64::NAN, self.triangles));
-        let cells = self.springs.len() + self.triangles;
-        let (x, v) = if self.embedded.is_empty() {
-            (f.positions.to_vec(), f.velocities.to_vec())
-        } else {
-            let mut x = f.positions.to_vec();
-            self.embedded.apply_into(f.positions, &mut x);
-            let mut v = f.velocities.to_vec();
-            self.embedded.apply_into(f.velocities, &mut v);
-            (x, v)
-        };
-
-        let mut xml = String::new();
-        xml.push_str(
-            "<?xml version=\"1.0\"?>\n\
-             <VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" \
-             header_type=\"UInt64\">\n<UnstructuredGrid>\n<FieldData>\n",
+        let (x, v) = (
+            self.embedded.apply(f.positions),
+            self.embedded.apply(f.velocities),
         );
-        // Rust's `{}` prints the shortest decimal that reads back to the same f64.
-        xml.push_str(&format!(
-            "<DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" \
-             format=\"ascii\">{}</DataArray>\n</FieldData>\n",
-            f.time
-        ));
-        xml.push_str(&format!(
-            "<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{cells}\">\n\
-             <PointData Scalars=\"speed\" Vectors=\"velocity\">\n",
-            x.len()
-        ));
-        data_array(
-            &mut xml,
-            "Float64",
-            Some("velocity"),
-            3,
-            &f64_bytes(v.iter().flat_map(|v| v.to_array())),
-        );
-        data_array(
-            &mut xml,
-            "Float64",
-            Some("speed"),
-            1,
-            &f64_bytes(v.iter().map(|v| v.length())),
-        );
-        xml.push_str("</PointData>\n<CellData Scalars=\"strain\">\n");
-        xml.push_str(&self.kind);
-        data_array(&mut xml, "Float64", Some("strain"), 1, &f64_bytes(strain));
-        xml.push_str("</CellData>\n<Points>\n");
-        data_array(
-            &mut xml,
-            "Float64",
-            Some("Points"),
-            3,
-            &f64_bytes(x.iter().flat_map(|x| x.to_array())),
-        );
-        xml.push_str("</Points>\n");
-        xml.push_str(&self.cells);
-        xml.push_str("</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
-
         let name = frame_file_name(&self.stem, f.index, "vtu");
-        write_file(&self.dir, &name, |out| out.write_all(xml.as_bytes()))?;
+        write_file(&self.dir, &name, |out| {
+            self.write_frame(out, f.time, &[f.positions, &x], &[f.velocities, &v])
+        })?;
         self.written.push((f.time, name));
         Ok(())
     }
@@ -333,26 +316,7 @@ impl FrameSink for VtkSink {
 mod tests {
     use super::*;
     use crate::output::series::tests::header;
-    use glam::DVec3;
     use softbody_scene::Energies;
-
-    #[test]
-    fn base64_matches_rfc_4648() {
-        // The test vectors of RFC 4648 §10.
-        for (plain, encoded) in [
-            ("", ""),
-            ("f", "Zg=="),
-            ("fo", "Zm8="),
-            ("foo", "Zm9v"),
-            ("foob", "Zm9vYg=="),
-            ("fooba", "Zm9vYmE="),
-            ("foobar", "Zm9vYmFy"),
-        ] {
-            let mut out = String::new();
-            base64(&mut out, plain.as_bytes());
-            assert_eq!(out, encoded, "{plain:?}");
-        }
-    }
 
     #[test]
     fn attributes_are_escaped() {
@@ -369,8 +333,8 @@ mod tests {
             DVec3::new(3.0, 4.0, 0.0),
             DVec3::new(0.0, 1.0, 0.0),
         ];
-        let s = strains(&[[0, 1], [2, 0]], &[4.0, 2.0], &x);
-        assert_eq!(s, [0.25, -0.5]);
+        assert_eq!(strain((x[0], x[1]), 4.0), 0.25);
+        assert_eq!(strain((x[2], x[0]), 2.0), -0.5);
     }
 
     /// A writer whose bytes the test reads afterwards (the sink owns its `.pvd` writer).
@@ -383,6 +347,45 @@ mod tests {
         fn flush(&mut self) -> io::Result<()> {
             Ok(())
         }
+    }
+
+    /// A one-component array as VTK's inline binary encoding spells it: base64 of the byte
+    /// count and the values in one stream (the RFC 4648 test vectors of the `base64` crate's
+    /// padded standard alphabet).
+    fn array<const B: usize, const N: usize>(
+        vtk_type: &str,
+        name: &str,
+        values: [[u8; B]; N],
+    ) -> String {
+        use base64::Engine;
+        let mut raw = ((B * N) as u64).to_le_bytes().to_vec();
+        raw.extend(values.iter().flatten());
+        format!(
+            "<DataArray type=\"{vtk_type}\" Name=\"{name}\" format=\"binary\">{}</DataArray>\n",
+            base64::engine::general_purpose::STANDARD.encode(raw)
+        )
+    }
+
+    /// The encoder's output equals the whole stream's encoding, whatever the buffer sizes.
+    #[test]
+    fn an_array_is_its_stream_in_base64() {
+        for n in [0, 1, 2, 3, 10_000] {
+            let values: Vec<u8> = (0..n).map(|i| (i * 7 + 3) as u8).collect();
+            let mut out = Vec::new();
+            data_array(&mut out, "UInt8", "a", 1, n, values.iter().map(|&b| [b])).unwrap();
+            let mut raw = (n as u64).to_le_bytes().to_vec();
+            raw.extend(&values);
+            use base64::Engine;
+            let expect = format!(
+                "<DataArray type=\"UInt8\" Name=\"a\" format=\"binary\">{}</DataArray>\n",
+                base64::engine::general_purpose::STANDARD.encode(raw)
+            );
+            assert_eq!(String::from_utf8(out).unwrap(), expect, "{n} bytes");
+        }
+        // A count that does not match the values is an error, not a file with a wrong length.
+        let mut out = Vec::new();
+        let err = data_array(&mut out, "UInt8", "a", 1, 3, [[1u8], [2]].into_iter()).unwrap_err();
+        assert!(err.to_string().contains("2 values, not 3"), "{err}");
     }
 
     #[test]
@@ -435,25 +438,15 @@ mod tests {
         );
         assert!(vtu.contains(r#"format="ascii">0.1</DataArray>"#));
         // The strains: spring 0 stretched from 1 to 2 (1.0), spring 1 from 2 to 1 (-0.5), NaN.
-        let mut expect = String::new();
-        data_array(
-            &mut expect,
+        let expect = array(
             "Float64",
-            Some("strain"),
-            1,
-            &f64_bytes([1.0, -0.5, f64::NAN]),
+            "strain",
+            [1.0, -0.5, f64::NAN].map(f64::to_le_bytes),
         );
         assert!(vtu.contains(&expect), "{vtu}");
         // Offsets 2, 4 for the lines, 7 for the triangle.
-        let mut expect = String::new();
-        data_array(
-            &mut expect,
-            "Int64",
-            Some("offsets"),
-            1,
-            &i64_bytes([2, 4, 7]),
-        );
-        assert!(vtu.contains(&expect));
+        let expect = array("Int64", "offsets", [2i64, 4, 7].map(i64::to_le_bytes));
+        assert!(vtu.contains(&expect), "{vtu}");
     }
 
     #[test]

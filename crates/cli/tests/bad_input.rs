@@ -807,3 +807,39 @@ fn a_scene_beyond_the_address_space_limit_is_refused() {
         ["big.toml", "g.jsonl", "implicit.toml", "lean.toml"]
     );
 }
+
+/// A VTK frame is encoded as it is written: the run that `run`'s memory check lets through
+/// writes its frame. A 60³ cube (3.3 M springs) under 400 MiB: the sink built each frame's
+/// cells and arrays in memory (about 105 B a spring) and aborted on an allocation up to 500 MiB.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_vtk_frame_fits_where_its_header_does() {
+    let sb = Sandbox::new();
+    sb.write(
+        "cube.toml",
+        "[simulation]\ndt = 1e-6\nduration = 1e-6\n\
+         [[body]]\nkind = \"cuboid\"\nsize = [1.0, 1.0, 1.0]\nresolution = [60, 60, 60]\n\
+         center = [0.0, 1.0, 0.0]\nmass = 1.0\n\
+         structural = { stiffness = 100.0, damping = 0.1 }\n\
+         shear = { stiffness = 100.0, damping = 0.1 }\n\
+         bending = { stiffness = 100.0, damping = 0.1 }\n",
+    );
+    let out = std::process::Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -v 409600 && exec \"$0\" run cube.toml --out f.pvd --threads 1")
+        .arg(env!("CARGO_BIN_EXE_softbody"))
+        .current_dir(sb.path())
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(entries(sb.path()), ["cube.toml", "f", "f.pvd"]);
+    assert_eq!(entries(&sb.path().join("f")), ["f_000000.vtu"]);
+    let vtu = std::fs::read_to_string(sb.path().join("f/f_000000.vtu")).unwrap();
+    assert!(
+        vtu.contains("<Piece NumberOfPoints=\"216000\" NumberOfCells=\"3380048\">"),
+        "{}",
+        &vtu[..vtu.len().min(600)]
+    );
+}
