@@ -720,15 +720,6 @@ where
     ctx.chunks::<O>(0, k, sums, outputs, &leaf)
 }
 
-/// Whether every body of `model` is a full lattice (a cuboid): then the lattice kernels (the
-/// stencil, implicit Euler's lattice product) take the whole model.
-pub(crate) fn all_cuboids(model: &Model) -> bool {
-    let lattices = model.lattices();
-    !lattices.is_empty()
-        && lattices.len() == model.bodies.len()
-        && lattices.iter().all(|l| l.mask.is_none())
-}
-
 #[cfg(test)]
 mod tests {
     use std::path::Path;

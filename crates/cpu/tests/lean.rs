@@ -150,6 +150,38 @@ fn a_lean_mesh_body_steps_as_its_spring_list() {
     }
 }
 
+/// Implicit Euler on a mesh body runs its system on the masked lattice (`matrix-free-lattice`)
+/// through its landing to rest on the ground, and nothing builds the spring list on the way.
+#[test]
+fn implicit_euler_on_a_mesh_body_builds_no_list() {
+    let text = "[simulation]\nintegrator = \"implicit-euler\"\ndt = 0.004\nduration = 1.0\n\
+                [[body]]\nkind = \"mesh\"\nfile = \"torus.obj\"\ncell = 0.03\n\
+                center = [0.0, 0.6, 0.0]\nrotation = [30.0, 0.0, 10.0]\ndensity = 300.0\n\
+                structural = { stiffness = 600.0, damping = 2.0 }\n\
+                shear = { stiffness = 500.0, damping = 2.0 }\n\
+                bending = { stiffness = 300.0, damping = 1.0 }\n\
+                [[terrain]]\nkind = \"plane\"\nnormal = [0.1, 1.0, 0.0]\nfriction = 0.4\n";
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/test.toml");
+    let (lean, state) = Model::build(&Scene::from_toml(text, path.as_ref()).expect("valid"));
+    let lean_model_bytes = lean.memory_bytes();
+    let mut solver = CpuSolver::new(lean, state, Some(2)).unwrap();
+    let normal = DVec3::new(0.1, 1.0, 0.0).normalize();
+    let closest = |solver: &mut CpuSolver| {
+        (solver.state().unwrap().x.iter())
+            .map(|x| x.dot(normal))
+            .fold(f64::INFINITY, f64::min)
+    };
+    assert!(closest(&mut solver) > 0.1);
+    solver.advance(250).unwrap();
+    assert_eq!(solver.statistics().kernel, "matrix-free-lattice");
+    let closest = closest(&mut solver);
+    assert!(
+        closest.abs() < 0.01,
+        "the torus rests on the ground ({closest} m)"
+    );
+    assert_eq!(solver.model().memory_bytes(), lean_model_bytes);
+}
+
 /// What a lean solver holds grows by at most [`lean_bytes_per_particle`] per particle: the
 /// bytes of two columns, 80 and 160 planes long, differ by that times the particles between
 /// them (the slabs' windows and rings are a few planes each, whatever the length), for every

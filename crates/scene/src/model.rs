@@ -47,7 +47,7 @@ pub fn estimated_bytes(particles: u64, springs: u64) -> u64 {
 /// stencils, no list: see [`Model`]) under `integrator`, in the limit of large bodies. The
 /// explicit integrators: 44 B of the model (masses 16, the contact arrays 28) and 48 B per
 /// state they keep (the state and the passes' second state; midpoint one stage state more,
-/// RK4 two). Implicit Euler lists no springs on cuboids either, but keeps its right-hand
+/// RK4 two). Implicit Euler lists no springs on lattices either, but keeps its right-hand
 /// sides, CG's vectors, the diagonal blocks and their inverses, 1/ℓ per spring and the
 /// multigrid's levels (the first coarse level's 27 blocks per node, and its sources naming
 /// each spring twice): 1,340–1,388 B per particle on cubes from 22³ to 200³ (BENCHMARKS.md,

@@ -245,7 +245,7 @@ pub struct Statistics {
     /// How the spring forces are computed: the CPU's route (`stencil-avx512`, `stencil-avx2` or
     /// `stencil`: lattice bodies by their stencil; `sweep-avx2` or `sweep`: springs sorted by their first end, in
     /// one fused sweep; `gather`: every spring into a buffer, then a gather per particle;
-    /// `matrix-free-lattice` or `matrix-free` for implicit Euler's system on cuboids or by its
+    /// `matrix-free-lattice` or `matrix-free` for implicit Euler's system on lattices or by its
     /// spring list), the GPU's kernels.
     pub kernel: &'static str,
 }

@@ -213,8 +213,8 @@ impl ImplicitEuler {
             + vec_bytes(&self.prepared_x)
     }
 
-    /// How the system's products are computed: `matrix-free-lattice` on cuboids
-    /// ([`lattice`]), `matrix-free` by the spring list.
+    /// How the system's products are computed: `matrix-free-lattice` on lattice bodies
+    /// ([`lattice`]: cuboids and mesh bodies), `matrix-free` by the spring list.
     pub fn kernel_name(&self) -> &'static str {
         match self.system.lattice {
             Some(_) => "matrix-free-lattice",

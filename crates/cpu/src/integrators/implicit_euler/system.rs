@@ -14,7 +14,7 @@
 //!
 //! A product A p is a per-spring pass (z_s = B_s (p_a − p_b)) and a per-particle gather, the
 //! same scheme as the spring forces, so it is deterministic for any thread count. On a model
-//! of cuboids the product and the springs' share of the assembly are [`LatticeSystem`]'s
+//! of lattice bodies (cuboids, mesh bodies) the product and the springs' share of the assembly are [`LatticeSystem`]'s
 //! instead: per particle over the lattice offsets, each block recomputed from the positions
 //! and the spring's stored 1/ℓ, no spring list built or read (the per-spring arrays here stay
 //! empty).
@@ -210,10 +210,13 @@ impl System {
         }
         let sim = &model.simulation;
         let (per_spring, u, beta, gamma) = (&self.per_spring, &self.u, &self.beta, &self.gamma);
-        let lattice = self.lattice.as_ref().map(LatticeSystem::sums);
+        let lattice = self.lattice.as_ref();
         // Σ± g_s and Σ B_s of particle i's springs.
         let springs = |i: usize| match lattice {
-            Some(sums) => (sums[i].force, sums[i].block()),
+            Some(lattice) => {
+                let sums = lattice.sums(i);
+                (sums.force, sums.block())
+            }
             None => {
                 let mut block = DMat3::ZERO;
                 for &e in model.adjacency().of(i) {
