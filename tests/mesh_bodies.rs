@@ -13,12 +13,12 @@ use softbody::scene::voxel::{LatticeSize, Voxels};
 use softbody::scene::{Body, BodyShape, MeshBody, MeshMass, SurfaceKind, TriangleMesh};
 use softbody::{Integrator, Model, State};
 use softbody_testkit::scenes::*;
-use softbody_testkit::{Backend, Failed, Rng, ensure};
+use softbody_testkit::{Backend, Failed, Law, Rng, ensure};
 
 fn main() -> ExitCode {
     softbody_testkit::run(
         "mesh_bodies",
-        &[(
+        [Law::per_integrator(
             "falling_mesh_body_follows_free_fall_until_contact",
             falling_mesh_body_follows_free_fall_until_contact,
         )],
@@ -92,92 +92,91 @@ fn centre_of_mass(model: &Model, state: &State) -> DVec3 {
 /// (√n·tol·√κ·|b| per step, summed, as in `integrators.rs`) and h times that per step in x_c.
 /// Then 150 more steps: the ground must have pushed the centre of mass off free fall by more
 /// than 1 cm.
-fn falling_mesh_body_follows_free_fall_until_contact(backend: &Backend) -> Result<(), Failed> {
+fn falling_mesh_body_follows_free_fall_until_contact(
+    backend: &Backend,
+    integrator: Integrator,
+) -> Result<(), Failed> {
     let g = gravity();
-    for integrator in Integrator::ALL {
-        let (model, state) = falling_torus(integrator);
-        let h = model.simulation.dt;
-        let n_particles = model.len();
-        let mass: f64 = model.mass.iter().sum();
-        let (x0, p0) = (centre_of_mass(&model, &state), momentum(&model, &state));
-        let v0 = p0 / mass;
-        let scale = momentum_scale(&model, &state);
-        let mut system = System::new(&model);
-        let mut b = vec![DVec3::ZERO; n_particles];
-        let mut solver = backend.solver_from(model.clone(), state)?;
-        let (mut cg_p, mut cg_x) = (0.0, 0.0);
-        let mut checked = 0u64;
-        let mut worst = (0.0f64, 0.0f64);
-        let exact = |n: u64| {
-            let nf = n as f64;
-            let t = nf * h;
-            let quad = match integrator {
-                Integrator::ExplicitEuler => h * h * nf * (nf - 1.0) / 2.0,
-                Integrator::SymplecticEuler | Integrator::ImplicitEuler => {
-                    h * h * nf * (nf + 1.0) / 2.0
-                }
-                Integrator::Midpoint | Integrator::Rk4 => t * t / 2.0,
-            };
-            (x0 + t * v0 + quad * g, p0 + mass * t * g, t, quad)
+    let (model, state) = falling_torus(integrator);
+    let h = model.simulation.dt;
+    let n_particles = model.len();
+    let mass: f64 = model.mass.iter().sum();
+    let (x0, p0) = (centre_of_mass(&model, &state), momentum(&model, &state));
+    let v0 = p0 / mass;
+    let scale = momentum_scale(&model, &state);
+    let mut system = System::new(&model);
+    let mut b = vec![DVec3::ZERO; n_particles];
+    let mut solver = backend.solver_from(model.clone(), state)?;
+    let (mut cg_p, mut cg_x) = (0.0, 0.0);
+    let mut checked = 0u64;
+    let mut worst = (0.0f64, 0.0f64);
+    let exact = |n: u64| {
+        let nf = n as f64;
+        let t = nf * h;
+        let quad = match integrator {
+            Integrator::ExplicitEuler => h * h * nf * (nf - 1.0) / 2.0,
+            Integrator::SymplecticEuler | Integrator::ImplicitEuler => {
+                h * h * nf * (nf + 1.0) / 2.0
+            }
+            Integrator::Midpoint | Integrator::Rk4 => t * t / 2.0,
         };
-        let mut n = 0u64;
-        loop {
-            if integrator == Integrator::ImplicitEuler {
-                let st = solver.state().map_err(|e| e.to_string())?;
-                system.assemble(&model, None, &st.x, &st.v, &mut b);
-                let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-                for i in 0..n_particles {
-                    // The diagonal block's largest eigenvalue (its smallest is at least the
-                    // mass part: the springs' blocks are positive semi-definite).
-                    let d = system.diag[i];
-                    let block = nalgebra::Matrix3::from_fn(|r, c| d.col(c)[r]);
-                    lo = lo.min(system.mass_diag[i]);
-                    hi = hi.max(block.symmetric_eigenvalues().max());
-                }
-                let norm_b = b.iter().map(|b| b.length_squared()).sum::<f64>().sqrt();
-                let step = (n_particles as f64).sqrt()
-                    * backend.cg_tolerance()
-                    * (hi / lo).sqrt()
-                    * norm_b;
-                cg_p += step;
-                cg_x += h * cg_p / mass;
+        (x0 + t * v0 + quad * g, p0 + mass * t * g, t, quad)
+    };
+    let mut n = 0u64;
+    loop {
+        if integrator == Integrator::ImplicitEuler {
+            let st = solver.state().map_err(|e| e.to_string())?;
+            system.assemble(&model, None, &st.x, &st.v, &mut b);
+            let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+            for i in 0..n_particles {
+                // The diagonal block's largest eigenvalue (its smallest is at least the
+                // mass part: the springs' blocks are positive semi-definite).
+                let d = system.diag[i];
+                let block = nalgebra::Matrix3::from_fn(|r, c| d.col(c)[r]);
+                lo = lo.min(system.mass_diag[i]);
+                hi = hi.max(block.symmetric_eigenvalues().max());
             }
-            let st = step(solver.as_mut())?;
-            n += 1;
-            if st.x.iter().map(|x| x.y).fold(f64::INFINITY, f64::min) <= 0.05 {
-                break;
-            }
-            let (x, p, t, quad) = exact(n);
-            let x_scale = x0.length() + t * v0.length() + quad * G;
-            let p_scale = scale + mass * t * G;
-            let ex = (centre_of_mass(&model, &st) - x).length();
-            let ep = (momentum(&model, &st) - p).length();
-            let bx = 1e-12 * x_scale + backend.roundoff(x_scale, n) + cg_x;
-            let bp = 1e-12 * p_scale + backend.roundoff(p_scale, n) + cg_p;
-            worst = (worst.0.max(ex / bx), worst.1.max(ep / bp));
-            ensure(ex <= bx && ep <= bp, || {
-                format!(
-                    "{integrator} step {n}: centre of mass off free fall by {ex:e} m (bound \
-                     {bx:e}), momentum by {ep:e} kg·m/s (bound {bp:e})"
-                )
-            })?;
-            checked += 1;
+            let norm_b = b.iter().map(|b| b.length_squared()).sum::<f64>().sqrt();
+            let step =
+                (n_particles as f64).sqrt() * backend.cg_tolerance() * (hi / lo).sqrt() * norm_b;
+            cg_p += step;
+            cg_x += h * cg_p / mass;
         }
-        ensure(checked >= 300, || {
-            format!("{integrator}: only {checked} steps before contact")
+        let st = step(solver.as_mut())?;
+        n += 1;
+        if st.x.iter().map(|x| x.y).fold(f64::INFINITY, f64::min) <= 0.05 {
+            break;
+        }
+        let (x, p, t, quad) = exact(n);
+        let x_scale = x0.length() + t * v0.length() + quad * G;
+        let p_scale = scale + mass * t * G;
+        let ex = (centre_of_mass(&model, &st) - x).length();
+        let ep = (momentum(&model, &st) - p).length();
+        let bx = 1e-12 * x_scale + backend.roundoff(x_scale, n) + cg_x;
+        let bp = 1e-12 * p_scale + backend.roundoff(p_scale, n) + cg_p;
+        worst = (worst.0.max(ex / bx), worst.1.max(ep / bp));
+        ensure(ex <= bx && ep <= bp, || {
+            format!(
+                "{integrator} step {n}: centre of mass off free fall by {ex:e} m (bound \
+                 {bx:e}), momentum by {ep:e} kg·m/s (bound {bp:e})"
+            )
         })?;
-        solver.advance(150).map_err(|e| e.to_string())?;
-        let end = solver.state().map_err(|e| e.to_string())?;
-        let off = (centre_of_mass(&model, end) - exact(n + 150).0).length();
-        println!(
-            "{integrator}: {n_particles} particles, {checked} steps of free fall (largest error \
-             / bound: centre of mass {:.2}, momentum {:.2}); 150 steps after contact {off:.3} m \
-             off free fall",
-            worst.0, worst.1
-        );
-        ensure(off > 0.01, || {
-            format!("{integrator}: the ground did not stop the fall ({off:e} m)")
-        })?;
+        checked += 1;
     }
+    ensure(checked >= 300, || {
+        format!("{integrator}: only {checked} steps before contact")
+    })?;
+    solver.advance(150).map_err(|e| e.to_string())?;
+    let end = solver.state().map_err(|e| e.to_string())?;
+    let off = (centre_of_mass(&model, end) - exact(n + 150).0).length();
+    println!(
+        "{integrator}: {n_particles} particles, {checked} steps of free fall (largest error \
+         / bound: centre of mass {:.2}, momentum {:.2}); 150 steps after contact {off:.3} m \
+         off free fall",
+        worst.0, worst.1
+    );
+    ensure(off > 0.01, || {
+        format!("{integrator}: the ground did not stop the fall ({off:e} m)")
+    })?;
     Ok(())
 }

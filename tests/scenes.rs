@@ -5,8 +5,9 @@
 //! up to h·√3/2, h its cell: that is allowed on top), not gain energy, and, for the explicit
 //! integrators, use a step within `softbody check`'s stable-step estimate.
 //!
-//! A scene added to `scenes/` is picked up automatically; the scenes the README lists must
-//! exist.
+//! One trial per scene and backend (`gpu::every_scene_loads_builds_and_steps::pile-in-bowl`);
+//! the pile's GPU trial is heavy. A scene added to `scenes/` is picked up automatically; the
+//! scenes the README lists must exist.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -15,15 +16,25 @@ use softbody::scene::TerrainShape;
 use softbody::terrain::Surface;
 use softbody::terrain::sdf::SdfGrid;
 use softbody::{Integrator, Model, Scene};
-use softbody_testkit::{Backend, Failed, all, ensure};
+use softbody_testkit::{Backend, Failed, Kind, Law, all};
 
 fn main() -> ExitCode {
+    let names = scene_files()
+        .iter()
+        .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
     softbody_testkit::run(
         "scenes",
-        &[(
-            "every_scene_loads_builds_and_steps",
-            every_scene_loads_builds_and_steps,
-        )],
+        [
+            Law::new("the_documented_scenes_exist", the_documented_scenes_exist).only_on(Kind::Cpu),
+            Law::per_case(
+                "every_scene_loads_builds_and_steps",
+                names,
+                the_scene_loads_builds_and_steps,
+            )
+            // 5,000 steps of six cubes in contact: most of a minute of lavapipe.
+            .heavy_case(Kind::Gpu, "pile-in-bowl"),
+        ],
     )
 }
 
@@ -143,24 +154,22 @@ fn check(backend: &Backend, path: &Path) -> Result<String, String> {
     ))
 }
 
-fn every_scene_loads_builds_and_steps(backend: &Backend) -> Result<(), Failed> {
-    let files = scene_files();
-    let names: Vec<String> = files
+fn the_documented_scenes_exist(_: &Backend) -> Result<(), Failed> {
+    let names: Vec<String> = scene_files()
         .iter()
         .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
         .collect();
-    for want in DOCUMENTED {
-        ensure(names.iter().any(|n| n == want), || {
-            format!("scenes/{want}.toml is missing (found {names:?})")
-        })?;
-    }
+    let missing: Vec<String> = DOCUMENTED
+        .iter()
+        .filter(|want| !names.iter().any(|n| n == *want))
+        .map(|want| format!("scenes/{want}.toml is missing (found {names:?})"))
+        .collect();
+    all(missing)
+}
 
-    let mut failures = Vec::new();
-    for path in &files {
-        match check(backend, path) {
-            Ok(summary) => println!("{} on {}: {summary}", path.display(), backend.name()),
-            Err(why) => failures.push(format!("{}: {why}", path.display())),
-        }
-    }
-    all(failures)
+fn the_scene_loads_builds_and_steps(backend: &Backend, name: &str) -> Result<(), Failed> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenes/{name}.toml"));
+    let summary = check(backend, &path).map_err(|why| format!("{}: {why}", path.display()))?;
+    println!("{} on {}: {summary}", path.display(), backend.name());
+    Ok(())
 }

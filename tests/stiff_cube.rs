@@ -9,17 +9,17 @@ use softbody::run::{self, RunError};
 use softbody::scene::SpringParams;
 use softbody::{Integrator, Model, Scene, StepError};
 use softbody_testkit::scenes::*;
-use softbody_testkit::{Backend, Failed, all, ensure};
+use softbody_testkit::{Backend, Failed, Law, all, ensure};
 
 fn main() -> ExitCode {
     softbody_testkit::run(
         "stiff_cube",
-        &[
-            (
+        [
+            Law::new(
                 "implicit_euler_keeps_a_stiff_cube_stable_at_a_frame_step",
                 implicit_euler_keeps_a_stiff_cube_stable_at_a_frame_step,
             ),
-            (
+            Law::new(
                 "explicit_euler_on_the_stiff_cube_is_reported_unstable",
                 explicit_euler_on_the_stiff_cube_is_reported_unstable,
             ),

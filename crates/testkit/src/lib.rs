@@ -1,10 +1,9 @@
 //! softbody's test kit (dev-only): what the physics tests of every backend share.
 //!
-//! - [`run`]: the harness of a test binary (libtest-mimic). Each test is written once, as a
-//!   function of a [`Backend`], and runs as `cpu::NAME` and `gpu::NAME`. Without a GPU adapter
-//!   the `gpu::` tests report themselves ignored ("skipped: no GPU adapter"), unless
-//!   `SOFTBODY_REQUIRE_GPU=1`, which makes a missing adapter a failure (CI sets it). [`run_gpu`]
-//!   runs suites that only make sense on the GPU (stage twins against the CPU) the same way.
+//! - [`harness`]: the harness of a test binary (libtest-mimic). Each [`Law`] is written once,
+//!   as a function of a [`Backend`] (and an integrator), and runs as one trial per backend and
+//!   integrator, fast or heavy ([`Weight`]). [`run_gpu`] runs suites that only make sense on
+//!   the GPU (stage twins against the CPU) the same way.
 //! - [`Backend`]: opens solvers (the CPU's in one shared rayon pool, the GPU's on one shared
 //!   device), and says how precise the backend is ([`Backend::epsilon`],
 //!   [`Backend::tolerance`], [`Backend::roundoff`]).
@@ -14,14 +13,15 @@
 //! - [`compare_states`]: a state against another within a tolerance; on a mismatch both are
 //!   written under `target/test-artifacts/` with the worst particles named.
 
+pub mod harness;
 pub mod scenes;
 
-use std::process::ExitCode;
+pub use harness::{CaseTest, GpuTest, IntegratorTest, Law, Test, Weight, run, run_gpu};
+
 use std::sync::{Arc, OnceLock};
 
 use glam::DVec3;
 pub use libtest_mimic::Failed;
-use libtest_mimic::{Arguments, Completion, Trial};
 use rand::{RngExt, SeedableRng};
 use softbody_cpu::CpuSolver;
 use softbody_gpu::{Gpu, GpuSolver};
@@ -178,86 +178,6 @@ impl Backend {
     pub fn roundoff(&self, scale: f64, steps: u64) -> f64 {
         2.0 * self.epsilon() * scale * (steps as f64).sqrt()
     }
-}
-
-/// A test written once for every backend.
-pub type Test = fn(&Backend) -> Result<(), Failed>;
-
-/// A GPU-only test, given the shared context.
-pub type GpuTest = fn(&Arc<Gpu>) -> Result<(), Failed>;
-
-/// The device of the test binary, opened once; the error says why there is none.
-fn shared_gpu() -> &'static Result<Arc<Gpu>, String> {
-    static GPU: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
-    GPU.get_or_init(|| Gpu::open().map_err(|e| e.to_string()))
-}
-
-/// Whether a missing adapter fails the GPU tests (`SOFTBODY_REQUIRE_GPU=1`).
-fn gpu_required() -> bool {
-    std::env::var("SOFTBODY_REQUIRE_GPU").is_ok_and(|v| v == "1")
-}
-
-/// A trial that needs the GPU: run when there is one; without, ignored, or failed when
-/// required.
-fn gpu_trial(
-    name: String,
-    test: impl FnOnce(&Arc<Gpu>) -> Result<(), Failed> + Send + 'static,
-) -> Trial {
-    match shared_gpu() {
-        Ok(_) => Trial::test(name, move || {
-            let gpu = shared_gpu().as_ref().map_err(|e| Failed::from(e.clone()))?;
-            test(gpu)
-        }),
-        Err(e) if gpu_required() => {
-            let message = format!("SOFTBODY_REQUIRE_GPU=1 but {e}");
-            Trial::test(name, move || Err(message.into()))
-        }
-        Err(_) => Trial::ignorable_test(name, || {
-            Ok(Completion::ignored_with("skipped: no GPU adapter"))
-        }),
-    }
-}
-
-/// Says which adapter the GPU trials of `suite` run on, or why they do not run.
-fn announce(suite: &str) {
-    match shared_gpu() {
-        Ok(gpu) => eprintln!("{suite}: GPU tests on {}", gpu.name()),
-        Err(e) => eprintln!("{suite}: {e}"),
-    }
-}
-
-/// Runs every test of `tests` on the CPU (`cpu::NAME`) and on the GPU (`gpu::NAME`) under the
-/// command line's libtest arguments.
-pub fn run(suite: &str, tests: &[(&'static str, Test)]) -> ExitCode {
-    let args = Arguments::from_args();
-    announce(suite);
-    let mut trials = Vec::new();
-    for &(name, test) in tests {
-        trials.push(Trial::test(format!("cpu::{name}"), move || {
-            test(&Backend::cpu())
-        }));
-        trials.push(gpu_trial(format!("gpu::{name}"), move |gpu| {
-            test(&Backend::gpu(gpu.clone()))
-        }));
-    }
-    libtest_mimic::run(&args, trials).exit_code()
-}
-
-/// Runs GPU-only tests (each given the binary's shared context) under the command line's
-/// libtest arguments: `(name, test)` pairs, plain [`GpuTest`] functions or closures (one test
-/// per case of a table, say).
-pub fn run_gpu<N, F>(suite: &str, tests: impl IntoIterator<Item = (N, F)>) -> ExitCode
-where
-    N: Into<String>,
-    F: FnOnce(&Arc<Gpu>) -> Result<(), Failed> + Send + 'static,
-{
-    let args = Arguments::from_args();
-    announce(suite);
-    let trials = tests
-        .into_iter()
-        .map(|(name, test)| gpu_trial(name.into(), test))
-        .collect();
-    libtest_mimic::run(&args, trials).exit_code()
 }
 
 /// `Err(message)` unless `ok`: a check that reports what was measured.

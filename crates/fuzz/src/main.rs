@@ -5,7 +5,7 @@
 //! an error; a panic is a defect.
 //!
 //! ```text
-//! cargo bench --bench fuzz -- [SECONDS] [SEED]      # default 30 s, seed 1
+//! cargo run --release -p softbody-fuzz -- [SECONDS] [SEED]      # default 30 s, seed 1
 //! ```
 //!
 //! Inputs are mutations of the project's own files (every `scenes/*.toml`, `scenes/terrain.obj`
@@ -15,7 +15,7 @@
 //! feedback, but structure-aware mutations reach the validators and the solvers. It prints the
 //! executions and panics of each target, writes each panicking input to
 //! `target/fuzz-failures/`, and exits with status 1 if there was one. `.ci/run` runs it for a
-//! short while; BENCHMARKS.md records a long run.
+//! minute; BENCHMARKS.md records a long run.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
@@ -68,15 +68,17 @@ const HOSTILE: &[&str] = &[
 const STEP_PARTICLES: u64 = 400;
 
 fn main() -> ExitCode {
-    // `cargo bench` appends `--bench`.
-    let numbers: Vec<u64> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with('-'))
-        .filter_map(|a| a.parse().ok())
-        .collect();
+    let numbers: Vec<u64> = match std::env::args().skip(1).map(|a| a.parse()).collect() {
+        Ok(numbers) => numbers,
+        Err(_) => {
+            eprintln!("usage: softbody-fuzz [SECONDS] [SEED] (whole numbers)");
+            return ExitCode::from(2);
+        }
+    };
     let seconds = numbers.first().copied().unwrap_or(30);
     let seed = numbers.get(1).copied().unwrap_or(1);
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    // The workspace's root, whose scenes/ and target/ the inputs and failures are.
+    let root = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."));
     let corpus = Corpus::load(root);
 
     // Panics are counted, not printed as they happen.
