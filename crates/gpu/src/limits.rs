@@ -257,7 +257,7 @@ pub(crate) fn check_chunks(
     let k = chunking.count;
     let what = || {
         format!(
-            "{springs} springs ({stride} bytes each) in {k} chunks of {} (one per {cap}-byte              binding, the {cap_limit})",
+            "{springs} springs ({stride} bytes each) in {k} chunks of {} (one per {cap}-byte binding, the {cap_limit})",
             1u64 << chunking.shift
         )
     };
