@@ -40,6 +40,7 @@ pub mod compare;
 pub mod output;
 mod overrides;
 pub mod run;
+pub mod service;
 pub mod sweep;
 pub mod warnings;
 
@@ -49,7 +50,7 @@ use std::str::FromStr;
 /// The vector types of the API (`State::x` is a `Vec<glam::DVec3>`), so that an embedder uses
 /// the same version.
 pub use glam;
-pub use overrides::{OverrideError, Overrides, Setting, load_scene, scene_from_toml, scene_text};
+pub use overrides::{Overrides, Setting, load_scene, scene_from_toml, scene_text};
 /// The CPU solver crate.
 pub use softbody_cpu as cpu;
 pub use softbody_cpu::CpuSolver;

@@ -1,37 +1,37 @@
-//! Settings given beside a scene file that replace its own: one path that applies them and
-//! checks the result, so that every command (and embedder) refuses a bad combination alike.
-//!
-//! Two kinds: [`Overrides`] (the CLI's `--integrator`, `--dt`, `--duration`, `--fps`) replace
-//! fields of a loaded [`Scene`]; [`Setting`]s (`--set KEY=VALUE`, sweeps, the Python package)
-//! replace any value of the scene *file*, by its key path, in the parsed TOML document before
-//! the scene is built from it. Settings therefore go through the file's own parsing and
-//! validation: a value of the wrong type, an unknown key or a refused number is reported
-//! exactly as it would be in the file, and the message says which `--set` it came from, or,
-//! for a fault in the file's own values, points at their line and lists the settings applied.
+//! Values given beside a scene file that replace its own, by one path: [`Setting`]s replace
+//! any value of the scene *file*, by its key path, in the parsed TOML document before the scene
+//! is built from it. The CLI's `--set KEY=VALUE`, its [`Overrides`] (`--integrator`, `--dt`,
+//! `--duration`, `--fps`, which become settings of `[simulation]`), a sweep's parameters and
+//! the Python package's keywords all go this way. Settings therefore go through the file's own
+//! parsing and validation: a value of the wrong type, an unknown key or a refused number is
+//! reported exactly as it would be in the file, and the message says which setting it came
+//! from (`--set …`, `--dt …`), or, for a fault in the file's own values, points at their line
+//! and lists the settings applied.
 
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::str::FromStr;
 
 use softbody_scene::error::Seg;
 use softbody_scene::{Diagnostic, Integrator, Invalid, KeyPath, Scene, SceneError};
 
-/// Replacements for a loaded scene's settings (the CLI's `--integrator`, `--dt`, `--duration`,
-/// `--fps`); `None` keeps the scene's. A new kind of override belongs here, so that it is
-/// applied, checked and reported the way these are.
+/// Replacements for a scene's `[simulation]` values (the CLI's `--integrator`, `--dt`,
+/// `--duration`, `--fps`); `None` keeps the scene's. They apply as [`Setting`]s
+/// ([`Overrides::to_settings`]), so a bad combination is refused as the file's own values are,
+/// naming the flag:
 ///
 /// ```
-/// use softbody::{Integrator, Overrides, Scene};
-/// let scene = Scene::from_file("scenes/jelly-on-ground.toml")?;
+/// use softbody::{Integrator, Overrides};
+/// let path = "scenes/jelly-on-ground.toml".as_ref();
 /// let overrides = Overrides { integrator: Some(Integrator::Rk4), dt: Some(1e-4), ..Overrides::default() };
-/// let scene = overrides.apply_to(scene, "scenes/jelly-on-ground.toml".as_ref())?;
+/// let scene = softbody::load_scene(path, &overrides.to_settings())?;
 /// assert_eq!(scene.simulation.integrator, Integrator::Rk4);
 ///
 /// // 30 frames/s cannot be taken with one step per second.
 /// let slow = Overrides { dt: Some(1.0), ..Overrides::default() };
-/// let e = slow.apply_to(scene, "jelly.toml".as_ref()).unwrap_err();
-/// assert_eq!(e.key().to_string(), "simulation.frame_rate");
-/// assert!(e.to_string().ends_with("(with the overrides simulation.dt = 1)"));
+/// let e = softbody::load_scene(path, &slow.to_settings()).unwrap_err();
+/// assert!(e.to_string().contains("simulation.frame_rate"));
+/// assert!(e.to_string().ends_with("(with --dt 1)"), "{e}");
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -44,46 +44,6 @@ pub struct Overrides {
     pub duration: Option<f64>,
     /// Frames per simulated second.
     pub frame_rate: Option<f64>,
-}
-
-/// A scene that is invalid with the overrides applied: the file, the key at fault and why.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error(
-    "{}: {}: {} (with the overrides {})",
-    .0.file.display(), .0.key, .0.message, .0.overrides
-)]
-pub struct OverrideError(Box<Details>);
-
-/// Boxed: a `Result` of a whole scene should not grow by the size of its error.
-#[derive(Debug, Clone, PartialEq)]
-struct Details {
-    file: PathBuf,
-    key: KeyPath,
-    message: String,
-    overrides: Overrides,
-}
-
-impl OverrideError {
-    /// The scene file.
-    pub fn file(&self) -> &Path {
-        &self.0.file
-    }
-
-    /// The value at fault, named as the scene file would name it (it may be one the overrides
-    /// left alone, such as a frame rate that a larger dt cannot serve).
-    pub fn key(&self) -> &KeyPath {
-        &self.0.key
-    }
-
-    /// What is wrong with it.
-    pub fn message(&self) -> &str {
-        &self.0.message
-    }
-
-    /// The overrides that were applied.
-    pub fn overrides(&self) -> &Overrides {
-        &self.0.overrides
-    }
 }
 
 impl Overrides {
@@ -104,33 +64,6 @@ impl Overrides {
         ];
         parts.into_iter().flatten().collect::<Vec<_>>().join("-")
     }
-
-    /// `scene` with the overrides in place of its own settings, validated again as a whole;
-    /// `origin` names the scene file in the error.
-    pub fn apply_to(&self, mut scene: Scene, origin: &Path) -> Result<Scene, OverrideError> {
-        let sim = &mut scene.simulation;
-        if let Some(integrator) = self.integrator {
-            sim.integrator = integrator;
-        }
-        if let Some(dt) = self.dt {
-            sim.dt = dt;
-        }
-        if let Some(duration) = self.duration {
-            sim.duration = duration;
-        }
-        if let Some(frame_rate) = self.frame_rate {
-            sim.frame_rate = frame_rate;
-        }
-        match scene.validate() {
-            Ok(()) => Ok(scene),
-            Err(invalid) => Err(OverrideError(Box::new(Details {
-                file: origin.to_owned(),
-                key: invalid.key,
-                message: invalid.message,
-                overrides: *self,
-            }))),
-        }
-    }
 }
 
 impl Overrides {
@@ -140,44 +73,29 @@ impl Overrides {
         let pairs = [
             (
                 "integrator",
+                "--integrator",
                 self.integrator
                     .map(|i| toml::Value::String(i.name().to_owned())),
             ),
-            ("dt", self.dt.map(toml::Value::Float)),
-            ("duration", self.duration.map(toml::Value::Float)),
-            ("frame_rate", self.frame_rate.map(toml::Value::Float)),
+            ("dt", "--dt", self.dt.map(toml::Value::Float)),
+            (
+                "duration",
+                "--duration",
+                self.duration.map(toml::Value::Float),
+            ),
+            (
+                "frame_rate",
+                "--fps",
+                self.frame_rate.map(toml::Value::Float),
+            ),
         ];
         pairs
             .into_iter()
-            .filter_map(|(key, value)| {
+            .filter_map(|(key, flag, value)| {
                 let key = KeyPath::root().key("simulation").key(key);
-                value.map(|value| Setting::at(key, value))
+                value.map(|value| Setting::at(key, value).from_flag(flag))
             })
             .collect()
-    }
-}
-
-/// The overrides as `key = value` pairs, keyed as in a scene file.
-impl fmt::Display for Overrides {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let pairs = [
-            ("integrator", self.integrator.map(|i| i.to_string())),
-            ("dt", self.dt.map(|x| x.to_string())),
-            ("duration", self.duration.map(|x| x.to_string())),
-            ("frame_rate", self.frame_rate.map(|x| x.to_string())),
-        ];
-        let mut first = true;
-        for (key, value) in pairs {
-            if let Some(value) = value {
-                let sep = if first { "" } else { ", " };
-                write!(f, "{sep}simulation.{key} = {value}")?;
-                first = false;
-            }
-        }
-        if first {
-            f.write_str("(none)")?;
-        }
-        Ok(())
     }
 }
 
@@ -213,6 +131,8 @@ impl fmt::Display for Overrides {
 pub struct Setting {
     key: KeyPath,
     value: toml::Value,
+    /// The command-line flag it came from (`--dt`), for messages; `None`: a `--set`.
+    flag: Option<&'static str>,
 }
 
 impl Setting {
@@ -223,7 +143,30 @@ impl Setting {
 
     /// The setting of a parsed key path.
     pub fn at(key: KeyPath, value: toml::Value) -> Setting {
-        Setting { key, value }
+        Setting {
+            key,
+            value,
+            flag: None,
+        }
+    }
+
+    /// The setting as the flag `flag` gave it (`--dt 0.001` for `simulation.dt`): messages
+    /// name the flag instead of a `--set`.
+    pub fn from_flag(mut self, flag: &'static str) -> Setting {
+        self.flag = Some(flag);
+        self
+    }
+
+    /// Where it came from, as messages say it: `--set body[0].mass=2`, or `--dt 0.001`.
+    pub fn origin(&self) -> String {
+        match self.flag {
+            Some(flag) => match &self.value {
+                toml::Value::String(s) => format!("{flag} {s}"),
+                toml::Value::Float(x) => format!("{flag} {x}"),
+                v => format!("{flag} {v}"),
+            },
+            None => format!("--set {self}"),
+        }
     }
 
     /// The key path it sets.
@@ -327,11 +270,23 @@ pub fn scene_from_toml(
     origin: &Path,
     settings: &[Setting],
 ) -> Result<Scene, SceneError> {
+    parse_with(text, origin, settings).map(|(scene, _)| scene)
+}
+
+/// The scene of `text` with `settings` applied, and the text of it ([`scene_text`]): edited
+/// once, parsed once.
+pub(crate) fn parse_with(
+    text: &str,
+    origin: &Path,
+    settings: &[Setting],
+) -> Result<(Scene, String), SceneError> {
     if settings.is_empty() {
-        return Scene::from_toml(text, origin);
+        return Ok((Scene::from_toml(text, origin)?, text.to_owned()));
     }
     let edited = scene_text(text, origin, settings)?;
-    Scene::from_toml(&edited, origin).map_err(|e| attribute(e, text, origin, settings))
+    let scene =
+        Scene::from_toml(&edited, origin).map_err(|e| attribute(e, text, origin, settings))?;
+    Ok((scene, edited))
 }
 
 /// The scene text with `settings` applied: the TOML document re-written with their values
@@ -360,7 +315,7 @@ pub fn scene_text(text: &str, origin: &Path, settings: &[Setting]) -> Result<Str
             unlocated(
                 origin,
                 setting.key.clone(),
-                format!("{message} (from --set {setting})"),
+                format!("{message} (from {})", setting.origin()),
             )
         })?;
     }
@@ -491,10 +446,14 @@ fn attribute(error: SceneError, text: &str, origin: &Path, settings: &[Setting])
         .rev()
         .find(|s| starts_with(&d.key, &s.key) || (starts_with(&s.key, &d.key) && !in_file(&d.key)));
     match from {
-        Some(s) => unlocated(origin, d.key, format!("{} (from --set {s})", d.message)),
+        Some(s) => unlocated(
+            origin,
+            d.key,
+            format!("{} (from {})", d.message, s.origin()),
+        ),
         None => {
-            let list: Vec<String> = settings.iter().map(ToString::to_string).collect();
-            let message = format!("{} (with --set {})", d.message, list.join(", "));
+            let list: Vec<String> = settings.iter().map(Setting::origin).collect();
+            let message = format!("{} (with {})", d.message, list.join(", "));
             Invalid::new(d.key, message).locate(origin, text)
         }
     }
@@ -539,22 +498,19 @@ mod tests {
         assert_eq!(dt.label(), "dt0.016666666666666666");
     }
 
-    fn scene() -> Scene {
-        Scene::from_toml(
-            "[simulation]\ndt = 0.001\nduration = 0.1\nframe_rate = 100.0\n\
-             [[body]]\nkind = \"particles\"\npositions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n",
-            Path::new("s.toml"),
-        )
-        .unwrap()
+    const TEXT: &str = "[simulation]\ndt = 0.001\nduration = 0.1\nframe_rate = 100.0\n\
+                        [[body]]\nkind = \"particles\"\npositions = [[0.0, 1.0, 0.0]]\nmasses = [1.0]\n";
+
+    fn scene_with(o: &Overrides, origin: &str) -> Result<Scene, SceneError> {
+        scene_from_toml(TEXT, Path::new(origin), &o.to_settings())
     }
 
     #[test]
     fn nothing_overridden_keeps_the_scene() {
-        let before = scene();
+        let before = Scene::from_toml(TEXT, Path::new("s.toml")).unwrap();
         assert!(Overrides::default().is_empty());
-        let after = Overrides::default()
-            .apply_to(before.clone(), Path::new("s.toml"))
-            .unwrap();
+        assert!(Overrides::default().to_settings().is_empty());
+        let after = scene_with(&Overrides::default(), "s.toml").unwrap();
         assert_eq!(after.simulation, before.simulation);
     }
 
@@ -567,40 +523,50 @@ mod tests {
             frame_rate: Some(25.0),
         };
         assert!(!o.is_empty());
-        let sim = o.apply_to(scene(), Path::new("s.toml")).unwrap().simulation;
+        let sim = scene_with(&o, "s.toml").unwrap().simulation;
         assert_eq!(sim.integrator, Integrator::Midpoint);
         assert_eq!((sim.dt, sim.duration, sim.frame_rate), (0.002, 0.5, 25.0));
     }
 
+    /// The frame rate an override makes impossible is named with the flag that set it, and a
+    /// fault in the file's own value lists the flags applied.
     #[test]
-    fn a_bad_combination_names_the_file_the_key_and_the_overrides() {
+    fn a_bad_combination_names_the_file_the_key_and_the_flags() {
         let o = Overrides {
             integrator: Some(Integrator::Rk4),
             frame_rate: Some(5000.0),
             ..Overrides::default()
         };
-        let e = o.apply_to(scene(), Path::new("dir/s.toml")).unwrap_err();
-        assert_eq!(e.file(), Path::new("dir/s.toml"));
-        assert_eq!(e.key().to_string(), "simulation.frame_rate");
-        assert!(e.message().contains("more than one frame per step"));
-        assert_eq!(*e.overrides(), o);
-        let text = e.to_string();
+        let text = scene_with(&o, "dir/s.toml").unwrap_err().to_string();
         assert!(
             text.starts_with("dir/s.toml: simulation.frame_rate: "),
             "{text}"
         );
+        assert!(text.contains("more than one frame per step"), "{text}");
+        assert!(text.ends_with("(from --fps 5000)"), "{text}");
+        let slow = Overrides {
+            dt: Some(1.0),
+            integrator: Some(Integrator::Rk4),
+            ..Overrides::default()
+        };
+        let text = scene_with(&slow, "s.toml").unwrap_err().to_string();
+        // The file's own frame rate, on its line 4: 100 frames/s need dt ≤ 0.01 s.
         assert!(
-            text.ends_with(
-                "(with the overrides simulation.integrator = rk4, simulation.frame_rate = 5000)"
-            ),
+            text.starts_with("s.toml:4:14: simulation.frame_rate: "),
+            "{text}"
+        );
+        // The located message shows the file's line after it.
+        assert!(
+            text.contains("(at most 1) (with --integrator rk4, --dt 1)\n"),
             "{text}"
         );
         let negative = Overrides {
             duration: Some(-1.0),
             ..Overrides::default()
         };
-        let e = negative.apply_to(scene(), Path::new("s.toml")).unwrap_err();
-        assert_eq!(e.key().to_string(), "simulation.duration");
+        let text = scene_with(&negative, "s.toml").unwrap_err().to_string();
+        assert!(text.contains("simulation.duration"), "{text}");
+        assert!(text.ends_with("(from --duration -1)"), "{text}");
     }
 }
 
@@ -742,7 +708,7 @@ friction = 0.3
         assert_eq!(d.source_line, "frame_rate = 100.0");
         assert!(
             d.message
-                .ends_with("(with --set simulation.dt=0.05, terrain[0].friction=0.5)"),
+                .ends_with("(with --set simulation.dt=0.05, --set terrain[0].friction=0.5)"),
             "{e}"
         );
     }
@@ -787,17 +753,13 @@ friction = 0.3
             dt: Some(1.0 / 3000.0),
             ..Overrides::default()
         };
-        let scene = overrides
-            .apply_to(
-                scene_from_toml(SCENE, Path::new("s.toml"), &settings).unwrap(),
-                Path::new("s.toml"),
-            )
-            .unwrap();
         let all: Vec<Setting> = settings
             .into_iter()
             .chain(overrides.to_settings())
             .collect();
-        let text = scene_text(SCENE, Path::new("s.toml"), &all).unwrap();
+        let (scene, text) = parse_with(SCENE, Path::new("s.toml"), &all).unwrap();
+        assert_eq!(text, scene_text(SCENE, Path::new("s.toml"), &all).unwrap());
+        assert_eq!(scene.simulation.integrator, Integrator::Midpoint);
         let again = Scene::from_toml(&text, Path::new("s.toml")).unwrap();
         assert_eq!(again, scene, "{text}");
         assert_eq!(again.simulation.dt.to_bits(), (1.0f64 / 3000.0).to_bits());

@@ -100,6 +100,16 @@ impl From<StepError> for RunError {
     }
 }
 
+/// The scene file a run's frames name in their header, and the text of the scene that ran
+/// (the file's, with any settings written in: [`crate::scene_text`]).
+#[derive(Debug, Clone, Copy)]
+pub struct SceneFile<'a> {
+    /// The file.
+    pub path: &'a Path,
+    /// The scene's text.
+    pub text: &'a str,
+}
+
 /// What a finished (or stopped) run did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Summary {
@@ -135,8 +145,8 @@ fn energy_scale_of(model: &Model, x: &[DVec3], e0: &Energies) -> f64 {
 }
 
 /// Runs the solver to the end of its scene, writing each frame to `sink`; `progress` hears
-/// (steps done, steps in all) as the run goes. `scene` names the file the scene came from in
-/// the frames' header.
+/// (steps done, steps in all) as the run goes. `scene` names the file the scene came from, and
+/// its text, in the frames' header.
 ///
 /// Frames into memory as JSON Lines, first the header, then one line per frame:
 ///
@@ -158,7 +168,7 @@ fn energy_scale_of(model: &Model, x: &[DVec3], e0: &Energies) -> f64 {
 /// ```
 pub fn run(
     solver: &mut dyn Solver,
-    scene: Option<&Path>,
+    scene: Option<SceneFile<'_>>,
     sink: &mut dyn FrameSink,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<Summary, RunError> {
@@ -174,7 +184,7 @@ pub fn run(
 /// opened) is restored to the last of them and the run goes on from there.
 pub fn run_until(
     solver: &mut dyn Solver,
-    scene: Option<&Path>,
+    scene: Option<SceneFile<'_>>,
     sink: &mut dyn FrameSink,
     progress: &mut dyn FnMut(u64, u64),
     stop: &AtomicBool,

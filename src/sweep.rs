@@ -49,9 +49,9 @@ use serde_json::{Map, Value as Json};
 use softbody_scene::error::Seg;
 use softbody_scene::{Invalid, KeyPath, SceneError};
 
-use crate::output::{Format, Frame, FrameSink, Header, Output, WithSceneText};
-use crate::run::RunError;
-use crate::{Backend, OpenError, Setting};
+use crate::output::{Format, Frame, FrameSink, Header};
+use crate::service::{self, Destination, ExitClass, Hooks, RunRequest, SceneSource};
+use crate::{Backend, Setting};
 
 /// The manifest's file name in the out directory.
 pub const MANIFEST: &str = "manifest.jsonl";
@@ -554,6 +554,24 @@ struct Accumulator {
     strain: bool,
 }
 
+/// The metrics watch the run as the service's observer.
+impl FrameSink for Accumulator {
+    fn header(&mut self, h: &Header) -> io::Result<()> {
+        Accumulator::header(self, h);
+        Ok(())
+    }
+    fn frame(&mut self, f: &Frame<'_>) -> io::Result<()> {
+        Accumulator::frame(self, f);
+        Ok(())
+    }
+    fn finish(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+    fn wants_springs(&self) -> bool {
+        self.strain
+    }
+}
+
 impl Accumulator {
     fn header(&mut self, h: &Header) {
         self.masses = h.masses.clone();
@@ -630,41 +648,6 @@ impl Accumulator {
                 (self.final_center - self.first_center.unwrap_or(self.final_center)).length(),
             ),
             Metric::MaxStrain => number(self.max_strain),
-        }
-    }
-}
-
-/// Frames to the run's output (if any) and to the metrics.
-struct Tee<'a> {
-    sink: Option<&'a mut dyn FrameSink>,
-    metrics: Accumulator,
-}
-
-impl FrameSink for Tee<'_> {
-    fn header(&mut self, header: &Header) -> io::Result<()> {
-        self.take_header(header.clone())
-    }
-    fn frame(&mut self, frame: &Frame<'_>) -> io::Result<()> {
-        self.metrics.frame(frame);
-        match &mut self.sink {
-            Some(s) => s.frame(frame),
-            None => Ok(()),
-        }
-    }
-    fn take_header(&mut self, header: Header) -> io::Result<()> {
-        self.metrics.header(&header);
-        match &mut self.sink {
-            Some(s) => s.take_header(header),
-            None => Ok(()),
-        }
-    }
-    fn wants_springs(&self) -> bool {
-        self.metrics.strain || self.sink.as_ref().is_some_and(|s| s.wants_springs())
-    }
-    fn finish(&mut self) -> io::Result<()> {
-        match &mut self.sink {
-            Some(s) => s.finish(),
-            None => Ok(()),
         }
     }
 }
@@ -782,14 +765,6 @@ impl Job {
             Ok(s) => s,
             Err(e) => return end(record, Status::Invalid, 2, e.to_string()),
         };
-        let scene = match crate::scene_from_toml(&self.scene_text, origin, &settings) {
-            Ok(scene) => scene,
-            Err(e) => return end(record, Status::Invalid, 2, e.to_string()),
-        };
-        let text = match crate::scene_text(&self.scene_text, origin, &settings) {
-            Ok(text) => text,
-            Err(e) => return end(record, Status::Invalid, 2, e.to_string()),
-        };
         let (backend, format) = match (
             self.backend.parse::<Backend>(),
             self.format.as_deref().map(str::parse::<Format>).transpose(),
@@ -797,69 +772,54 @@ impl Job {
             (Ok(b), Ok(f)) => (b, f),
             (Err(e), _) | (_, Err(e)) => return end(record, Status::Invalid, 2, e),
         };
-        let mut solver = match crate::open(&scene, backend, Some(self.threads)) {
-            Ok(s) => s,
-            Err(e) => {
-                let (status, exit) = match &e {
-                    OpenError::Gpu(g) if g.no_usable_gpu() => (Status::Failed, 4),
-                    OpenError::Gpu(_) => (Status::Invalid, 2),
-                    OpenError::Threads { .. } => (Status::Failed, 1),
-                };
-                return end(record, status, exit, e.to_string());
-            }
-        };
-        let mut output = match (format, &self.output) {
-            (Some(format), Some(path)) => match Output::create(format, Some(path)) {
-                Ok(o) => Some(o),
-                Err(e) => {
-                    let exit = if e.is_bad_input() { 2 } else { 1 };
-                    return end(record, Status::Failed, exit, e.to_string());
-                }
+        let request = RunRequest {
+            scene: SceneSource::Text {
+                text: self.scene_text.clone(),
+                origin: origin.clone(),
             },
-            _ => None,
-        };
-        let mut with_text = output.as_mut().map(|o| WithSceneText::new(o.sink(), text));
-        let mut tee = Tee {
-            sink: with_text.as_mut().map(|s| s as &mut dyn FrameSink),
-            metrics: Accumulator {
-                strain: self.metrics.contains(&Metric::MaxStrain),
-                ..Accumulator::default()
+            settings,
+            backend,
+            threads: Some(self.threads),
+            destination: match (format, &self.output) {
+                (Some(format), Some(path)) => Destination::File {
+                    format,
+                    path: path.clone(),
+                },
+                _ => Destination::None,
             },
+            checkpoint: None,
         };
-        let result = crate::run::run(
-            solver.as_mut(),
-            Some(&self.scene_origin),
-            &mut tee,
-            &mut |_, _| {},
+        let mut metrics = Accumulator {
+            strain: self.metrics.contains(&Metric::MaxStrain),
+            ..Accumulator::default()
+        };
+        let outcome = service::execute(
+            &request,
+            Hooks {
+                observer: Some(&mut metrics),
+                ..Hooks::default()
+            },
         );
-        let _ = tee.finish();
-        let metrics = std::mem::take(&mut tee.metrics);
-        drop(tee);
-        drop(with_text);
         record.metrics = self
             .metrics
             .iter()
             .map(|m| (m.name().to_owned(), metrics.value(*m)))
             .collect();
-        // As `softbody run`: the frames before an instability or a device failure are kept.
-        let keep = match &result {
-            Err(RunError::Io(_)) => false,
-            Err(e) => !e.is_bad_input(),
-            Ok(_) => true,
-        };
-        if keep && let Some(output) = output {
-            if let Err(e) = output.commit() {
-                return end(record, Status::Failed, 1, e.to_string());
-            }
+        if outcome.kept {
             record.file = self.file.clone();
         }
         record.seconds = started.elapsed().as_secs_f64();
-        match result {
+        match &outcome.result {
             Ok(_) => record,
-            Err(RunError::Unstable(i)) => end(record, Status::Unstable, 3, i.to_string()),
-            Err(e) if e.is_bad_input() => end(record, Status::Invalid, 2, e.to_string()),
-            Err(e @ RunError::Device(_)) => end(record, Status::Failed, 4, e.to_string()),
-            Err(e) => end(record, Status::Failed, 1, format!("{e:#}")),
+            Err(e) => {
+                let class = e.class();
+                let status = match class {
+                    ExitClass::Unstable => Status::Unstable,
+                    ExitClass::BadInput => Status::Invalid,
+                    _ => Status::Failed,
+                };
+                end(record, status, class.status(), e.message())
+            }
         }
     }
 }

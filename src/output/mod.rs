@@ -240,11 +240,15 @@ pub struct Header {
 }
 
 impl Header {
-    /// The header of a run of `solver` writing `frames` frames of the scene in file `scene`
-    /// (made absolute when it can be); its `scene_text` is that file's text, which
-    /// [`WithSceneText`] replaces where settings changed the scene. Its spring arrays are
-    /// empty unless `springs` ([`FrameSink::wants_springs`]).
-    pub fn new(solver: &dyn Solver, frames: u64, scene: Option<&Path>, springs: bool) -> Header {
+    /// The header of a run of `solver` writing `frames` frames of `scene` (its path made
+    /// absolute when it can be, and its text). Its spring arrays are empty unless `springs`
+    /// ([`FrameSink::wants_springs`]).
+    pub fn new(
+        solver: &dyn Solver,
+        frames: u64,
+        scene: Option<crate::run::SceneFile<'_>>,
+        springs: bool,
+    ) -> Header {
         let model = solver.model();
         // Visited rather than taken from `Model::springs`, which would keep the list for the
         // rest of the run: a cuboid's model holds its springs as a stencil only.
@@ -278,13 +282,13 @@ impl Header {
             frame_rate: model.simulation.frame_rate,
             frames,
             steps: model.simulation.steps(),
-            scene: scene.map(|p| {
-                std::path::absolute(p)
-                    .unwrap_or_else(|_| p.to_owned())
+            scene: scene.map(|s| {
+                std::path::absolute(s.path)
+                    .unwrap_or_else(|_| s.path.to_owned())
                     .display()
                     .to_string()
             }),
-            scene_text: scene.and_then(|p| std::fs::read_to_string(p).ok()),
+            scene_text: scene.map(|s| s.text.to_owned()),
             masses: model.mass.clone(),
             springs,
             rest,
@@ -331,46 +335,6 @@ pub trait FrameSink {
     /// 40 bytes a spring, about three times a lattice body's whole model.
     fn wants_springs(&self) -> bool {
         true
-    }
-}
-
-/// A sink that passes everything on to another, giving the header the text of the scene that
-/// ran (the file's with `--set`s and overrides written in: [`crate::scene_text`]) in place of
-/// the file's own.
-pub struct WithSceneText<'s> {
-    sink: &'s mut dyn FrameSink,
-    text: String,
-}
-
-impl<'s> WithSceneText<'s> {
-    /// `sink`, its header's `scene_text` replaced by `text`.
-    pub fn new(sink: &'s mut dyn FrameSink, text: String) -> Self {
-        WithSceneText { sink, text }
-    }
-}
-
-impl FrameSink for WithSceneText<'_> {
-    fn header(&mut self, header: &Header) -> std::io::Result<()> {
-        self.take_header(header.clone())
-    }
-
-    fn take_header(&mut self, header: Header) -> std::io::Result<()> {
-        self.sink.take_header(Header {
-            scene_text: Some(self.text.clone()),
-            ..header
-        })
-    }
-
-    fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()> {
-        self.sink.frame(frame)
-    }
-
-    fn finish(&mut self) -> std::io::Result<()> {
-        self.sink.finish()
-    }
-
-    fn wants_springs(&self) -> bool {
-        self.sink.wants_springs()
     }
 }
 

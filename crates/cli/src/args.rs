@@ -28,6 +28,13 @@ impl SceneOverrides {
     pub fn settings(&self) -> &[Setting] {
         &self.set
     }
+
+    /// Everything that changes the scene, in order: the `--set`s, then the overrides.
+    pub fn all_settings(&self) -> Vec<Setting> {
+        let mut all = self.set.clone();
+        all.extend(Overrides::from(self).to_settings());
+        all
+    }
 }
 
 impl From<&SceneOverrides> for Overrides {
@@ -54,9 +61,16 @@ pub struct StepOverrides {
 }
 
 impl StepOverrides {
-    /// The `--set`s, in the order given.
-    pub fn settings(&self) -> &[Setting] {
+    /// The `--set`s alone (default output names label them apart from the overrides).
+    pub fn sets(&self) -> &[Setting] {
         self.scene.settings()
+    }
+
+    /// Everything that changes the scene, in order: the `--set`s, then the overrides.
+    pub fn settings(&self) -> Vec<Setting> {
+        let mut all = self.sets().to_vec();
+        all.extend(Overrides::from(self).to_settings());
+        all
     }
 }
 

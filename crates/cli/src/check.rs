@@ -22,11 +22,7 @@ pub struct CheckArgs {
 }
 
 pub fn check(args: CheckArgs) -> Result<(), Failure> {
-    let scene = load_with(
-        &args.scene,
-        args.overrides.settings(),
-        &(&args.overrides).into(),
-    )?;
+    let scene = load_with(&args.scene, &args.overrides.settings())?;
     // Printed in one write at the end, so that a closed pipe (`| head -1`) is one error to
     // handle instead of a panic in `println!`.
     let mut out = String::new();

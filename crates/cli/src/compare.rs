@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use clap::Args;
 use softbody::compare::{Report, Study, StudyError};
-use softbody::{Backend, Integrator, Overrides};
+use softbody::{Backend, Integrator, Overrides, Setting};
 
 use crate::args::{SceneOverrides, time_step};
 use crate::{Failure, bad_input, emit, load_with, open_failure, progress, status};
@@ -55,11 +55,8 @@ fn integrators(s: &str) -> Result<Vec<Integrator>, String> {
 }
 
 pub fn compare(args: CompareArgs) -> Result<(), Failure> {
-    let scene = load_with(
-        &args.scene,
-        args.overrides.settings(),
-        &(&args.overrides).into(),
-    )?;
+    let settings = args.overrides.all_settings();
+    let scene = load_with(&args.scene, &settings)?;
     // A plot that cannot be written is found out before minutes of simulation, not after.
     if let Some(path) = &args.plot {
         if !plot::AVAILABLE {
@@ -81,9 +78,12 @@ pub fn compare(args: CompareArgs) -> Result<(), Failure> {
             dt: Some(dt),
             ..Overrides::default()
         };
-        overrides
-            .apply_to(scene.clone(), &args.scene)
-            .map_err(bad_input)?;
+        let with_dt: Vec<Setting> = settings
+            .iter()
+            .cloned()
+            .chain(overrides.to_settings())
+            .collect();
+        load_with(&args.scene, &with_dt)?;
     }
     let study = Study {
         integrators: list,

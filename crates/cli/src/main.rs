@@ -1,12 +1,12 @@
 //! `softbody`: the command-line tool. Argument parsing, progress and output; the simulation
 //! itself lives in the `softbody` library.
 //!
-//! Exit status: 0 done; 1 the output could not be written; 2 bad input (scene file or
-//! arguments, or a scene beyond what `--backend gpu` runs: the adapter's limits);
-//! 3 the simulation became unstable (the frames before it are written); 4 `--backend gpu`
-//! found no usable GPU adapter, or the device failed during the run (the frames before it are
-//! written); 130 / 143 `run` stopped by SIGINT (Ctrl-C) / SIGTERM (the frames before it are
-//! written; a second signal ends the process at once).
+//! Exit status (`softbody::service::ExitClass`): 0 done; 1 the output could not be written;
+//! 2 bad input (scene file or arguments, or a scene beyond what `--backend gpu` runs: the
+//! adapter's limits); 3 the simulation became unstable (the frames before it are written);
+//! 4 `--backend gpu` found no usable GPU adapter, or the device failed during the run (the
+//! frames before it are written); 130 / 143 `run` stopped by SIGINT (Ctrl-C) / SIGTERM (the
+//! frames before it are written; a second signal ends the process at once).
 
 mod args;
 mod bench;
@@ -25,16 +25,19 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use softbody::output::OutputError;
 use softbody::run::RunError;
+use softbody::service::RunFailure;
 use softbody::{Integrator, Overrides, Scene, Setting};
 
-/// Exit statuses (documented in the README).
+/// Exit statuses (documented in docs/guide/cli.md): the library's table of outcome classes
+/// ([`ExitClass::status`]), and the signal that stopped a run.
 mod status {
-    pub const OUTPUT: u8 = 1;
-    pub const BAD_INPUT: u8 = 2;
-    pub const UNSTABLE: u8 = 3;
-    pub const NO_ADAPTER: u8 = 4;
-    /// 128 + the signal's number, as a shell reports a process the signal ended.
-    pub const INTERRUPTED: u8 = 130;
+    use softbody::service::ExitClass;
+    pub const OUTPUT: u8 = ExitClass::Output.status();
+    pub const BAD_INPUT: u8 = ExitClass::BadInput.status();
+    pub const UNSTABLE: u8 = ExitClass::Unstable.status();
+    pub const NO_ADAPTER: u8 = ExitClass::Device.status();
+    /// 128 + SIGTERM's number, as a shell reports a process the signal ended (a SIGINT's is
+    /// `ExitClass::Stopped`'s 130).
     pub const TERMINATED: u8 = 143;
 }
 
@@ -128,29 +131,8 @@ fn is_broken_pipe(e: &anyhow::Error) -> bool {
 
 /// Loads a scene file with the command line's `--set`s and overrides applied: every command
 /// that takes them goes through here.
-fn load_with(path: &Path, settings: &[Setting], overrides: &Overrides) -> Result<Scene, Failure> {
-    let scene = softbody::load_scene(path, settings).map_err(bad_input)?;
-    overrides.apply_to(scene, path).map_err(bad_input)
-}
-
-/// The text of the scene that runs when `settings` and `overrides` change the file at `path`
-/// (for the frames' header); `None` when they change nothing, and the file's text is it.
-fn scene_text(
-    path: &Path,
-    settings: &[Setting],
-    overrides: &Overrides,
-) -> Result<Option<String>, Failure> {
-    let all: Vec<Setting> = settings
-        .iter()
-        .cloned()
-        .chain(overrides.to_settings())
-        .collect();
-    if all.is_empty() {
-        return Ok(None);
-    }
-    let text = std::fs::read_to_string(path)?;
-    let edited = softbody::scene_text(&text, path, &all).map_err(bad_input)?;
-    Ok(Some(edited))
+fn load_with(path: &Path, settings: &[Setting]) -> Result<Scene, Failure> {
+    softbody::load_scene(path, settings).map_err(bad_input)
 }
 
 /// The stem of an input file, for the default output names.
@@ -179,49 +161,46 @@ fn output_stem(
     parts.join("-")
 }
 
-/// A solver that cannot be opened: no usable GPU (4), a scene the GPU does not run (2), or CPU
-/// threads that cannot start (1, as before).
-fn open_failure(e: softbody::OpenError) -> Failure {
-    let status = match &e {
-        softbody::OpenError::Gpu(g) if g.no_usable_gpu() => status::NO_ADAPTER,
-        softbody::OpenError::Gpu(_) => status::BAD_INPUT,
-        _ => status::OUTPUT,
-    };
+/// A failure of the run service's kinds, with the status of its class.
+fn failure(e: impl Into<RunFailure>) -> Failure {
+    let e = e.into();
     Failure {
-        status,
+        status: e.class().status(),
         error: e.into(),
     }
 }
 
-/// An output that cannot be made: a request that cannot be met (2), else the file system (1).
-fn output_failure(e: OutputError) -> Failure {
-    if e.is_bad_input() {
-        bad_input(e)
-    } else {
-        e.into()
-    }
+/// A solver that cannot be opened: no usable GPU (4), a scene the GPU does not run (2), or CPU
+/// threads that cannot start (1).
+fn open_failure(e: softbody::OpenError) -> Failure {
+    failure(e)
 }
 
-/// A run of `integrator` that stopped early: unstable (3) or a failed device (4), the frames
-/// before it kept as `kept` says; or frames that could not be written (1).
-fn run_failure(e: RunError, integrator: Integrator, kept: &str) -> Failure {
-    match e {
-        RunError::Unstable(i) => Failure {
-            status: status::UNSTABLE,
-            error: anyhow::anyhow!("{i}; {}\n{kept}", softbody::Instability::advice(integrator)),
-        },
-        RunError::Overflow(_) | RunError::TooLarge(_) => bad_input(e),
-        RunError::Stopped { .. } => Failure {
-            status: status::INTERRUPTED,
-            error: anyhow::anyhow!("{e}\n{kept}"),
-        },
-        RunError::Device(d) => Failure {
-            status: status::NO_ADAPTER,
-            error: anyhow::anyhow!("device failure: {d}\n{kept}"),
-        },
-        RunError::Checkpoint(c) if c.is_bad_input() => bad_input(c),
-        RunError::Io(_) | RunError::Checkpoint(_) => e.into(),
-    }
+/// An output that cannot be made: a request that cannot be met (2), else the file system (1).
+fn output_failure(e: OutputError) -> Failure {
+    failure(e)
+}
+
+/// A run of `integrator` that did not complete, with what became of its frames (`kept`, said
+/// after a failure that came after frames were written): the advice for an instability, the
+/// device for a device failure.
+fn run_failure(e: impl Into<RunFailure>, integrator: Option<Integrator>, kept: &str) -> Failure {
+    let e = e.into();
+    let status = e.class().status();
+    let error = match e {
+        RunFailure::Run(RunError::Unstable(i)) => {
+            let advice = integrator
+                .map(softbody::Instability::advice)
+                .unwrap_or_default();
+            anyhow::anyhow!("{i}; {advice}\n{kept}")
+        }
+        RunFailure::Run(RunError::Device(d)) => anyhow::anyhow!("device failure: {d}\n{kept}"),
+        e @ RunFailure::Run(RunError::Stopped { .. } | RunError::Io(_)) => {
+            anyhow::anyhow!("{}\n{kept}", e.message())
+        }
+        e => e.into(),
+    };
+    Failure { status, error }
 }
 
 /// Writes `text` to standard output; a reader that went away early is not an error.

@@ -16,14 +16,14 @@ use glam::DVec3;
 use indicatif::ProgressBar;
 use softbody::output::{Frame, FrameSink, Header, Staged, jsonl};
 use softbody::run::RunError;
+use softbody::service::{self, Hooks, RunFailure, RunRequest, SceneSource};
 use softbody::{Backend, Model, Overrides, Scene};
 use softbody_render::animation::{self, Animation, Animator, CameraPlan};
 use softbody_render::{GifWriter, Image, RenderOptions};
 
 use crate::args::{StepOverrides, positive};
 use crate::{
-    Failure, bad_input, file_stem, load_with, open_failure, output_failure, output_stem, progress,
-    run_failure,
+    Failure, bad_input, failure, file_stem, output_failure, output_stem, progress, run_failure,
 };
 
 #[derive(Args)]
@@ -121,7 +121,7 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
     let overrides = Overrides::from(&args.overrides);
     if input == Input::Frames
         && (!overrides.is_empty()
-            || !args.overrides.settings().is_empty()
+            || !args.overrides.sets().is_empty()
             || args.backend != Backend::Cpu)
     {
         return Err(bad_input(anyhow!(
@@ -139,12 +139,9 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
     let outs = if args.out.is_empty() {
         // Not out/<stem>/, where `run --format ply|obj` and VTK's frames go.
         let stem = match input {
-            Input::Scene => output_stem(
-                &args.input,
-                args.overrides.settings(),
-                &overrides,
-                args.backend,
-            ),
+            Input::Scene => {
+                output_stem(&args.input, args.overrides.sets(), &overrides, args.backend)
+            }
             Input::Frames => file_stem(&args.input).into_owned(),
         };
         vec![PathBuf::from("out").join(format!("{stem}-pictures"))]
@@ -154,31 +151,46 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
 
     match input {
         Input::Scene => {
-            let scene = load_with(&args.input, args.overrides.settings(), &overrides)?;
-            let (model, _) = Model::build(&scene);
-            let sim = scene.simulation;
+            // Read and changed once; the drawer needs the model before the run starts.
+            let loaded = service::load(
+                &SceneSource::File(args.input.clone()),
+                &args.overrides.settings(),
+            )
+            .map_err(bad_input)?;
+            let (model, _) = Model::build(&loaded.scene);
+            let sim = loaded.scene.simulation;
             let mut drawer = Drawer::new(&args, &model, &outs, sim.frame_rate, sim.frame_count())?;
-            let mut solver = softbody::open(&scene, args.backend, None).map_err(open_failure)?;
-            let result = softbody::run::run(
-                solver.as_mut(),
-                Some(&args.input),
-                &mut Sink(&mut drawer),
-                &mut |_, _| {},
+            let request = RunRequest {
+                scene: SceneSource::Text {
+                    text: loaded.text,
+                    origin: loaded.path,
+                },
+                backend: args.backend,
+                ..RunRequest::file(&args.input)
+            };
+            let mut sink = Sink(&mut drawer);
+            let outcome = service::execute(
+                &request,
+                Hooks {
+                    observer: Some(&mut sink),
+                    ..Hooks::default()
+                },
             );
-            match result {
-                Err(RunError::Io(e)) => {
+            let result = match outcome.result {
+                Err(RunFailure::Run(RunError::Io(e))) => {
                     return Err(anyhow::Error::new(e)
                         .context("cannot write the pictures")
                         .into());
                 }
-                Err(e) if e.is_bad_input() => return Err(bad_input(e)),
-                _ => {}
-            }
+                // Refused, or no solver: nothing was drawn, and nothing is left.
+                Err(e) if outcome.frames == 0 => return Err(failure(e)),
+                result => result,
+            };
             // The frames before an instability are drawn and kept, as `run` keeps them.
             drawer.finish(&args, "simulated and drawn", started)?;
             result
                 .map(drop)
-                .map_err(|e| run_failure(e, sim.integrator, "the frames before it are drawn"))
+                .map_err(|e| run_failure(e, Some(sim.integrator), "the frames before it are drawn"))
         }
         Input::Frames => {
             let path = &args.input;

@@ -3,19 +3,16 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
 
 use clap::Args;
-use softbody::Backend;
-use softbody::checkpoint::Checkpoints;
-use softbody::output::{Format, FrameSink, Output, WithSceneText};
-use softbody::run::RunError;
+use softbody::output::Format;
+use softbody::service::{
+    self, CheckpointPlan, Destination, ExitClass, Hooks, Notice, RunRequest, SceneSource,
+};
+use softbody::{Backend, Overrides};
 
 use crate::args::StepOverrides;
-use crate::{
-    Failure, bad_input, load_with, open_failure, output_failure, output_stem, progress,
-    run_failure, scene_text, status,
-};
+use crate::{Failure, bad_input, output_stem, progress, run_failure, status};
 
 #[derive(Args)]
 pub struct RunArgs {
@@ -59,181 +56,109 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     let signals = Signals::register()?;
-    let overrides = (&args.overrides).into();
-    let scene = load_with(&args.scene, args.overrides.settings(), &overrides)?;
-
+    let overrides: Overrides = (&args.overrides).into();
     let format = Format::for_output(args.format, args.out.as_deref()).map_err(bad_input)?;
     let to_stdout = args.out.as_deref() == Some(Path::new("-"));
-    let checkpointing = args.checkpoint_every.is_some() || args.resume;
-    if to_stdout && checkpointing {
-        return Err(bad_input(anyhow::anyhow!(
-            "--checkpoint-every and --resume need an output file (--out), not standard output"
-        )));
-    }
     let out_path = match &args.out {
         Some(p) => p.clone(),
         None => format.default_path(&output_stem(
             &args.scene,
-            args.overrides.settings(),
+            args.overrides.sets(),
             &overrides,
             args.backend,
         )),
     };
-
-    // Before the solver (a GPU takes seconds to open) and the run: a destination that cannot
-    // be written is refused first. The library stages the frames beside the destination and
-    // puts them in place at commit (see `softbody::output::destination`).
-    let mut output = Output::create(format, (!to_stdout).then_some(out_path.as_path()))
-        .map_err(output_failure)?;
-
-    let mut solver = softbody::open(&scene, args.backend, args.threads.map(usize::from))
-        .map_err(open_failure)?;
-    // Said even with --quiet: they are about the results, not the progress. The step's
-    // estimate is left to `check`: a run that becomes unstable says so itself, with the step.
-    let x = solver
-        .state()
-        .map_err(|e| {
-            run_failure(
-                e.into(),
-                scene.simulation.integrator,
-                "no frame was written",
-            )
-        })?
-        .x
-        .clone();
-    for w in softbody::warnings::inside_terrain(solver.model(), &x) {
-        eprintln!("warning: {w}");
-    }
-
-    // The frames' header holds the scene that ran: with --set or overrides, not the file's.
-    let text = scene_text(&args.scene, args.overrides.settings(), &overrides)?;
-    let mut with_text;
-    let sink = match text {
-        Some(text) => {
-            with_text = WithSceneText::new(output.sink(), text);
-            &mut with_text as &mut dyn FrameSink
-        }
-        None => output.sink(),
-    };
-
-    let dir = Checkpoints::dir_for(&out_path);
-    let mut checkpoints = match (args.resume, args.checkpoint_every) {
-        (true, every) => {
-            let resumed = Checkpoints::resume(&dir, every, solver.as_mut())
-                .map_err(|e| checkpoint_failure(e, &scene))?;
-            match (resumed, every) {
-                (Some(c), _) => Some(c),
-                (None, Some(every)) => Some(
-                    Checkpoints::create(&dir, every, solver.as_mut())
-                        .map_err(|e| checkpoint_failure(e, &scene))?,
-                ),
-                (None, None) => None,
-            }
-        }
-        (false, Some(every)) => Some(
-            Checkpoints::create(&dir, every, solver.as_mut())
-                .map_err(|e| checkpoint_failure(e, &scene))?,
-        ),
-        (false, None) => None,
-    };
-    if args.resume && !args.quiet {
-        match &checkpoints {
-            Some(c) if c.resumed_frames() > 0 => eprintln!(
-                "resuming after frame {} from {}",
-                c.resumed_frames() - 1,
-                dir.display()
-            ),
-            _ => eprintln!(
-                "no checkpoint in {}: starting from the beginning",
-                dir.display()
-            ),
-        }
-    }
-
-    let bar = progress::bar(scene.simulation.steps(), "steps", args.quiet);
-    let started = Instant::now();
-    let result = softbody::run::run_until(
-        solver.as_mut(),
-        Some(&args.scene),
-        sink,
-        &mut |done, _| bar.set_position(done),
-        &signals.stop,
-        checkpoints.as_mut(),
-    );
-    bar.finish_and_clear();
-    // Frames that failed to write, a scene refused before its first frame, and a run stopped
-    // before it leave nothing (the output is dropped, its staging removed, an existing file
-    // untouched); a run stopped by an instability, a device failure or a signal keeps the
-    // frames before it.
-    let keep = match &result {
-        Err(RunError::Io(_)) => false,
-        Err(e) if e.is_bad_input() => false,
-        Err(RunError::Stopped { frames, .. }) => *frames > 0,
-        _ => true,
-    };
-    if keep {
-        output.commit().map_err(output_failure)?;
-    }
-    // A run that ended (completed, diverged) has no use for its checkpoint; one stopped by a
-    // signal, a device or a file system can go on from it.
-    let mut resumable = String::new();
-    if let Some(c) = checkpoints.take() {
-        if matches!(result, Ok(_) | Err(RunError::Unstable(_)))
-            || result.as_ref().is_err_and(RunError::is_bad_input)
-        {
-            c.remove().map_err(Failure::from)?;
+    let request = RunRequest {
+        scene: SceneSource::File(args.scene.clone()),
+        settings: args.overrides.settings(),
+        backend: args.backend,
+        threads: args.threads.map(usize::from),
+        destination: if to_stdout {
+            Destination::Stdout(format)
         } else {
-            resumable = format!(
-                "; the checkpoint is in {}: go on with --resume",
-                c.dir().display()
-            );
-        }
+            Destination::File {
+                format,
+                path: out_path.clone(),
+            }
+        },
+        checkpoint: (args.checkpoint_every.is_some() || args.resume).then_some(CheckpointPlan {
+            every: args.checkpoint_every,
+            resume: args.resume,
+        }),
+    };
+
+    let mut bar = None;
+    let quiet = args.quiet;
+    let outcome = service::execute(
+        &request,
+        Hooks {
+            observer: None,
+            progress: Some(&mut |done, all| {
+                bar.get_or_insert_with(|| progress::bar(all, "steps", quiet))
+                    .set_position(done)
+            }),
+            stop: Some(&signals.stop),
+            // Warnings are said even with --quiet: they are about the results, not the
+            // progress. The step's estimate is left to `check`: a run that becomes unstable
+            // says so itself, with the step.
+            notice: Some(&mut |notice| match notice {
+                Notice::Warning(w) => eprintln!("warning: {w}"),
+                Notice::Resuming { after_frame, dir } if !quiet => {
+                    eprintln!("resuming after frame {after_frame} from {}", dir.display())
+                }
+                Notice::NoCheckpoint(dir) if !quiet => eprintln!(
+                    "no checkpoint in {}: starting from the beginning",
+                    dir.display()
+                ),
+                _ => {}
+            }),
+        },
+    );
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
     }
     let where_ = if to_stdout {
         "standard output".to_owned()
     } else {
         out_path.display().to_string()
     };
-    let seconds = started.elapsed().as_secs_f64();
-    match result {
+    let integrator = outcome.integrator();
+    match outcome.result {
         Ok(summary) => {
             if !args.quiet {
+                let seconds = outcome.seconds;
                 eprintln!(
                     "{} frames, {} steps of {} on {} in {seconds:.2} s ({} steps/s): {where_}",
                     summary.frames,
                     summary.steps,
-                    scene.simulation.integrator,
-                    solver.device(),
+                    integrator.map_or("?", |i| i.name()),
+                    outcome.device,
                     progress::whole(summary.steps as f64 / seconds.max(1e-9)),
                 );
             }
             Ok(())
         }
         Err(e) => {
-            let kept = if keep {
+            let resumable = outcome.checkpoint.as_ref().map_or(String::new(), |dir| {
+                format!(
+                    "; the checkpoint is in {}: go on with --resume",
+                    dir.display()
+                )
+            });
+            let kept = if outcome.kept {
                 format!("the frames before it are in {where_}{resumable}")
             } else {
                 format!("nothing was written to {where_}{resumable}")
             };
-            let mut failure = run_failure(e, scene.simulation.integrator, &kept);
-            if signals.terminated.load(Ordering::Relaxed) {
+            let mut failure = run_failure(e, integrator, &kept);
+            if failure.status == ExitClass::Stopped.status()
+                && signals.terminated.load(Ordering::Relaxed)
+            {
                 failure.status = status::TERMINATED;
             }
             Err(failure)
         }
     }
-}
-
-/// A checkpoint that cannot be resumed or written, as the run's failures are reported.
-fn checkpoint_failure(
-    e: softbody::checkpoint::CheckpointError,
-    scene: &softbody::Scene,
-) -> Failure {
-    run_failure(
-        e.into(),
-        scene.simulation.integrator,
-        "no frame was written",
-    )
 }
 
 /// SIGINT (Ctrl-C) and SIGTERM (`kill`) stop a run after its complete frames instead of

@@ -24,6 +24,7 @@ use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use softbody::glam::DVec3;
 use softbody::output::{Frame, FrameSink, Header};
 use softbody::run::RunError;
+use softbody::service::{self, ExitClass, Hooks, RunFailure, RunRequest, SceneSource};
 use softbody::sweep::{Job, Manifest, Options, Record, Sweep};
 use softbody::{Backend, Setting, Solver, StepError, toml};
 
@@ -634,19 +635,27 @@ fn run<'py>(
     let scene = scene_of(scene)?;
     let backend = backend_of(backend)?;
     let s = scene.get();
-    let (result, collect) = py.detach(|| {
+    let request = RunRequest {
+        scene: SceneSource::Text {
+            text: s.text.clone(),
+            origin: s.origin.clone(),
+        },
+        backend,
+        threads,
+        ..RunRequest::file(&s.origin)
+    };
+    let (outcome, collect) = py.detach(|| {
         let mut collect = Collect::default();
-        let result = softbody::open(&s.scene, backend, threads)
-            .map_err(Err)
-            .and_then(|mut solver| {
-                softbody::run::run(solver.as_mut(), None, &mut collect, &mut |_, _| {}).map_err(Ok)
-            });
-        (result, collect)
+        let hooks = Hooks {
+            observer: Some(&mut collect),
+            ..Hooks::default()
+        };
+        (service::execute(&request, hooks), collect)
     });
-    match result {
+    match outcome.result {
         Ok(_) => collect.into_dict(py, &s.text),
-        Err(Err(open)) => Err(open_error(open)),
-        Err(Ok(RunError::Unstable(i))) => {
+        Err(RunFailure::Open(open)) => Err(open_error(open)),
+        Err(RunFailure::Run(RunError::Unstable(i))) => {
             let err = step_error(py, StepError::Unstable(i), s.scene.simulation.integrator);
             if collect.header.is_some() {
                 err.value(py)
@@ -654,8 +663,8 @@ fn run<'py>(
             }
             Err(err)
         }
-        Err(Ok(e)) if e.is_bad_input() => Err(SceneError::new_err(e.to_string())),
-        Err(Ok(e)) => Err(DeviceError::new_err(e.to_string())),
+        Err(e) if e.class() == ExitClass::BadInput => Err(SceneError::new_err(e.to_string())),
+        Err(e) => Err(DeviceError::new_err(e.to_string())),
     }
 }
 

@@ -1,0 +1,723 @@
+//! The run service: one run of a scene, from its file (or text) to the frames kept. What
+//! `softbody run` and `softbody render`, a sweep's jobs and Python's `run` do, written once.
+//!
+//! A [`RunRequest`] says what runs: the scene, the [`Setting`]s that change it (the CLI's
+//! `--set`s and overrides, a sweep's parameters, Python's keywords: one path), the backend,
+//! where the frames go and whether the run checkpoints or resumes. [`execute`] reads the scene
+//! file once, applies the settings to its text once (that text is what the frames' header
+//! records), refuses a destination that cannot be written before it opens the solver (a GPU
+//! takes seconds to open), runs, and applies one keep rule. The [`Outcome`] says how the run
+//! ended, what was kept, and its [`ExitClass`], whose [`status`](ExitClass::status) is the one
+//! table of exit statuses.
+//!
+//! **The keep rule.** The frames are put in place (the staged output committed over the
+//! destination) when the run completed, or when it stopped early — an instability, a device
+//! failure, a stop request — after writing at least one frame. They are dropped, and the
+//! destination left as it was, when writing them failed or the run was refused before its first
+//! frame (a scene, an output or a checkpoint that cannot be used). A checkpoint is removed when
+//! the run ended by itself (completed, or diverged: going on would diverge again) or was
+//! refused before its first frame (its energy overflows, its output does not fit), and is kept,
+//! and named in the outcome, when a stop request, the device or a file ended it: `--resume`
+//! goes on from there. A checkpoint that cannot be resumed (of another run or version) is left
+//! as it was.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use softbody_scene::{Integrator, SceneError};
+
+use crate::checkpoint::{CheckpointError, Checkpoints};
+use crate::output::{Format, Frame, FrameSink, Header, Output, OutputError};
+use crate::run::{RunError, SceneFile, Summary};
+use crate::{Backend, OpenError, Scene, Setting};
+
+/// Where the scene comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SceneSource {
+    /// A scene file, read once.
+    File(PathBuf),
+    /// Scene text, with the path it stands for (messages name it; mesh paths are relative to
+    /// its directory).
+    Text {
+        /// The TOML text.
+        text: String,
+        /// The file it stands for.
+        origin: PathBuf,
+    },
+}
+
+impl SceneSource {
+    /// The path messages name.
+    pub fn path(&self) -> &Path {
+        match self {
+            SceneSource::File(path) => path,
+            SceneSource::Text { origin, .. } => origin,
+        }
+    }
+}
+
+/// Where the frames go.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Destination {
+    /// Nowhere but the request's observer ([`Hooks::observer`]).
+    None,
+    /// A file (or a directory of files, for the series formats), staged beside it and put in
+    /// place as the keep rule says.
+    File {
+        /// The format.
+        format: Format,
+        /// The destination.
+        path: PathBuf,
+    },
+    /// Standard output (the single-file formats).
+    Stdout(Format),
+}
+
+/// Checkpointing: every `every` frames into `<destination>.checkpoint`, and/or going on from
+/// the checkpoint there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CheckpointPlan {
+    /// Checkpoint every this many frames.
+    pub every: Option<u64>,
+    /// Go on from the destination's checkpoint, if it has one.
+    pub resume: bool,
+}
+
+/// One run to do.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunRequest {
+    /// The scene.
+    pub scene: SceneSource,
+    /// Values that replace the scene's, in order (a later one wins).
+    pub settings: Vec<Setting>,
+    /// The solver.
+    pub backend: Backend,
+    /// CPU threads (all cores when `None`).
+    pub threads: Option<usize>,
+    /// Where the frames go.
+    pub destination: Destination,
+    /// Checkpointing, if any (needs a file destination).
+    pub checkpoint: Option<CheckpointPlan>,
+}
+
+impl RunRequest {
+    /// A run of the scene file at `path` on the CPU, on all cores, writing nowhere but to an
+    /// observer.
+    pub fn file(path: impl Into<PathBuf>) -> RunRequest {
+        RunRequest {
+            scene: SceneSource::File(path.into()),
+            settings: Vec::new(),
+            backend: Backend::Cpu,
+            threads: None,
+            destination: Destination::None,
+            checkpoint: None,
+        }
+    }
+}
+
+/// What the service says while it works, for a front end to show.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Notice {
+    /// Something about the results, e.g. a body starting inside the terrain.
+    Warning(String),
+    /// Going on from a checkpoint after this frame.
+    Resuming {
+        /// The last frame the checkpoint holds.
+        after_frame: u64,
+        /// The checkpoint.
+        dir: PathBuf,
+    },
+    /// `resume` found no checkpoint: the run starts from the beginning.
+    NoCheckpoint(PathBuf),
+}
+
+/// What the caller hears and adds while a run goes; each part is optional
+/// (`Hooks::default()` has none).
+#[derive(Default)]
+pub struct Hooks<'a> {
+    /// A sink that sees the header and every frame beside the destination's (a sweep's
+    /// metrics, Python's arrays, `render`'s pictures). The caller finishes it.
+    pub observer: Option<&'a mut dyn FrameSink>,
+    /// Hears (steps done, steps in all) every few hundred steps.
+    pub progress: Option<&'a mut dyn FnMut(u64, u64)>,
+    /// Set (by a signal handler, another thread) to stop the run after its complete frames.
+    pub stop: Option<&'a AtomicBool>,
+    /// Hears the warnings and the checkpoint's news.
+    pub notice: Option<&'a mut dyn FnMut(Notice)>,
+}
+
+/// Why a run did not complete.
+#[derive(Debug, thiserror::Error)]
+pub enum RunFailure {
+    /// The scene file cannot be read or is invalid, with its settings.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// The destination cannot be made or the frames cannot be put in place.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// The solver cannot be opened.
+    #[error(transparent)]
+    Open(#[from] OpenError),
+    /// The run stopped early, or its checkpoint cannot be used.
+    #[error(transparent)]
+    Run(#[from] RunError),
+    /// The request itself cannot be met (checkpoints on standard output).
+    #[error("{0}")]
+    Request(String),
+}
+
+impl From<CheckpointError> for RunFailure {
+    fn from(e: CheckpointError) -> Self {
+        RunFailure::Run(RunError::Checkpoint(e))
+    }
+}
+
+/// How a run ended, as a class of outcomes; [`ExitClass::status`] is the command line's exit
+/// status for each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExitClass {
+    /// The run completed.
+    Done,
+    /// The output (or a checkpoint) could not be written, or the CPU threads could not start.
+    Output,
+    /// Bad input: the scene, the arguments, a checkpoint of another run, a scene beyond what
+    /// the GPU adapter runs.
+    BadInput,
+    /// The simulation became unstable.
+    Unstable,
+    /// No usable GPU adapter, or the device failed during the run.
+    Device,
+    /// Stopped on request (a signal).
+    Stopped,
+}
+
+impl ExitClass {
+    /// The exit status: 0, 1, 2, 3, 4, and 130 for a stop (128 + SIGINT, as a shell reports a
+    /// process Ctrl-C ended; the CLI reports a SIGTERM's as 143).
+    pub const fn status(self) -> u8 {
+        match self {
+            ExitClass::Done => 0,
+            ExitClass::Output => 1,
+            ExitClass::BadInput => 2,
+            ExitClass::Unstable => 3,
+            ExitClass::Device => 4,
+            ExitClass::Stopped => 130,
+        }
+    }
+}
+
+impl RunFailure {
+    /// The failure and its causes, each said once: "cannot write frames: No space left on
+    /// device (os error 28)".
+    pub fn message(&self) -> String {
+        let mut message = self.to_string();
+        let mut source = std::error::Error::source(self);
+        while let Some(cause) = source {
+            let text = cause.to_string();
+            if !message.contains(&text) {
+                message = format!("{message}: {text}");
+            }
+            source = cause.source();
+        }
+        message
+    }
+
+    /// The class of the failure.
+    pub fn class(&self) -> ExitClass {
+        match self {
+            RunFailure::Scene(_) | RunFailure::Request(_) => ExitClass::BadInput,
+            RunFailure::Output(e) if e.is_bad_input() => ExitClass::BadInput,
+            RunFailure::Output(_) => ExitClass::Output,
+            RunFailure::Open(OpenError::Gpu(g)) if g.no_usable_gpu() => ExitClass::Device,
+            RunFailure::Open(OpenError::Gpu(_)) => ExitClass::BadInput,
+            RunFailure::Open(OpenError::Threads { .. }) => ExitClass::Output,
+            RunFailure::Run(e) => match e {
+                RunError::Unstable(_) => ExitClass::Unstable,
+                RunError::Device(_) => ExitClass::Device,
+                RunError::Stopped { .. } => ExitClass::Stopped,
+                RunError::Checkpoint(c) if c.is_bad_input() => ExitClass::BadInput,
+                e if e.is_bad_input() => ExitClass::BadInput,
+                RunError::Io(_) | RunError::Checkpoint(_) => ExitClass::Output,
+                _ => ExitClass::Output,
+            },
+        }
+    }
+}
+
+/// How a run went.
+#[derive(Debug)]
+pub struct Outcome {
+    /// The summary of a completed run, or why it did not complete.
+    pub result: Result<Summary, RunFailure>,
+    /// The scene that ran (with its settings), once it loaded.
+    pub scene: Option<Scene>,
+    /// Frames written to the destination and the observer.
+    pub frames: u64,
+    /// Whether the frames were put in place at the destination (see the keep rule).
+    pub kept: bool,
+    /// The checkpoint left to go on from (`--resume`), if one was.
+    pub checkpoint: Option<PathBuf>,
+    /// The solver's device, e.g. "CPU, 2 threads" (empty when none opened).
+    pub device: String,
+    /// Wall-clock seconds of the run itself (the solver opened).
+    pub seconds: f64,
+}
+
+impl Outcome {
+    /// The class of the outcome.
+    pub fn class(&self) -> ExitClass {
+        match &self.result {
+            Ok(_) => ExitClass::Done,
+            Err(e) => e.class(),
+        }
+    }
+
+    /// The integrator of the scene that ran (for the advice on an instability).
+    pub fn integrator(&self) -> Option<Integrator> {
+        self.scene.as_ref().map(|s| s.simulation.integrator)
+    }
+
+    fn failed(e: impl Into<RunFailure>, scene: Option<Scene>) -> Outcome {
+        Outcome {
+            result: Err(e.into()),
+            scene,
+            frames: 0,
+            kept: false,
+            checkpoint: None,
+            device: String::new(),
+            seconds: 0.0,
+        }
+    }
+}
+
+/// A scene read and changed by its settings: the scene, and the text that describes it (the
+/// file's own when no setting changed it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Loaded {
+    /// The scene.
+    pub scene: Scene,
+    /// Its text.
+    pub text: String,
+    /// The path messages and the header name.
+    pub path: PathBuf,
+}
+
+/// Reads `source` once and applies `settings` to it.
+pub fn load(source: &SceneSource, settings: &[Setting]) -> Result<Loaded, SceneError> {
+    let (text, path) = match source {
+        SceneSource::File(path) => {
+            let text = std::fs::read_to_string(path).map_err(|cause| SceneError::Io {
+                path: path.clone(),
+                cause,
+            })?;
+            (text, path.clone())
+        }
+        SceneSource::Text { text, origin } => (text.clone(), origin.clone()),
+    };
+    let (scene, text) = crate::overrides::parse_with(&text, &path, settings)?;
+    Ok(Loaded { scene, text, path })
+}
+
+/// Runs `request`: see the module's documentation for what it does and the keep rule.
+pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
+    let Hooks {
+        mut observer,
+        mut progress,
+        stop,
+        mut notice,
+    } = hooks;
+    let mut notice = |n: Notice| {
+        if let Some(hear) = notice.as_deref_mut() {
+            hear(n);
+        }
+    };
+    let loaded = match load(&request.scene, &request.settings) {
+        Ok(loaded) => loaded,
+        Err(e) => return Outcome::failed(e, None),
+    };
+    let scene = Some(loaded.scene.clone());
+    let (format, path) = match &request.destination {
+        Destination::None => (None, None),
+        Destination::File { format, path } => (Some(*format), Some(path.as_path())),
+        Destination::Stdout(format) => (Some(*format), None),
+    };
+    if request.checkpoint.is_some() && path.is_none() {
+        return Outcome::failed(
+            RunFailure::Request(
+                "--checkpoint-every and --resume need an output file (--out), not standard \
+                 output"
+                    .into(),
+            ),
+            scene,
+        );
+    }
+    // Before the solver: a destination that cannot be written is refused first.
+    let mut output = match format.map(|f| Output::create(f, path)).transpose() {
+        Ok(output) => output,
+        Err(e) => return Outcome::failed(e, scene),
+    };
+    let mut solver = match crate::open(&loaded.scene, request.backend, request.threads) {
+        Ok(solver) => solver,
+        Err(e) => return Outcome::failed(e, scene),
+    };
+    let device = solver.device();
+    let failed = |e: RunFailure, scene: Option<Scene>| Outcome {
+        device: device.clone(),
+        ..Outcome::failed(e, scene)
+    };
+    match solver.state() {
+        Ok(state) => {
+            let x = state.x.clone();
+            for w in crate::warnings::inside_terrain(solver.model(), &x) {
+                notice(Notice::Warning(w.to_string()));
+            }
+        }
+        Err(e) => return failed(RunError::from(e).into(), scene),
+    }
+
+    let dir = path.map(Checkpoints::dir_for);
+    let mut checkpoints = None;
+    if let (Some(plan), Some(dir)) = (request.checkpoint, &dir) {
+        let opened = if plan.resume {
+            match Checkpoints::resume(dir, plan.every, solver.as_mut()) {
+                Ok(Some(c)) => {
+                    notice(Notice::Resuming {
+                        after_frame: c.resumed_frames().saturating_sub(1),
+                        dir: dir.clone(),
+                    });
+                    Ok(Some(c))
+                }
+                Ok(None) => {
+                    notice(Notice::NoCheckpoint(dir.clone()));
+                    plan.every
+                        .map(|every| Checkpoints::create(dir, every, solver.as_mut()))
+                        .transpose()
+                }
+                Err(e) => Err(e),
+            }
+        } else {
+            plan.every
+                .map(|every| Checkpoints::create(dir, every, solver.as_mut()))
+                .transpose()
+        };
+        match opened {
+            Ok(c) => checkpoints = c,
+            Err(e) => return failed(e.into(), scene),
+        }
+    }
+
+    let mut tee = Tee {
+        output: output.as_mut().map(Output::sink),
+        observer: observer.as_deref_mut(),
+        frames: 0,
+    };
+    let started = Instant::now();
+    let never = AtomicBool::new(false);
+    let result = crate::run::run_until(
+        solver.as_mut(),
+        Some(SceneFile {
+            path: &loaded.path,
+            text: &loaded.text,
+        }),
+        &mut tee,
+        &mut |done, all| {
+            if let Some(hear) = progress.as_deref_mut() {
+                hear(done, all);
+            }
+        },
+        stop.unwrap_or(&never),
+        checkpoints.as_mut(),
+    );
+    let seconds = started.elapsed().as_secs_f64();
+    let frames = tee.frames;
+    drop(tee);
+
+    let keep = match &result {
+        Ok(_) => true,
+        Err(RunError::Io(_)) => false,
+        Err(e) => !e.is_bad_input() && frames > 0,
+    };
+    let mut result = result.map_err(RunFailure::from);
+    let mut kept = false;
+    if let Some(output) = output {
+        if keep {
+            match output.commit() {
+                Ok(()) => kept = true,
+                Err(e) => result = Err(e.into()),
+            }
+        }
+    }
+    // A checkpoint the run refused (of another run, or of another version) is left alone.
+    let ended = matches!(&result, Ok(_) | Err(RunFailure::Run(RunError::Unstable(_))))
+        || matches!(&result, Err(RunFailure::Run(e)) if e.is_bad_input());
+    let mut checkpoint = None;
+    if let Some(c) = checkpoints {
+        if ended {
+            if let Err(e) = c.remove()
+                && result.is_ok()
+            {
+                result = Err(e.into());
+            }
+        } else {
+            checkpoint = Some(c.dir().to_owned());
+        }
+    }
+    Outcome {
+        result,
+        scene,
+        frames,
+        kept,
+        checkpoint,
+        device,
+        seconds,
+    }
+}
+
+/// The destination's sink and the observer, each given every frame; counts the frames.
+struct Tee<'a, 'b> {
+    output: Option<&'a mut (dyn FrameSink + 'a)>,
+    observer: Option<&'a mut (dyn FrameSink + 'b)>,
+    frames: u64,
+}
+
+impl FrameSink for Tee<'_, '_> {
+    fn header(&mut self, header: &Header) -> std::io::Result<()> {
+        self.take_header(header.clone())
+    }
+
+    fn take_header(&mut self, header: Header) -> std::io::Result<()> {
+        match (&mut self.output, &mut self.observer) {
+            (Some(output), Some(observer)) => {
+                observer.header(&header)?;
+                output.take_header(header)
+            }
+            (Some(output), None) => output.take_header(header),
+            (None, Some(observer)) => observer.take_header(header),
+            (None, None) => Ok(()),
+        }
+    }
+
+    fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()> {
+        if let Some(observer) = &mut self.observer {
+            observer.frame(frame)?;
+        }
+        if let Some(output) = &mut self.output {
+            output.frame(frame)?;
+        }
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// The destination's sink is finished as it is committed, the observer by its owner.
+    fn finish(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+
+    fn wants_springs(&self) -> bool {
+        self.output.as_ref().is_some_and(|s| s.wants_springs())
+            || self.observer.as_ref().is_some_and(|s| s.wants_springs())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The keep rule, one outcome a test: what is at the destination and the checkpoint after.
+    use std::sync::atomic::Ordering;
+
+    use super::*;
+
+    const JELLY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/jelly-on-ground.toml");
+
+    /// Explicit Euler at 400 Hz on a stiff undamped cube: unstable within 2 s, after frames.
+    const UNSTABLE: &str = r#"
+        [simulation]
+        integrator = "explicit-euler"
+        dt = 0.0025
+        duration = 2.0
+        frame_rate = 20.0
+        [[body]]
+        kind = "cuboid"
+        size = [0.3, 0.3, 0.3]
+        resolution = [3, 3, 3]
+        center = [0.0, 1.0, 0.0]
+        mass = 1.0
+        structural = { stiffness = 600.0, damping = 0.0 }
+        shear = { stiffness = 600.0, damping = 0.0 }
+    "#;
+
+    fn request(scene: SceneSource, out: &Path, checkpoint: bool) -> RunRequest {
+        RunRequest {
+            scene,
+            settings: vec!["simulation.duration=0.2".parse().unwrap()],
+            backend: Backend::Cpu,
+            threads: Some(1),
+            destination: Destination::File {
+                format: Format::Jsonl,
+                path: out.to_owned(),
+            },
+            checkpoint: checkpoint.then_some(CheckpointPlan {
+                every: Some(1),
+                resume: false,
+            }),
+        }
+    }
+
+    fn lines(path: &Path) -> usize {
+        std::fs::read_to_string(path).map_or(0, |t| t.lines().count())
+    }
+
+    #[test]
+    fn a_completed_run_is_kept_and_its_checkpoint_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("jelly.jsonl");
+        let outcome = execute(
+            &request(SceneSource::File(JELLY.into()), &out, true),
+            Hooks::default(),
+        );
+        let summary = outcome.result.as_ref().unwrap();
+        assert_eq!(outcome.class(), ExitClass::Done);
+        assert!(outcome.kept);
+        assert_eq!(outcome.frames, summary.frames);
+        assert_eq!(lines(&out) as u64, 1 + summary.frames);
+        assert_eq!(outcome.checkpoint, None);
+        assert!(!Checkpoints::dir_for(&out).exists());
+    }
+
+    #[test]
+    fn an_unstable_run_keeps_the_frames_before_it_and_removes_its_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("unstable.jsonl");
+        let scene = SceneSource::Text {
+            text: UNSTABLE.into(),
+            origin: dir.path().join("unstable.toml"),
+        };
+        let mut request = request(scene, &out, true);
+        request.settings.clear();
+        let outcome = execute(&request, Hooks::default());
+        assert_eq!(outcome.class(), ExitClass::Unstable, "{:?}", outcome.result);
+        assert!(outcome.kept && outcome.frames > 0);
+        assert_eq!(lines(&out) as u64, 1 + outcome.frames);
+        assert!(!Checkpoints::dir_for(&out).exists());
+    }
+
+    #[test]
+    fn a_stopped_run_keeps_its_frames_and_its_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("stopped.jsonl");
+        let stop = AtomicBool::new(false);
+        let outcome = execute(
+            &request(SceneSource::File(JELLY.into()), &out, true),
+            Hooks {
+                progress: Some(&mut |done, _| {
+                    if done > 1000 {
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                }),
+                stop: Some(&stop),
+                ..Hooks::default()
+            },
+        );
+        assert_eq!(outcome.class(), ExitClass::Stopped, "{:?}", outcome.result);
+        assert!(outcome.kept && outcome.frames > 0);
+        assert_eq!(lines(&out) as u64, 1 + outcome.frames);
+        let kept = Checkpoints::dir_for(&out);
+        assert_eq!(outcome.checkpoint.as_deref(), Some(kept.as_path()));
+        assert!(kept.join("frames").exists());
+    }
+
+    /// A sink that fails at its third frame, as a full disk would.
+    struct FailsAtThirdFrame(u64);
+
+    impl FrameSink for FailsAtThirdFrame {
+        fn header(&mut self, _: &Header) -> std::io::Result<()> {
+            Ok(())
+        }
+        fn frame(&mut self, _: &Frame<'_>) -> std::io::Result<()> {
+            self.0 += 1;
+            if self.0 == 3 {
+                return Err(std::io::Error::other("the disk is full"));
+            }
+            Ok(())
+        }
+        fn finish(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_run_whose_frames_cannot_be_written_leaves_the_destination_and_keeps_its_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("full.jsonl");
+        std::fs::write(&out, "the previous run\n").unwrap();
+        let mut failing = FailsAtThirdFrame(0);
+        let outcome = execute(
+            &request(SceneSource::File(JELLY.into()), &out, true),
+            Hooks {
+                observer: Some(&mut failing),
+                ..Hooks::default()
+            },
+        );
+        assert_eq!(outcome.class(), ExitClass::Output, "{:?}", outcome.result);
+        assert!(!outcome.kept);
+        let message = outcome.result.as_ref().unwrap_err().message();
+        assert!(
+            message.ends_with("cannot write frames: the disk is full"),
+            "{message}"
+        );
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "the previous run\n");
+        assert!(outcome.checkpoint.is_some_and(|c| c.exists()));
+    }
+
+    #[test]
+    fn a_refused_scene_writes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("refused.jsonl");
+        // Refused by its settings before anything opens, and by its energy before a frame.
+        for setting in ["body[0].mass=-1", "body[0].velocity=[1e200, 0.0, 0.0]"] {
+            let mut request = request(SceneSource::File(JELLY.into()), &out, true);
+            request.settings.push(setting.parse().unwrap());
+            let outcome = execute(&request, Hooks::default());
+            assert_eq!(
+                outcome.class(),
+                ExitClass::BadInput,
+                "{setting}: {:?}",
+                outcome.result
+            );
+            assert!(!outcome.kept && outcome.frames == 0 && outcome.checkpoint.is_none());
+            assert!(!out.exists(), "{setting}");
+            assert!(!Checkpoints::dir_for(&out).exists(), "{setting}");
+        }
+    }
+
+    #[test]
+    fn checkpoints_need_a_file() {
+        let mut request = request(SceneSource::File(JELLY.into()), Path::new("x"), true);
+        request.destination = Destination::Stdout(Format::Jsonl);
+        let outcome = execute(&request, Hooks::default());
+        assert_eq!(outcome.class(), ExitClass::BadInput);
+    }
+
+    /// The header records the scene that ran: the file's text with the settings written in.
+    #[test]
+    fn the_header_holds_the_text_of_the_scene_that_ran() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("jelly.jsonl");
+        let request = request(SceneSource::File(JELLY.into()), &out, false);
+        assert!(execute(&request, Hooks::default()).result.is_ok());
+        let header: serde_json::Value = serde_json::from_str(
+            std::fs::read_to_string(&out)
+                .unwrap()
+                .lines()
+                .next()
+                .unwrap(),
+        )
+        .unwrap();
+        let text = header["scene_text"].as_str().unwrap();
+        let loaded = load(&request.scene, &request.settings).unwrap();
+        assert_eq!(text, loaded.text);
+        assert_eq!(loaded.scene.simulation.duration, 0.2);
+        let again = Scene::from_toml(text, Path::new(JELLY)).unwrap();
+        assert_eq!(again, loaded.scene);
+    }
+}
