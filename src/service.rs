@@ -529,23 +529,6 @@ mod tests {
 
     const JELLY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/jelly-on-ground.toml");
 
-    /// Explicit Euler at 400 Hz on a stiff undamped cube: unstable within 2 s, after frames.
-    const UNSTABLE: &str = r#"
-        [simulation]
-        integrator = "explicit-euler"
-        dt = 0.0025
-        duration = 2.0
-        frame_rate = 20.0
-        [[body]]
-        kind = "cuboid"
-        size = [0.3, 0.3, 0.3]
-        resolution = [3, 3, 3]
-        center = [0.0, 1.0, 0.0]
-        mass = 1.0
-        structural = { stiffness = 600.0, damping = 0.0 }
-        shear = { stiffness = 600.0, damping = 0.0 }
-    "#;
-
     fn request(scene: SceneSource, out: &Path, checkpoint: bool) -> RunRequest {
         RunRequest {
             scene,
@@ -589,7 +572,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("unstable.jsonl");
         let scene = SceneSource::Text {
-            text: UNSTABLE.into(),
+            text: crate::run::tests::UNSTABLE_CUBE.into(),
             origin: dir.path().join("unstable.toml"),
         };
         let mut request = request(scene, &out, true);
