@@ -1,8 +1,10 @@
 //! `softbody`: mass-spring soft bodies, simulated on the CPU (f64, rayon) or a GPU (wgpu).
 //!
 //! The crate ties the pieces together for programs that embed it and for the `softbody` CLI:
-//! load a [`Scene`] (replacing some of its settings with [`Overrides`]), open a [`Solver`] on a
-//! [`Backend`], and [`run`](run::run) it frame by frame into a [`FrameSink`](output::FrameSink)
+//! run a scene file to kept frames with the [`service`] (what the CLI, sweeps and Python call),
+//! or load a [`Scene`] (changing its values with [`Setting`]s and [`Overrides`]), open a
+//! [`Solver`] on a [`Backend`], and [`run`](run::run) it frame by frame into a
+//! [`FrameSink`](output::FrameSink)
 //! (JSON Lines, CSV, NPZ, or VTK/PLY/OBJ series; JSON Lines read back by
 //! [`output::jsonl::Reader`]), or measure the integrators against a converged reference with a
 //! [`compare::Study`]. Any value of a scene file can be changed by its key path with a
@@ -68,14 +70,14 @@ pub use softbody_terrain as terrain;
 /// The TOML crate of [`Setting`] values, so that an embedder uses the same version.
 pub use toml;
 
-// Every Rust snippet of the README and of docs/scene-format.md compiles as a doc-test (and
-// runs, unless it says `no_run`); docs/physics.md holds equations, no code.
+// Every Rust snippet of the README and of the guide's embedding page compiles as a doc-test (and runs,
+// unless it says `no_run`); docs/physics.md holds equations, no code.
 #[cfg(doctest)]
 #[doc = include_str!("../README.md")]
 struct Readme;
 #[cfg(doctest)]
-#[doc = include_str!("../docs/scene-format.md")]
-struct SceneFormat;
+#[doc = include_str!("../docs/guide/embedding.md")]
+struct Embedding;
 
 /// Which solver runs a scene.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -31,7 +31,7 @@ use softbody_scene::{Diagnostic, Integrator, Invalid, KeyPath, Scene, SceneError
 /// let slow = Overrides { dt: Some(1.0), ..Overrides::default() };
 /// let e = softbody::load_scene(path, &slow.to_settings()).unwrap_err();
 /// assert!(e.to_string().contains("simulation.frame_rate"));
-/// assert!(e.to_string().ends_with("(with --dt 1)"), "{e}");
+/// assert!(e.to_string().contains("(at most 1) (with --dt 1)"), "{e}");
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

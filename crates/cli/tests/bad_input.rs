@@ -691,7 +691,7 @@ fn overflowing_energies_are_refused_or_stop_the_run_never_written_as_null() {
     assert!(!parse_jsonl(&text).frames.is_empty(), "frame 0 is kept");
 }
 
-/// A scene without a body is refused (docs/scene-format.md), by `check` and `run` alike.
+/// A scene without a body is refused (docs/guide/scene-format.md), by `check` and `run` alike.
 #[test]
 fn a_scene_without_a_body_is_refused() {
     let sb = Sandbox::new();

@@ -7,7 +7,7 @@
 
 #![allow(
     missing_docs,
-    reason = "the fields are the TOML keys, documented in docs/scene-format.md"
+    reason = "the fields are the TOML keys, documented in docs/guide/scene-format.md"
 )]
 
 use serde::Deserialize;

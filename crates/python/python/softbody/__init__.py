@@ -155,7 +155,7 @@ def sweep(
     batch: Optional[int] = None,
     progress: bool = True,
 ) -> List[Dict[str, Any]]:
-    """Runs a parameter sweep (a sweep file, or a dict laid out as one: docs/sweeps.md) into
+    """Runs a parameter sweep (a sweep file, or a dict laid out as one: docs/guide/python-and-sweeps.md) into
     `out` (default ``out/<sweep file stem>``) and returns the manifest's records, in run order:
     ``{"run", "parameters", "status", "exit_status", "error"?, "metrics", "file", "seconds"}``.
 

@@ -15,7 +15,7 @@ import softbody
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m softbody")
     commands = parser.add_subparsers(dest="command", required=True)
-    p = commands.add_parser("sweep", help="run a parameter sweep (docs/sweeps.md)")
+    p = commands.add_parser("sweep", help="run a parameter sweep (docs/guide/python-and-sweeps.md)")
     p.add_argument("sweep")
     p.add_argument("--out")
     p.add_argument("--ray", metavar="ADDRESS", help="run on the Ray cluster at ADDRESS ('auto', 'local', HOST:6379)")
