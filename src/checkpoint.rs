@@ -178,15 +178,26 @@ impl Checkpoints {
         }
         let record = record_bytes(solver.model().len());
         let frames_path = dir.join("frames");
-        let mut journal = io_context(
-            OpenOptions::new().read(true).write(true).open(&frames_path),
-            || format!("cannot open {}", frames_path.display()),
-        )?;
+        // A checkpoint without its journal is damaged, not a failing disk.
+        let mut journal = match OpenOptions::new().read(true).write(true).open(&frames_path) {
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {
+                return Err(CheckpointError::Corrupt(
+                    frames_path,
+                    "the journal of its frames is missing".into(),
+                ));
+            }
+            opened => io_context(opened, || format!("cannot open {}", frames_path.display()))?,
+        };
         let len = io_context(journal.metadata(), || {
             format!("cannot read {}", frames_path.display())
         })?
         .len();
-        if len < saved.frames * record {
+        // A damaged count must not wrap the product into a length the journal has.
+        if saved
+            .frames
+            .checked_mul(record)
+            .is_none_or(|bytes| len < bytes)
+        {
             return Err(CheckpointError::Corrupt(
                 frames_path,
                 format!(
@@ -422,4 +433,68 @@ fn fingerprint(solver: &mut dyn Solver) -> Result<u64, StepError> {
     let _ = write!(hash, "{backend} {:?}", solver.model());
     let _ = write!(hash, "{:?}", solver.state()?);
     Ok(hash.0.finish())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Backend;
+
+    /// A frame count damaged so that frames × record wraps around u64 is refused as corrupt,
+    /// and the journal is left as it was (not cut to the wrapped length).
+    #[test]
+    fn a_damaged_frame_count_is_refused_without_touching_the_journal() {
+        let scene = softbody_scene::Scene::from_file(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenes/jelly-on-ground.toml"
+        ))
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let at = dir.path().join("f.jsonl.checkpoint");
+        let mut solver = crate::open(&scene, Backend::Cpu, Some(1)).unwrap();
+        Checkpoints::create(&at, 1, solver.as_mut()).unwrap();
+        let journal = at.join("frames");
+        let record = record_bytes(solver.model().len());
+        // The smallest count whose product with the record wraps, and a journal that long:
+        // the unchecked size check passed it and cut the journal to that length.
+        let wrapping = u64::MAX / record + 1;
+        let wrapped = wrapping.wrapping_mul(record) as usize;
+        std::fs::write(&journal, vec![0u8; wrapped + 4096]).unwrap();
+        let mut saved = std::fs::read(at.join(FILE)).unwrap();
+        let count = MAGIC.len() + 16;
+        saved[count..count + 8].copy_from_slice(&wrapping.to_le_bytes());
+        std::fs::write(at.join(FILE), &saved).unwrap();
+        let refused = Checkpoints::resume(&at, None, solver.as_mut());
+        let Err(CheckpointError::Corrupt(path, why)) = refused else {
+            panic!(
+                "accepted: {:?}",
+                refused.map(|c| c.map(|c| c.resumed_frames()))
+            );
+        };
+        assert_eq!(path, journal);
+        assert!(why.contains("fewer than the"), "{why}");
+        let len = std::fs::metadata(&journal).unwrap().len();
+        assert_eq!(len, wrapped as u64 + 4096);
+    }
+
+    /// A checkpoint whose journal is gone is refused as damaged (bad input, exit status 2),
+    /// not as a failure to read a file (1).
+    #[test]
+    fn a_missing_journal_is_a_damaged_checkpoint() {
+        let scene = softbody_scene::Scene::from_file(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenes/jelly-on-ground.toml"
+        ))
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let at = dir.path().join("f.jsonl.checkpoint");
+        let mut solver = crate::open(&scene, Backend::Cpu, Some(1)).unwrap();
+        Checkpoints::create(&at, 1, solver.as_mut()).unwrap();
+        std::fs::remove_file(at.join("frames")).unwrap();
+        let e = Checkpoints::resume(&at, None, solver.as_mut())
+            .map(|c| c.map(|c| c.resumed_frames()))
+            .unwrap_err();
+        assert!(e.is_bad_input(), "{e}");
+        assert!(e.to_string().contains("missing"), "{e}");
+    }
 }
