@@ -214,7 +214,7 @@ pub fn bench(args: BenchArgs) -> Result<(), Failure> {
     }
     if !args.quiet {
         let sizes = args.sizes.len();
-        eprintln!(
+        say!(
             "{sizes} size{} timed in {:.1} s (setup and warm-up included)",
             if sizes == 1 { "" } else { "s" },
             started.elapsed().as_secs_f64()

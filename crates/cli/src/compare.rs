@@ -128,7 +128,7 @@ pub fn compare(args: CompareArgs) -> Result<(), Failure> {
             .iter()
             .filter(|r| r.instability.is_some())
             .count();
-        eprintln!(
+        say!(
             "{} runs ({unstable} unstable) and the reference in {:.1} s{}",
             report.runs.len(),
             started.elapsed().as_secs_f64(),

@@ -8,6 +8,15 @@
 //! frames before it are written); 130 / 143 `run` stopped by SIGINT (Ctrl-C) / SIGTERM (the
 //! frames before it are written; a second signal ends the process at once).
 
+/// `eprintln!` that does not panic when standard error is gone (a closed pipe, a closed
+/// descriptor): the message is lost, the exit status is kept.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
 mod args;
 mod bench;
 mod check;
@@ -117,7 +126,7 @@ fn main() -> ExitCode {
         // filter.
         Err(f) if is_broken_pipe(&f.error) => ExitCode::SUCCESS,
         Err(f) => {
-            eprintln!("error: {:#}", f.error);
+            say!("error: {:#}", f.error);
             ExitCode::from(f.status)
         }
     }

@@ -393,7 +393,7 @@ impl<'m> Drawer<'m> {
         let labels = pictures.commit()?;
         let seconds = started.elapsed().as_secs_f64();
         if !args.quiet {
-            eprintln!(
+            say!(
                 "{drawn} frames of {}×{} {done} in {seconds:.2} s ({:.1} ms per frame): {labels}",
                 options.width,
                 options.height,

@@ -102,11 +102,11 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             // progress. The step's estimate is left to `check`: a run that becomes unstable
             // says so itself, with the step.
             notice: Some(&mut |notice| match notice {
-                Notice::Warning(w) => eprintln!("warning: {w}"),
+                Notice::Warning(w) => say!("warning: {w}"),
                 Notice::Resuming { after_frame, dir } if !quiet => {
-                    eprintln!("resuming after frame {after_frame} from {}", dir.display())
+                    say!("resuming after frame {after_frame} from {}", dir.display())
                 }
-                Notice::NoCheckpoint(dir) if !quiet => eprintln!(
+                Notice::NoCheckpoint(dir) if !quiet => say!(
                     "no checkpoint in {}: starting from the beginning",
                     dir.display()
                 ),
@@ -127,7 +127,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         Ok(summary) => {
             if !args.quiet {
                 let seconds = outcome.seconds;
-                eprintln!(
+                say!(
                     "{} frames, {} steps of {} on {} in {seconds:.2} s ({} steps/s): {where_}",
                     summary.frames,
                     summary.steps,

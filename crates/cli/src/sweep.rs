@@ -73,7 +73,7 @@ pub fn sweep(args: SweepArgs) -> Result<(), Failure> {
             Some((i, _)) => out.join(format!("manifest-task-{i}.jsonl")),
             None => out.join(softbody::sweep::MANIFEST),
         };
-        eprintln!(
+        say!(
             "{} runs ({} finished before): {} ok, {} unstable, {} invalid, {} failed in \
              {seconds:.2} s ({:.2} runs/s): {}",
             outcome.planned,

@@ -843,3 +843,19 @@ fn a_vtk_frame_fits_where_its_header_does() {
         &vtu[..vtu.len().min(600)]
     );
 }
+
+/// Standard error closed before the message (`softbody … 2>&1 | head -0` gone): the refusal's
+/// exit status stays 2, not a panic's 101.
+#[test]
+fn a_closed_standard_error_keeps_the_exit_status() {
+    let sb = Sandbox::new();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_softbody"))
+        .args(["run", "missing.toml"])
+        .current_dir(sb.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("softbody starts");
+    drop(child.stderr.take());
+    let status = child.wait().expect("softbody ends");
+    assert_eq!(status.code(), Some(2), "{status}");
+}
