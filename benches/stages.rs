@@ -113,7 +113,7 @@ fn steps(c: &mut Criterion) {
 fn cg_solve(c: &mut Criterion) {
     let mut group = c.benchmark_group("cg");
     group.sample_size(10);
-    // The implicit case: 22³, k_s = 1e4, dt = 1/60 s, no contact; from a zero start.
+    // The stiff implicit case: 22³, k_s = 1e4, dt = 1/60 s, no contact; from a zero start.
     let n = 22u32;
     let (model, state) = Model::build(&cube(n, 1e4, Integrator::ImplicitEuler, 1.0 / 60.0));
     let mut system = System::new(&model);
@@ -161,7 +161,7 @@ fn cg_solve(c: &mut Criterion) {
     group.finish();
 }
 
-/// Implicit Euler's parts on the stiff cube (k_s = 1e4, dt = 1/60 s) a few steps into
+/// Implicit Euler's parts on the stiff cube (k_s = 1e4, dt = 1/60 s) a few steps into
 /// its fall, 22³ and 46³: the assembly of the step's system, one product A p, the multigrid's
 /// values (`prepare`, every entry, as at a step's first solve) and one multigrid application.
 fn implicit_parts(c: &mut Criterion) {

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # What bounds a hot loop on a given core: llvm-mca's scheduling model run on the loop that the
 # release binary actually contains (not on a recompiled copy), cycles per iteration and the
-# pressure on each execution port. BENCHMARKS.md ("What binds the AVX2 springs' loop") used it
-# to find that the stencil's AVX2 loop is bound by the two multiply pipes on Zen 3.
+# pressure on each execution port. It found that the stencil's AVX2 loop is bound by the two
+# multiply pipes on Zen 3 (docs/lab/explicit-stencil.md).
 #
 #   cargo build --release
 #   scripts/loop-mca.sh                                  # the AVX2 stencil's springs, this CPU

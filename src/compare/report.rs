@@ -9,7 +9,7 @@ use super::Report;
 const NOT_COMPARABLE: &str = "unstable";
 
 impl Report {
-    /// The report as one JSON object (keys in the README, "Comparing integrators").
+    /// The report as one JSON object (keys in docs/guide/cli.md, "softbody compare").
     pub fn to_json(&self, scene: &str) -> Value {
         json!({
             "scene": scene,

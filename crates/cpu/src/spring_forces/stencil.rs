@@ -1065,8 +1065,8 @@ mod avx {
     /// addressing many arrays with a counted index is otherwise rewritten by LLVM's loop
     /// strength reduction into a pointer per array, each incremented every iteration: the
     /// springs' loop has more streams than there are registers, and in the loop over a row's
-    /// spans they were spilled, which made the 46³ cube's step 1.3× slower (2026-11-30,
-    /// BENCHMARKS.md).
+    /// spans they were spilled, which made the 46³ cube's step 1.3× slower
+    /// (docs/lab/explicit-stencil.md).
     #[inline(always)]
     fn opaque(mut i: usize) -> usize {
         // SAFETY: the block is empty: it reads and writes nothing but `i`'s register.

@@ -84,7 +84,7 @@ pub const CORRECTION: f64 = 1.5;
 /// run on the calling thread. With the residual's rows in AVX2 the first coarse level is
 /// bound by streaming its blocks (2.6 MB at 22³), and split between two cores each half stays
 /// in its core's L2: a multigrid application 7% faster at 22³ and 18% at 46³ than with 4,096
-/// (the 22³ cube's 1,331 rows on one thread), on the 2-core Xeon of 2026-11-28. 256 was no
+/// (the 22³ cube's 1,331 rows on one thread), on a 2-core Xeon. 256 was no
 /// faster than 512.
 const ROW_CHUNK: usize = 512;
 
