@@ -267,7 +267,9 @@ impl Voxels {
             );
         }
         let need = (points as u64).saturating_mul(BYTES_PER_LATTICE_POINT);
-        if let Some((have, what)) = model::available_memory().filter(|&(have, _)| need > have) {
+        if let Some((have, what)) =
+            crate::memory::available_memory().filter(|&(have, _)| need > have)
+        {
             return fail(
                 VoxelKey::Size,
                 format!(
