@@ -123,19 +123,21 @@ fn cg_solve(c: &mut Criterion) {
     let z = vec![DVec3::ZERO; model.len()];
     let mut scratch = Scratch::new(model.len());
     let mut dv = vec![DVec3::ZERO; model.len()];
-    let outcome = cg::solve(
-        &mut system,
-        &model,
-        &constraints,
-        &b,
-        &z,
-        &mut dv,
-        &[],
-        &mut scratch,
-        cg::Preconditioner::BlockJacobi,
-        1e-8,
-        2000,
-    );
+    let mut solve = |dv: &mut [DVec3], scratch: &mut Scratch| {
+        cg::CgProblem {
+            system: &mut system,
+            model: &model,
+            constraints: &constraints,
+            b: &b,
+            z: &z,
+            earlier: &[],
+            preconditioner: cg::Preconditioner::BlockJacobi,
+            tolerance: 1e-8,
+            max_iterations: 2000,
+        }
+        .solve(dv, scratch)
+    };
+    let outcome = solve(&mut dv, &mut scratch);
     eprintln!(
         "  cg {n}^3: {} iterations from a zero start, relative residual {:.1e}",
         outcome.iterations, outcome.relative_residual
@@ -143,19 +145,7 @@ fn cg_solve(c: &mut Criterion) {
     group.bench_function(BenchmarkId::new("solve", format!("{n}^3")), |bench| {
         bench.iter(|| {
             dv.fill(DVec3::ZERO);
-            cg::solve(
-                &mut system,
-                &model,
-                &constraints,
-                &b,
-                &z,
-                &mut dv,
-                &[],
-                &mut scratch,
-                cg::Preconditioner::BlockJacobi,
-                1e-8,
-                2000,
-            )
+            solve(&mut dv, &mut scratch)
         })
     });
     group.finish();

@@ -77,11 +77,11 @@ impl RunError {
 pub const HEADER_BYTES_PER_SPRING: u64 = 40;
 
 /// Refuses a header whose spring arrays would not fit in the memory left
-/// ([`softbody_scene::model::available_memory`]), before they are allocated.
+/// ([`softbody_scene::memory::available_memory`]), before they are allocated.
 fn header_fits(model: &Model) -> Result<(), RunError> {
     let springs = model.spring_count() as u64;
     let need = springs * HEADER_BYTES_PER_SPRING;
-    match softbody_scene::model::available_memory() {
+    match softbody_scene::memory::available_memory() {
         Some((have, what)) if need > have => Err(RunError::TooLarge(format!(
             "the output takes every spring's ends, rest length and coefficients ({springs} springs, {:.2} GiB) and {:.2} GiB are {what}; JSON Lines and CSV do without them",
             need as f64 / (1u64 << 30) as f64,

@@ -83,22 +83,21 @@ fn solve_once(
     let mut dv = vec![DVec3::ZERO; n];
     let mut scratch = Scratch::new(n);
     let started = Instant::now();
-    let outcome = cg::solve(
-        &mut system,
+    let outcome = cg::CgProblem {
+        system: &mut system,
         model,
-        &constraints,
-        &b,
-        &z,
-        &mut dv,
-        &[],
-        &mut scratch,
-        match multigrid {
+        constraints: &constraints,
+        b: &b,
+        z: &z,
+        earlier: &[],
+        preconditioner: match multigrid {
             Some(mg) => Preconditioner::Multigrid(mg),
             None => Preconditioner::BlockJacobi,
         },
-        CG_TOLERANCE,
-        CG_MAX_ITERATIONS,
-    );
+        tolerance: CG_TOLERANCE,
+        max_iterations: CG_MAX_ITERATIONS,
+    }
+    .solve(&mut dv, &mut scratch);
     (dv, outcome, started.elapsed().as_secs_f64())
 }
 

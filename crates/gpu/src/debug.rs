@@ -269,8 +269,8 @@ impl GpuSolver {
 
     /// One CG solve of implicit Euler's system at the current state with the given
     /// constraints, right-hand side, prescribed Δv and warm start (the twin of
-    /// `softbody_cpu::integrators::implicit_euler::cg::solve`): returns Δv and the scalars it
-    /// ended with.
+    /// `softbody_cpu::integrators::implicit_euler::cg::CgProblem::solve`): returns Δv and the
+    /// scalars it ended with.
     pub fn debug_implicit_solve(
         &mut self,
         constraints: &[Constraint],

@@ -1,6 +1,7 @@
 //! The GPU against its CPU twin: each stage on the same input, each explicit integrator's run
 //! against the CPU's, the instability record, implicit Euler (its system and CG solve against
-//! the CPU's `System` and `cg::solve`, its runs against the CPU's), 2-D grids, a lost device.
+//! the CPU's `System` and `CgProblem::solve`, its runs against the CPU's), 2-D grids, a lost
+//! device.
 //! (What both backends must satisfy on their own — closed forms, contact laws, determinism, the
 //! stiff cube, the scenes — is tested once for both in the top-level `tests/`.)
 //!
@@ -990,8 +991,8 @@ fn true_residual(
     (delta / scale).sqrt()
 }
 
-/// One filtered PCG solve on the GPU against the CPU's `cg::solve` on the same system (the
-/// cube of `implicit_system_twin`, h = 10 ms): about a third of the particles free, a third
+/// One filtered PCG solve on the GPU against the CPU's `CgProblem::solve` on the same system
+/// (the cube of `implicit_system_twin`, h = 10 ms): about a third of the particles free, a third
 /// with a normal constraint (random unit normal, prescribed normal Δv) and a third fixed
 /// (prescribed Δv), a warm start in the free directions. Checks: the prescribed components are
 /// exact; the GPU's recursive residual is below CG_TOLERANCE_F32 (it stops there); the true
@@ -1056,19 +1057,18 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         sys.assemble(&model, None, &state.x, &state.v, &mut bb);
         let mut dv = warm.clone();
         let mut scratch = Scratch::new(n);
-        let out = cg::solve(
-            &mut sys,
-            &model,
-            &constraints,
-            &b,
-            &z,
-            &mut dv,
-            &[],
-            &mut scratch,
-            cg::Preconditioner::BlockJacobi,
-            tol,
-            CG_MAX_ITERATIONS,
-        );
+        let out = cg::CgProblem {
+            system: &mut sys,
+            model: &model,
+            constraints: &constraints,
+            b: &b,
+            z: &z,
+            earlier: &[],
+            preconditioner: cg::Preconditioner::BlockJacobi,
+            tolerance: tol,
+            max_iterations: CG_MAX_ITERATIONS,
+        }
+        .solve(&mut dv, &mut scratch);
         (dv, out)
     };
     let (cdv, cpu_out) = solve(CG_TOLERANCE);

@@ -24,6 +24,7 @@
 pub mod error;
 pub mod format;
 pub mod implicit;
+pub mod memory;
 pub mod mesh;
 pub mod model;
 pub mod scene;

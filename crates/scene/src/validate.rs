@@ -213,7 +213,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         ));
     }
     let need = model::estimated_scene_bytes(scene);
-    if let Some((have, what)) = model::available_memory().filter(|&(have, _)| need > have) {
+    if let Some((have, what)) = crate::memory::available_memory().filter(|&(have, _)| need > have) {
         return Err(Invalid::new(
             blame(),
             format!(

@@ -347,22 +347,21 @@ impl ImplicitEuler {
             let earlier: [&[DVec3]; cg::WARM_START_BASIS - 1] =
                 std::array::from_fn(|j| self.earlier[j].as_slice());
             let outcome = timings.time("cg", || {
-                cg::solve(
-                    &mut self.system,
+                cg::CgProblem {
+                    system: &mut self.system,
                     model,
-                    &self.constraints,
-                    &self.rhs,
-                    &self.z,
-                    &mut self.dv,
-                    &earlier,
-                    &mut self.scratch,
-                    match self.multigrid.as_mut() {
+                    constraints: &self.constraints,
+                    b: &self.rhs,
+                    z: &self.z,
+                    earlier: &earlier,
+                    preconditioner: match self.multigrid.as_mut() {
                         Some(mg) => cg::Preconditioner::Multigrid(mg),
                         None => cg::Preconditioner::BlockJacobi,
                     },
-                    CG_TOLERANCE,
-                    CG_MAX_ITERATIONS,
-                )
+                    tolerance: CG_TOLERANCE,
+                    max_iterations: CG_MAX_ITERATIONS,
+                }
+                .solve(&mut self.dv, &mut self.scratch)
             });
             let st = &mut self.statistics;
             st.cg_iterations += outcome.iterations as u64;

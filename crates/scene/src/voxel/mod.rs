@@ -27,12 +27,13 @@
 //! The lattice's particles are the corners of the present cells, numbered in lattice order
 //! (x fastest, then y, then z) as a cuboid's; springs: `topology::for_each_lattice_spring`.
 
+mod build;
+
 use glam::DVec3;
 
+use crate::SpringCounts;
 use crate::scene::TriangleMesh;
-use crate::topology::{self, SpringKind};
-use crate::winding::{WindingTree, solid_angle};
-use crate::{SpringCounts, model};
+use crate::winding::solid_angle;
 
 /// The share of undecided cells (¼ < |w| < ¾) above which an open mesh is refused.
 pub const UNDECIDED_SHARE: f64 = 0.1;
@@ -71,11 +72,6 @@ pub struct VoxelError {
     /// What is wrong.
     pub message: String,
 }
-
-fn fail<T>(key: VoxelKey, message: String) -> Result<T, VoxelError> {
-    Err(VoxelError { key, message })
-}
-
 /// A mesh voxelised into a lattice: immutable once made ([`Voxels::new`]), so the lattice always
 /// belongs to the mesh, scale and size it holds.
 #[derive(Debug, Clone, PartialEq)]
@@ -205,317 +201,7 @@ pub fn check_mesh(mesh: &TriangleMesh) -> Result<(), String> {
     }
     Ok(())
 }
-
-/// Cells along an extent of `extent` at spacing `h`: `ceil(extent / h)`, at least 1, where a
-/// quotient within 10⁻⁹ of a whole number counts as that number (a box 0.3 m long at h = 0.06 m
-/// is 5 cells, not 6 because 0.3/0.06 = 5.000000000000001).
-fn cells_along(extent: f64, h: f64) -> f64 {
-    let x = extent / h;
-    let r = x.round();
-    let n = if (x - r).abs() <= 1e-9 * r.max(1.0) {
-        r
-    } else {
-        x.ceil()
-    };
-    n.max(1.0)
-}
-
 impl Voxels {
-    /// Voxelises `mesh` (file coordinates) scaled by `scale` (each component positive) at
-    /// `size`. Refuses, before allocating the lattice, one whose flags would not fit in memory.
-    pub fn new(mesh: TriangleMesh, scale: DVec3, size: LatticeSize) -> Result<Voxels, VoxelError> {
-        check_mesh(&mesh).map_err(|m| VoxelError {
-            key: VoxelKey::File,
-            message: m,
-        })?;
-        let scaled: Vec<DVec3> = mesh.vertices.iter().map(|&v| v * scale).collect();
-        // Every vertex, used by a triangle or not, lies in the lattice (each is embedded).
-        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-        for &v in &scaled {
-            lo = lo.min(v);
-            hi = hi.max(v);
-        }
-        let offset = 0.5 * (lo + hi);
-        let extent = hi - lo;
-        if !extent.is_finite() || extent.max_element() <= 0.0 {
-            return fail(
-                VoxelKey::File,
-                format!(
-                    "{}: the triangles have no extent (every vertex at one point)",
-                    mesh.path.display()
-                ),
-            );
-        }
-        let h = match size {
-            LatticeSize::Cell(h) => h,
-            LatticeSize::Resolution(r) => extent.max_element() / f64::from(r.max(1)),
-        };
-        let n = [0, 1, 2].map(|a| cells_along(extent[a], h));
-        let points = (n[0] + 1.0) * (n[1] + 1.0) * (n[2] + 1.0);
-        let limit = model::MAX_PARTICLES as f64;
-        if !(h > 0.0 && points <= limit) {
-            return fail(
-                VoxelKey::Size,
-                format!(
-                    "a lattice of {} × {} × {} cells ({points:.3e} points) is more than the {} \
-                     particles supported",
-                    n[0],
-                    n[1],
-                    n[2],
-                    model::MAX_PARTICLES
-                ),
-            );
-        }
-        let need = (points as u64).saturating_mul(BYTES_PER_LATTICE_POINT);
-        if let Some((have, what)) = model::available_memory().filter(|&(have, _)| need > have) {
-            return fail(
-                VoxelKey::Size,
-                format!(
-                    "voxelising a lattice of {} × {} × {} cells needs about {:.1} GiB and {:.1} \
-                     GiB are {what}",
-                    n[0],
-                    n[1],
-                    n[2],
-                    need as f64 / (1u64 << 30) as f64,
-                    have as f64 / (1u64 << 30) as f64
-                ),
-            );
-        }
-        let cells = n.map(|x| x as u32);
-        let [nx, ny, nz] = cells.map(|c| c as usize);
-        let origin = -0.5 * h * DVec3::new(n[0], n[1], n[2]);
-        let cell_index = |i: usize, j: usize, k: usize| i + nx * (j + ny * k);
-        // Local vertices in lattice units: cell (i, j, k) is [i, i + 1] × [j, j + 1] × [k, k + 1].
-        let unit: Vec<DVec3> = scaled.iter().map(|&v| (v - offset - origin) / h).collect();
-
-        // Cells a triangle crosses (meets the open cell: tested against the cell shrunk by
-        // 1e-9 h) and cells it touches (meets the closed cell, grown by 1e-9 h). A triangle
-        // lying in a lattice plane touches the cells on both sides and crosses neither: the
-        // centre test decides which side is kept.
-        let mut crossed = vec![false; nx * ny * nz];
-        let mut touched = vec![false; nx * ny * nz];
-        let (shrunk, grown) = (DVec3::splat(0.5 - 1e-9), DVec3::splat(0.5 + 1e-9));
-        let top = DVec3::new(n[0] - 1.0, n[1] - 1.0, n[2] - 1.0);
-        for t in &mesh.triangles {
-            let c = t.map(|i| unit[i as usize]);
-            let lo = (c[0].min(c[1]).min(c[2]) - 1e-9)
-                .floor()
-                .clamp(DVec3::ZERO, top);
-            let hi = (c[0].max(c[1]).max(c[2]) + 1e-9)
-                .floor()
-                .clamp(DVec3::ZERO, top);
-            for k in lo.z as usize..=hi.z as usize {
-                for j in lo.y as usize..=hi.y as usize {
-                    for i in lo.x as usize..=hi.x as usize {
-                        let at = cell_index(i, j, k);
-                        if crossed[at] {
-                            continue;
-                        }
-                        let centre = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
-                        if !touched[at] {
-                            touched[at] = triangle_meets_box(c, centre, grown);
-                        }
-                        if touched[at] {
-                            crossed[at] = triangle_meets_box(c, centre, shrunk);
-                        }
-                    }
-                }
-            }
-        }
-
-        let local: Vec<DVec3> = scaled.iter().map(|&v| v - offset).collect();
-        let centre_of = |at: usize| {
-            let (i, j, k) = (at % nx, at / nx % ny, at / (nx * ny));
-            origin + h * (DVec3::new(i as f64, j as f64, k as f64) + 0.5)
-        };
-        let winding = |at: usize| winding_number(&local, &mesh.triangles, centre_of(at));
-        let closed = is_closed(&mesh);
-        // Translation leaves a closed mesh's volume as it is; an inside-out one is negative.
-        let enclosed = closed.then(|| enclosed_volume(&local, &mesh.triangles).abs());
-        // |w| at the centre of every cell no triangle crosses.
-        let mut w = vec![0.0f64; nx * ny * nz];
-        if closed {
-            // Touched cells one by one (their centres are off the surface: w is an integer);
-            // the rest once per 6-connected component of untouched cells.
-            let mut seen = touched.clone();
-            let mut stack = Vec::new();
-            for start in 0..w.len() {
-                if crossed[start] {
-                    continue;
-                }
-                if touched[start] {
-                    w[start] = winding(start).abs();
-                    continue;
-                }
-                if seen[start] {
-                    continue;
-                }
-                let value = winding(start).abs();
-                seen[start] = true;
-                stack.push(start);
-                while let Some(at) = stack.pop() {
-                    w[at] = value;
-                    let (i, j, k) = (at % nx, at / nx % ny, at / (nx * ny));
-                    let mut visit = |ok: bool, next: usize| {
-                        if ok && !seen[next] {
-                            seen[next] = true;
-                            stack.push(next);
-                        }
-                    };
-                    visit(i > 0, at.wrapping_sub(1));
-                    visit(i + 1 < nx, at + 1);
-                    visit(j > 0, at.wrapping_sub(nx));
-                    visit(j + 1 < ny, at + nx);
-                    visit(k > 0, at.wrapping_sub(nx * ny));
-                    visit(k + 1 < nz, at + nx * ny);
-                }
-            }
-        } else {
-            // Every uncrossed cell: by the tree, cells × log(triangles) instead of cells ×
-            // triangles solid angles (the fast winding number; within 1e-3 of the exact sum,
-            // which decides at ½ and ¾).
-            let tree = WindingTree::new(&local, &mesh.triangles);
-            let (mut undecided, mut candidates) = (0u64, 0u64);
-            for at in (0..w.len()).filter(|&at| !crossed[at]) {
-                w[at] = tree.winding(centre_of(at)).abs();
-                if w[at] > 0.25 {
-                    candidates += 1;
-                    if w[at] < 0.75 {
-                        undecided += 1;
-                    }
-                }
-            }
-            if undecided as f64 > UNDECIDED_SHARE * candidates.max(1) as f64 {
-                return fail(
-                    VoxelKey::File,
-                    format!(
-                        "{} is not closed enough to tell inside from outside: the winding \
-                         number is between ¼ and ¾ at {undecided} of the {candidates} cells \
-                         where it is above ¼ (more than {}%); close its holes",
-                        mesh.path.display(),
-                        UNDECIDED_SHARE * 100.0
-                    ),
-                );
-            }
-        }
-        let mut present: Vec<bool> = (0..w.len()).map(|at| crossed[at] || w[at] >= 0.5).collect();
-        let mut inside_cells = (0..w.len())
-            .filter(|&at| !crossed[at] && w[at] >= CLEARLY_INSIDE)
-            .count() as u64;
-        // On a closed mesh a crossed cell whose centre is clearly inside counts too (a plate
-        // thinner than a cell has no other). Not on an open one: a centre on a sheet gets ±½
-        // from each triangle whose edge it lies on, whatever the sides, so only cells off the
-        // surface tell.
-        if inside_cells == 0 && closed {
-            inside_cells = (0..w.len())
-                .filter(|&at| crossed[at] && winding(at).abs() >= CLEARLY_INSIDE)
-                .count() as u64;
-        }
-        if inside_cells == 0 {
-            return fail(
-                VoxelKey::Size,
-                format!(
-                    "no cell of the {} × {} × {} lattice (h = {h} m) has its centre inside {} \
-                     (winding number ¾ or more): the mesh is flat, open or thinner than a \
-                     cell; use a smaller cell",
-                    n[0],
-                    n[1],
-                    n[2],
-                    mesh.path.display()
-                ),
-            );
-        }
-
-        // Each vertex's cell: the one holding it, or, for a vertex on a lattice plane, the
-        // first kept one of those whose boundary holds it; a vertex no kept cell holds keeps
-        // its cell (a stray vertex no triangle uses, or one on a triangle lying in a lattice
-        // plane outside everything).
-        let embedding: Vec<([u32; 3], DVec3)> = unit
-            .iter()
-            .map(|&u| {
-                let choices = |a: usize| -> [Option<f64>; 2] {
-                    let r = u[a].round();
-                    let f = u[a].floor().clamp(0.0, top[a]);
-                    if (u[a] - r).abs() <= 1e-9 && r >= 1.0 && r <= top[a] {
-                        [Some(r - 1.0), Some(r)]
-                    } else {
-                        [Some(f), None]
-                    }
-                };
-                let (cx, cy, cz) = (choices(0), choices(1), choices(2));
-                let mut all = Vec::with_capacity(8);
-                for &k in cz.iter().flatten() {
-                    for &j in cy.iter().flatten() {
-                        for &i in cx.iter().flatten() {
-                            all.push(DVec3::new(i, j, k));
-                        }
-                    }
-                }
-                let at = |c: DVec3| cell_index(c.x as usize, c.y as usize, c.z as usize);
-                let cell = all
-                    .iter()
-                    .copied()
-                    .find(|&c| present[at(c)])
-                    .unwrap_or(all[0]);
-                present[at(cell)] = true;
-                (
-                    [cell.x as u32, cell.y as u32, cell.z as u32],
-                    (u - cell).clamp(DVec3::ZERO, DVec3::ONE),
-                )
-            })
-            .collect();
-
-        // Particles: the corners of present cells, in lattice order.
-        let pn = [nx + 1, ny + 1, nz + 1];
-        let mut particle_of = vec![u32::MAX; pn[0] * pn[1] * pn[2]];
-        for (at, _) in present.iter().enumerate().filter(|(_, p)| **p) {
-            let (i, j, k) = (at % nx, at / nx % ny, at / (nx * ny));
-            for c in 0..8 {
-                let (a, b, d) = (i + (c & 1), j + (c >> 1 & 1), k + (c >> 2));
-                particle_of[a + pn[0] * (b + pn[1] * d)] = 0;
-            }
-        }
-        let mut points = Vec::new();
-        for (p, slot) in particle_of.iter_mut().enumerate() {
-            if *slot == 0 {
-                *slot = points.len() as u32;
-                points.push([
-                    (p % pn[0]) as u32,
-                    (p / pn[0] % pn[1]) as u32,
-                    (p / (pn[0] * pn[1])) as u32,
-                ]);
-            }
-        }
-        let mut springs = SpringCounts::default();
-        topology::for_each_lattice_spring(
-            cells.map(|c| c + 1),
-            Some(&present),
-            0..cells[2] + 1,
-            |_, _, o| match topology::OFFSETS[o].1 {
-                SpringKind::Structural => springs.structural += 1,
-                SpringKind::Shear => springs.shear += 1,
-                SpringKind::Bending => springs.bending += 1,
-            },
-        );
-        Ok(Voxels {
-            mesh,
-            scale,
-            size,
-            offset,
-            cell: h,
-            cells,
-            origin,
-            present,
-            particle_of,
-            points,
-            springs,
-            embedding,
-            inside_cells,
-            closed,
-            enclosed,
-        })
-    }
-
     /// The mesh, in file coordinates.
     pub fn mesh(&self) -> &TriangleMesh {
         &self.mesh
@@ -686,6 +372,7 @@ impl Voxels {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::topology;
 
     fn unit_cube() -> TriangleMesh {
         TriangleMesh::cube(DVec3::ZERO, 1.0)

@@ -1,0 +1,116 @@
+//! Running a sweep on this machine: worker threads taking the unfinished runs one by one.
+
+use std::io;
+use std::path::Path;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use super::{Manifest, Status, Sweep, SweepError};
+
+/// Which runs a local sweep takes, and with how many workers.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Options {
+    /// Runs at once (default: all cores, divided by the threads per run).
+    pub workers: Option<usize>,
+    /// A Slurm array task: `(index, count)` runs the runs `i` with `i % count == index`
+    /// (count 1: the run `index` alone), recording them in the task's own manifest.
+    pub task: Option<(usize, usize)>,
+}
+
+/// What a sweep did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Outcome {
+    /// Runs this invocation was to take (the plan, or the task's share).
+    pub planned: usize,
+    /// Of those, already finished in the manifest and skipped.
+    pub skipped: usize,
+    /// Run now and ended `ok`.
+    pub ok: usize,
+    /// Run now and ended `unstable`.
+    pub unstable: usize,
+    /// Run now and ended `invalid`.
+    pub invalid: usize,
+    /// Run now and ended `failed`.
+    pub failed: usize,
+}
+
+/// The runs this invocation takes under `task` (see [`Options::task`]).
+pub fn task_runs(len: usize, task: Option<(usize, usize)>) -> Vec<usize> {
+    match task {
+        None => (0..len).collect(),
+        Some((index, 1)) => (index < len).then_some(index).into_iter().collect(),
+        Some((index, count)) => (0..len).filter(|i| i % count == index).collect(),
+    }
+}
+
+/// Runs the sweep on this machine's cores into `out`: the runs not yet finished there, as many
+/// at once as `options.workers`, each record appended to the manifest as its run ends;
+/// `progress` hears (runs done, runs to do).
+pub fn run_local(
+    sweep: &Sweep,
+    out: &Path,
+    options: &Options,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Outcome, SweepError> {
+    let manifest = Manifest::open(sweep, out, options.task.map(|(i, _)| i))?;
+    let planned = task_runs(sweep.len(), options.task);
+    let todo: Vec<usize> = planned
+        .iter()
+        .copied()
+        .filter(|&i| !manifest.finished(i))
+        .collect();
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let workers = options
+        .workers
+        .unwrap_or((cores / sweep.threads).max(1))
+        .max(1);
+    let done = AtomicUsize::new(0);
+    let next = AtomicUsize::new(0);
+    let counts = Mutex::new(Outcome {
+        planned: planned.len(),
+        skipped: planned.len() - todo.len(),
+        ..Outcome::default()
+    });
+    let write_error: Mutex<Option<io::Error>> = Mutex::new(None);
+    progress(0, todo.len());
+    // Plain threads taking the next run from a counter, not a rayon pool: each run steps in
+    // its solver's own pool, and a rayon worker blocked in another pool's `install` steals
+    // work from its own meanwhile — another run, whose solver blocks in turn — so the runs
+    // nested on one stack until it overflowed (a 1,000-run sweep did).
+    let worker = || {
+        loop {
+            let k = next.fetch_add(1, Ordering::Relaxed);
+            let Some(&i) = todo.get(k) else { break };
+            let record = sweep.job(i, out).run();
+            {
+                let mut c = counts.lock().expect("not poisoned");
+                match record.status {
+                    Status::Ok => c.ok += 1,
+                    Status::Unstable => c.unstable += 1,
+                    Status::Invalid => c.invalid += 1,
+                    Status::Failed => c.failed += 1,
+                }
+            }
+            if let Err(e) = manifest.append(record) {
+                write_error.lock().expect("not poisoned").get_or_insert(e);
+            }
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, todo.len());
+        }
+    };
+    std::thread::scope(|scope| -> Result<(), SweepError> {
+        for w in 0..workers.min(todo.len()) {
+            std::thread::Builder::new()
+                .name(format!("sweep-{w}"))
+                .spawn_scoped(scope, worker)
+                .map_err(|source| SweepError::Threads { workers, source })?;
+        }
+        Ok(())
+    })?;
+    if let Some(source) = write_error.into_inner().expect("not poisoned") {
+        return Err(SweepError::Io {
+            path: manifest.path().to_owned(),
+            source,
+        });
+    }
+    Ok(counts.into_inner().expect("not poisoned"))
+}
