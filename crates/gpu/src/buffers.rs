@@ -50,7 +50,7 @@ pub(crate) struct ModelBuffers {
 /// The springs on the device.
 pub(crate) enum SpringBuffers {
     /// The stencil route: each lattice body's table and the mesh bodies' masks
-    /// (`lattice_bodies`, `lattice_points` of `shaders/lattice.wgsl`).
+    /// (`lattice_bodies`, `lattice_points` of `shaders/shared/lattice.wgsl`).
     Lattices {
         bodies: wgpu::Buffer,
         points: wgpu::Buffer,

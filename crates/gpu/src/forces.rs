@@ -1,7 +1,7 @@
 //! `shaders/forces.wgsl` ↔ `softbody_cpu::forces`: a(x, v) = f(x, v)/m with
 //!
 //! f = m g − drag·m·v + Σ_springs ±f_s (gathered in ascending spring order) + contact and
-//! friction (`shaders/contact.wgsl` ↔ `softbody_cpu::contact`),
+//! friction (`shaders/shared/contact.wgsl` ↔ `softbody_cpu::contact`),
 //!
 //! after the spring forces of the same state, and for models whose bodies touch after the
 //! pairs' penalty forces ([`crate::body_contact`]), which the springs' sum takes in; pinned

@@ -49,7 +49,7 @@ pub use grid::Grid;
 pub use integrators::implicit_euler::CG_TOLERANCE_F32;
 pub use solver::{GpuOptions, GpuSolver, STEPS_PER_SUBMISSION};
 
-/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`; the
+/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/shared/common.wgsl`; the
 /// kernels are checked against it when their pipelines are made).
 pub const WORKGROUP_SIZE: u64 = 256;
 

@@ -30,36 +30,36 @@
 
 use crate::chunks::Chunking;
 
-/// `shaders/common.wgsl`.
-pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
-/// `shaders/terrain.wgsl`.
-pub const TERRAIN: &str = include_str!("../../../shaders/terrain.wgsl");
-/// `shaders/contact.wgsl`.
-pub const CONTACT: &str = include_str!("../../../shaders/contact.wgsl");
-/// `shaders/reduce.wgsl`.
-pub const REDUCE: &str = include_str!("../../../shaders/reduce.wgsl");
-/// `shaders/gather.wgsl`.
-pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
-/// `shaders/neighbours.wgsl`.
-pub const NEIGHBOURS: &str = include_str!("../../../shaders/neighbours.wgsl");
-/// `shaders/acceleration.wgsl`.
-pub const ACCELERATION: &str = include_str!("../../../shaders/acceleration.wgsl");
-/// `shaders/response.wgsl`.
-pub const RESPONSE: &str = include_str!("../../../shaders/response.wgsl");
-/// `shaders/finite.wgsl`.
-pub const FINITE: &str = include_str!("../../../shaders/finite.wgsl");
-/// `shaders/fused_gather.wgsl`.
-pub const FUSED_GATHER: &str = include_str!("../../../shaders/fused_gather.wgsl");
-/// `shaders/lattice.wgsl`.
-pub const LATTICE: &str = include_str!("../../../shaders/lattice.wgsl");
-/// `shaders/stencil.wgsl`.
-pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
-/// `shaders/updates.wgsl`.
-pub const UPDATES: &str = include_str!("../../../shaders/updates.wgsl");
-/// `shaders/product.wgsl`.
-pub const PRODUCT: &str = include_str!("../../../shaders/product.wgsl");
-/// `shaders/cg_common.wgsl`.
-pub const CG_COMMON: &str = include_str!("../../../shaders/cg_common.wgsl");
+/// `shaders/shared/common.wgsl`.
+pub const COMMON: &str = include_str!("../shaders/shared/common.wgsl");
+/// `shaders/shared/terrain.wgsl`.
+pub const TERRAIN: &str = include_str!("../shaders/shared/terrain.wgsl");
+/// `shaders/shared/contact.wgsl`.
+pub const CONTACT: &str = include_str!("../shaders/shared/contact.wgsl");
+/// `shaders/shared/reduce.wgsl`.
+pub const REDUCE: &str = include_str!("../shaders/shared/reduce.wgsl");
+/// `shaders/shared/gather.wgsl`.
+pub const GATHER: &str = include_str!("../shaders/shared/gather.wgsl");
+/// `shaders/shared/neighbours.wgsl`.
+pub const NEIGHBOURS: &str = include_str!("../shaders/shared/neighbours.wgsl");
+/// `shaders/shared/acceleration.wgsl`.
+pub const ACCELERATION: &str = include_str!("../shaders/shared/acceleration.wgsl");
+/// `shaders/shared/response.wgsl`.
+pub const RESPONSE: &str = include_str!("../shaders/shared/response.wgsl");
+/// `shaders/shared/finite.wgsl`.
+pub const FINITE: &str = include_str!("../shaders/shared/finite.wgsl");
+/// `shaders/shared/fused_gather.wgsl`.
+pub const FUSED_GATHER: &str = include_str!("../shaders/shared/fused_gather.wgsl");
+/// `shaders/shared/lattice.wgsl`.
+pub const LATTICE: &str = include_str!("../shaders/shared/lattice.wgsl");
+/// `shaders/shared/stencil.wgsl`.
+pub const STENCIL: &str = include_str!("../shaders/shared/stencil.wgsl");
+/// `shaders/shared/updates.wgsl`.
+pub const UPDATES: &str = include_str!("../shaders/shared/updates.wgsl");
+/// `shaders/shared/product.wgsl`.
+pub const PRODUCT: &str = include_str!("../shaders/shared/product.wgsl");
+/// `shaders/shared/cg_common.wgsl`.
+pub const CG_COMMON: &str = include_str!("../shaders/shared/cg_common.wgsl");
 
 /// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
 /// chunk 0 is binding 3).
@@ -250,25 +250,25 @@ impl Stage {
     /// The stage file's own source.
     fn own_source(self) -> &'static str {
         match self {
-            Stage::SpringForces => include_str!("../../../shaders/spring_forces.wgsl"),
-            Stage::Forces => include_str!("../../../shaders/forces.wgsl"),
-            Stage::ExplicitEuler => include_str!("../../../shaders/explicit_euler.wgsl"),
-            Stage::SymplecticEuler => include_str!("../../../shaders/symplectic_euler.wgsl"),
-            Stage::Midpoint => include_str!("../../../shaders/midpoint.wgsl"),
-            Stage::Rk4 => include_str!("../../../shaders/rk4.wgsl"),
-            Stage::CollisionResponse => include_str!("../../../shaders/collision_response.wgsl"),
-            Stage::CheckFinite => include_str!("../../../shaders/check_finite.wgsl"),
-            Stage::Energy => include_str!("../../../shaders/energy.wgsl"),
-            Stage::System => include_str!("../../../shaders/system.wgsl"),
-            Stage::FusedProduct => include_str!("../../../shaders/fused_product.wgsl"),
-            Stage::Cg => include_str!("../../../shaders/cg.wgsl"),
-            Stage::ImplicitEuler => include_str!("../../../shaders/implicit_euler.wgsl"),
-            Stage::TerrainProbe => include_str!("../../../shaders/terrain_probe.wgsl"),
-            Stage::BroadPhase => include_str!("../../../shaders/broad_phase.wgsl"),
-            Stage::BodyContact => include_str!("../../../shaders/body_contact.wgsl"),
-            Stage::PairsProbe => include_str!("../../../shaders/pairs_probe.wgsl"),
+            Stage::SpringForces => include_str!("../shaders/spring_forces.wgsl"),
+            Stage::Forces => include_str!("../shaders/forces.wgsl"),
+            Stage::ExplicitEuler => include_str!("../shaders/explicit_euler.wgsl"),
+            Stage::SymplecticEuler => include_str!("../shaders/symplectic_euler.wgsl"),
+            Stage::Midpoint => include_str!("../shaders/midpoint.wgsl"),
+            Stage::Rk4 => include_str!("../shaders/rk4.wgsl"),
+            Stage::CollisionResponse => include_str!("../shaders/collision_response.wgsl"),
+            Stage::CheckFinite => include_str!("../shaders/check_finite.wgsl"),
+            Stage::Energy => include_str!("../shaders/energy.wgsl"),
+            Stage::System => include_str!("../shaders/system.wgsl"),
+            Stage::FusedProduct => include_str!("../shaders/fused_product.wgsl"),
+            Stage::Cg => include_str!("../shaders/cg.wgsl"),
+            Stage::ImplicitEuler => include_str!("../shaders/implicit_euler.wgsl"),
+            Stage::TerrainProbe => include_str!("../shaders/terrain_probe.wgsl"),
+            Stage::BroadPhase => include_str!("../shaders/broad_phase.wgsl"),
+            Stage::BodyContact => include_str!("../shaders/body_contact.wgsl"),
+            Stage::PairsProbe => include_str!("../shaders/pairs_probe.wgsl"),
             Stage::FusedStep | Stage::FusedStencil => {
-                include_str!("../../../shaders/fused_step.wgsl")
+                include_str!("../shaders/fused_step.wgsl")
             }
         }
     }

@@ -21,9 +21,9 @@
 //!
 //! On the stencil route ([`crate::integrators::Route`]: every body a lattice, cuboids and mesh
 //! bodies) the kernels find their springs on the lattices (`Stage::FusedStencil`,
-//! `shaders/stencil.wgsl`): per body a table of its offsets' parameters and their two orders, per
-//! mesh body its mask, and no spring record or adjacency read — the same sums bit for bit
-//! ("fused stencil"; otherwise "fused gather").
+//! `shaders/shared/stencil.wgsl`): per body a table of its offsets' parameters and their two
+//! orders, per mesh body its mask, and no spring record or adjacency read — the same sums bit for
+//! bit ("fused stencil"; otherwise "fused gather").
 
 use std::sync::Arc;
 

@@ -8,7 +8,7 @@
 //! (`shaders/fused_product.wgsl`: each particle computes its springs' terms as it gathers them),
 //! or with `GpuOptions::per_spring` a per-spring product and a gather (`apply_springs`,
 //! `apply_particles`): the same bits. The CG iterations' product of its direction c also
-//! filters it and sums cᵀq (`apply_particles_curvature`, `shaders/product.wgsl`). The fused
+//! filters it and sums cᵀq (`apply_particles_curvature`, `shaders/shared/product.wgsl`). The fused
 //! product of A Δv binds fewer storage buffers than `assemble_particles`, and that of c as
 //! many plus one, for any chunk count (pinned by a reflection test): on an adapter whose limit
 //! is the assembly's exactly, the product takes the two passes, whose gathers bind fewer.
