@@ -54,6 +54,9 @@
 // (u·n)² > 2 a_n ε. Every pair is computed from the end snapshot and the start snapshot and each
 // particle writes only its own x and v (one Jacobi sweep); pinned particles (w = 0) take nothing.
 
+#import common
+#import neighbours
+
 @group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> a: array<vec4<f32>>;

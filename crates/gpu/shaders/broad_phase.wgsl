@@ -21,6 +21,9 @@
 // thread timing; sorting each run (runs are short: a cell holds a few particles, a bucket a
 // few cells) makes the grid a function of the positions alone, so a run repeats bit for bit.
 
+#import common
+#import neighbours
+
 struct ScanLevel {
     // The level's first element in `counts`.
     offset: u32,

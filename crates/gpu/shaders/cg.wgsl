@@ -55,6 +55,10 @@
 // reverse (zero while running, full once done): the active-set update after a solve
 // (implicit_euler.wgsl) is encoded behind each batch and runs once, at the end.
 
+#import common
+#import reduce
+#import cg_common
+
 struct CgScalars {
     // rᵀP⁻¹r of the current residual.
     delta: f32,

@@ -17,6 +17,9 @@
 // after it. The record is finite.wgsl's `check_particle`, shared with the fused step
 // (fused_step.wgsl), which checks the state it has just written.
 
+#import common
+#import finite
+
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
 // status (binding 3) and step_index (binding 5) are declared by finite.wgsl.

@@ -12,6 +12,9 @@
 // lies in: the start of the next step. One thread per particle. The response itself is
 // response.wgsl's `respond`, shared with the fused step (fused_step.wgsl).
 
+#import common
+#import response
+
 @group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> mass: array<vec2<f32>>;

@@ -21,6 +21,10 @@
 // particles', every workgroup writing its partial (a 2-D grid's idle tail writes zeros into
 // slots of its own).
 
+#import common
+#import reduce
+#import lattice
+
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> mass: array<vec2<f32>>;

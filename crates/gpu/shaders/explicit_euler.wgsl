@@ -5,6 +5,9 @@
 //
 // One thread per particle; element-wise, so the result does not depend on the dispatch.
 
+#import common
+#import updates
+
 @group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;

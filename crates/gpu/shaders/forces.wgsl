@@ -12,6 +12,11 @@
 // `mass` holds (m, 1/m) per particle: one buffer each instead of two keeps this kernel at 8
 // storage buffers with the terrain's two, WebGPU's guaranteed minimum per shader stage.
 
+#import common
+#import gather
+#import acceleration
+#import per_spring_chunks
+
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> per_spring: array<vec4<f32>>;

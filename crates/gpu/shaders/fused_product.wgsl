@@ -10,8 +10,13 @@
 // block and the other end's p at each end; the two passes read the record, the block and both
 // ends' p once and write z_s, which the gather reads at each end.
 
-// Chunk 0 of the spring records and of the blocks; `spring_at(s)` and `block_at(s)` (generated
-// by crates/gpu/src/shaders.rs) read spring s from whichever chunk holds it.
+#import common
+#import product
+#import spring_chunks
+#import block_chunks
+
+// Chunk 0 of the spring records and of the blocks; `spring_at(s)` and `block_at(s)` (the
+// generated pieces) read spring s from whichever chunk holds it.
 @group(0) @binding(6) var<storage, read> springs: array<Spring>;
 @group(0) @binding(7) var<storage, read> blocks: array<SpringBlock>;
 

@@ -11,7 +11,7 @@
 //    Both ends evaluate a spring in its own (a, b) orientation, so they see bit-opposite
 //    forces, and each sum has the per-spring path's order: the same bits as spring_forces.wgsl
 //    + forces.wgsl, run to run, with no float atomics. The module takes one of two gathers
-//    (crates/gpu/src/shaders.rs): through the CSR adjacency and the spring records
+//    (the define `stencil` chooses): through the CSR adjacency and the spring records
 //    (gather.wgsl + fused_gather.wgsl, `Stage::FusedStep`), or, where every body is a lattice,
 //    by its lattice's stencil (stencil.wgsl, `Stage::FusedStencil`) with the same terms in the
 //    same order;
@@ -39,6 +39,17 @@
 //
 // Models whose bodies touch take the per-spring path (their pair forces need the broad phase),
 // as do adapters with too few storage buffers per stage for these kernels.
+
+#import common
+#import finite
+#ifdef stencil
+#import stencil
+#else
+#import fused_gather
+#endif
+#import acceleration
+#import response
+#import updates
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;

@@ -35,6 +35,9 @@
 // zeroes them at the start (mode NONE). Terrain (terrain.wgsl, @group(1)) is bound for
 // `implicit_candidates` only.
 
+#import common
+#import terrain
+
 struct Candidate {
     // Outward unit normal N of the surface at the start of the step.
     normal: vec3<f32>,

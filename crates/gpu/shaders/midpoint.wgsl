@@ -7,6 +7,9 @@
 // accelerations at (x_m, v_m) → `midpoint_update` (x ← x + h v_m, v ← v + h a). One thread per
 // particle; element-wise.
 
+#import common
+#import updates
+
 @group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;

@@ -5,6 +5,9 @@
 // writes the first C of them, in the search's order, to probe_pairs[i·C ..], C being
 // arrayLength(probe_pairs) / n.
 
+#import common
+#import neighbours
+
 @group(0) @binding(1) var<storage, read_write> probe_count: array<u32>;
 @group(0) @binding(2) var<storage, read_write> probe_pairs: array<u32>;
 

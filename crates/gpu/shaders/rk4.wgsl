@@ -16,6 +16,9 @@
 // One thread per particle; element-wise (each thread reads its stage velocity before
 // overwriting it).
 
+#import common
+#import updates
+
 @group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;

@@ -13,6 +13,8 @@
 // Dispatched once per spring chunk (common.wgsl, `SpringChunk`): `springs` and `per_spring` are
 // the chunk's, indexed from 0.
 
+#import common
+
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> springs: array<Spring>;

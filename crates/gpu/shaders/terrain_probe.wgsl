@@ -4,6 +4,9 @@
 // writes, at out[2·(i·K + k)] and the next slot, terrain_query(k, p.xyz) and
 // terrain_query_within(k, p.xyz, p.w), K being the number of surfaces.
 
+#import common
+#import terrain
+
 @group(0) @binding(1) var<storage, read> probe_points: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> probe_out: array<vec4<f32>>;
 

@@ -189,7 +189,9 @@ impl Builder {
     /// `stage`'s module, compiled once.
     fn module(&self, stage: Stage) -> Result<std::cell::Ref<'_, Module>, GpuError> {
         if !self.modules.borrow().contains_key(&stage) {
-            let module = Module::new(&self.gpu.device, stage, stage.source_chunked(self.chunking))
+            let module = stage
+                .compose(self.chunking)
+                .and_then(|composed| Module::new(&self.gpu.device, stage, composed))
                 .map_err(|e| internal(&self.gpu.name(), e))?;
             self.modules.borrow_mut().insert(stage, module);
         }
@@ -297,8 +299,10 @@ pub(crate) fn fits(
     entries: &[&'static str],
     chunking: Chunking,
 ) -> Result<(), GpuError> {
-    let parsed =
-        Parsed::new(stage, &stage.source_chunked(chunking)).map_err(|e| internal(adapter, e))?;
+    let parsed = stage
+        .compose(chunking)
+        .and_then(|composed| Parsed::new(stage, &composed))
+        .map_err(|e| internal(adapter, e))?;
     let terrain_buffers = kernel::terrain_entries()
         .map_err(|e| internal(adapter, e))?
         .len() as u32;

@@ -1,9 +1,9 @@
 //! The GPU solver of `softbody`: the model of `softbody-scene` stepped by wgpu compute shaders,
 //! in f32.
 //!
-//! The shaders live in the workspace's `shaders/`, one file per stage, each named like its CPU
-//! twin in `softbody-cpu` and stating the equation it implements; they are compiled into the
-//! binary and composed per stage by [`shaders`]. [`GpuSolver`] implements the same
+//! The shaders live in the crate's `shaders/`, one file per stage, each named like its CPU twin
+//! in `softbody-cpu` and stating the equation it implements, and the pieces they import in
+//! `shaders/shared/`; they are compiled into the binary and composed per stage by [`shaders`]. [`GpuSolver`] implements the same
 //! [`Solver`](softbody_scene::Solver) trait as the CPU solver, so the CLI and the run driver do not
 //! know which one runs. The crate is laid out by stage like `softbody-cpu` (`spring_forces`,
 //! `forces`, `collision_response`, `check_finite`, `energy`, `integrators/…`); `solver` wires
@@ -28,6 +28,7 @@ mod builder;
 mod check_finite;
 pub mod chunks;
 mod collision_response;
+mod compose;
 #[cfg(feature = "debug")]
 pub mod debug;
 pub mod device;

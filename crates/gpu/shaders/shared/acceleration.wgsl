@@ -1,5 +1,5 @@
 // acceleration.wgsl: a particle's acceleration from the forces the other particles exert on it,
-// shared by forces.wgsl and fused_step.wgsl (prepended after contact.wgsl), so that both paths
+// imported by forces.wgsl and fused_step.wgsl, so that both paths
 // add the same terms in the same order (crates/cpu/src/forces.rs, `acceleration_with`):
 //
 //   f = m g − drag·m·v + between,   a = (f + contact_force(f)) / m,
@@ -7,6 +7,9 @@
 // where `between` is the gathered spring forces (and, with contact between bodies, the pairs'
 // penalty forces). Pinned particles (1/m = 0) get a = 0: the callers test for them first, so a
 // pinned particle gathers nothing.
+
+#import common
+#import contact
 
 // The acceleration of a free particle of mass m = mw.x (mw.y = 1/m) at (xi, vi).
 fn free_acceleration(mw: vec2<f32>, xi: vec3<f32>, vi: vec3<f32>, between: vec3<f32>) -> vec3<f32> {

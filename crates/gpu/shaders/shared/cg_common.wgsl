@@ -1,13 +1,16 @@
 // cg_common.wgsl: what the CG's kernels (cg.wgsl) share with the product of its iterations
 // (product.wgsl's `apply_particles_curvature`, which also forms q = S A c and cᵀq's partial
 // sums): the velocity constraints' filter S and the per-workgroup partial sums of the CG's dot
-// products (prepended by crates/gpu/src/shaders.rs after reduce.wgsl).
+// products.
 //
 // `partials` has PARTIAL_HALVES "halves" of n_partials slots (the workgroups of the particle
 // grid), one sum per workgroup each: cᵀq's (and at a solve's start wᵀP⁻¹w's) first, then δ's
 // (rᵀP⁻¹r, and at the start (Sb)ᵀP⁻¹(Sb)), then the warm start projection's (cg.wgsl).
 // cᵀq's half comes first so that the product, which does not bind the CG's scalars and so does
 // not know n_partials, can write it.
+
+#import common
+#import reduce
 
 @group(0) @binding(14) var<storage, read> constraints: array<vec4<f32>>;
 @group(0) @binding(15) var<storage, read_write> partials: array<vec2<f32>>;

@@ -16,6 +16,9 @@
 // `terrain_query_within(k, x, ε)` (terrain.wgsl) returns (outward unit normal N, φ) of surface k,
 // exact wherever φ < ε (beyond, it may stop searching early: only φ ≥ ε matters then).
 
+#import common
+#import terrain
+
 // Friction force for a contact pressed with `press`, slip `vt` and tangential applied force `ft`.
 fn friction(
     model: u32,

@@ -1,6 +1,8 @@
 // finite.wgsl: the instability record of one particle (check_finite.wgsl's header has the
-// scheme), shared by check_finite.wgsl and fused_step.wgsl (prepended after common.wgsl).
+// scheme), imported by check_finite.wgsl and fused_step.wgsl.
 // Twins: `softbody_gpu::layout::{Status, StepIndex}`.
+
+#import common
 
 struct Status {
     // The first step (1-based, within the submission) with a non-finite value, or NONE.

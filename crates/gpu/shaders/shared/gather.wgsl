@@ -1,5 +1,5 @@
-// gather.wgsl: the per-particle gather over the CSR adjacency, shared by forces.wgsl,
-// system.wgsl and fused_step.wgsl (prepended by crates/gpu/src/shaders.rs after common.wgsl).
+// gather.wgsl: the per-particle gather over the CSR adjacency, imported by forces.wgsl,
+// system.wgsl and product.wgsl, and by fused_gather.wgsl for fused_step.wgsl.
 //
 // `adjacency` holds the offsets (n + 1 words) followed by the entries (2·springs words): particle
 // i's run is entries[offsets[i]..offsets[i+1]], in ascending spring order, entry e = 2s + side.
@@ -11,6 +11,8 @@
 // and system.wgsl read it from the per-spring vectors a per-spring kernel wrote; fused_step.wgsl
 // computes the spring force itself from the two ends' states. The same loop in both keeps the
 // order, hence the bits: the fused step gathers exactly what the per-spring path gathers.
+
+#import common
 
 @group(0) @binding(4) var<storage, read> adjacency: array<u32>;
 

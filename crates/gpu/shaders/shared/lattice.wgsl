@@ -2,13 +2,15 @@
 // model whose bodies are all lattices (cuboids, mesh bodies) are, found as constant offsets on
 // each body's lattice, with no spring record and no adjacency: a spring's parameters are its
 // offset's, one table per body (`lattice_bodies`), and its partner is the point p ± d.
-// Prepended by crates/gpu/src/shaders.rs to the stages of the stencil route: the fused step's
-// gather (stencil.wgsl) and the energies (energy.wgsl's `energy_lattices`).
+// Imported by the stages of the stencil route: the fused step's gather (stencil.wgsl) and the
+// energies (energy.wgsl's `energy_lattices`).
 //
 // A particle's thread finds its body by a binary search (`lattice_body_of`) and its lattice
 // point from its index (`stencil_of`); the springs starting at its point p are the offsets o
 // (in topology::OFFSETS order) with `in_grid(s, p + o.d)` and `kept(s, o, point)`, each ending
 // at `particle_at(s, step_point(point, o, 1))`.
+
+#import common
 
 // The springs of one lattice offset of a body (twin: `layout::LatticeOffsetGpu`).
 struct LatticeOffset {

@@ -1,7 +1,6 @@
-// neighbours.wgsl: the hashed grid of contact between bodies as its kernels share it
-// (crates/gpu/src/shaders.rs prepends it to broad_phase.wgsl, body_contact.wgsl and
-// pairs_probe.wgsl, after common.wgsl): each particle's contact data, the cell hash, the rule
-// that admits a pair, and the search of the 27 cells around a particle.
+// neighbours.wgsl: the hashed grid of contact between bodies as its kernels share it (imported by
+// broad_phase.wgsl, body_contact.wgsl and pairs_probe.wgsl): each particle's contact data, the cell
+// hash, the rule that admits a pair, and the search of the 27 cells around a particle.
 //
 // The grid (built by broad_phase.wgsl ↔ crates/cpu/src/broad_phase.rs) hashes the cell
 // c = floor(x / s) of each particle with a radius into one of `contact.buckets` (a power of two
@@ -20,6 +19,8 @@
 // particles' threads does it: both get bit-equal decisions and values (with opposite signs).
 //
 // Twins: `softbody_gpu::layout::{ContactParams, ContactParticleGpu}`.
+
+#import common
 
 struct ContactParams {
     // 1/s, s the cell size, 1/m.

@@ -12,6 +12,10 @@
 // (cg_common.wgsl), on the particle grid, so the sum's terms and tree are those a kernel of
 // their own formed from the stored product before (the same bits), one dispatch fewer.
 
+#import common
+#import cg_common
+#import gather
+
 @group(0) @binding(9) var<storage, read> p: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> out: array<vec4<f32>>;
 // diag[2i].w = m(1 + h·drag) (system.wgsl's `assemble_particles` writes it).

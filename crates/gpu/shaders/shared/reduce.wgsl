@@ -1,5 +1,5 @@
-// reduce.wgsl: the deterministic workgroup sum shared by energy.wgsl and cg.wgsl (prepended by
-// crates/gpu/src/shaders.rs after common.wgsl).
+// reduce.wgsl: the deterministic workgroup sum shared by energy.wgsl and cg.wgsl (and
+// cg_common.wgsl).
 //
 // workgroup_sum(local, term) adds the 256 threads' terms in shared memory by a fixed tree (pairs
 // at distance 128, 64, …, 1) and returns the sum to every thread. Every thread of the workgroup
@@ -8,6 +8,8 @@
 // host (energies) or by one workgroup (sum_in_order, the CG scalars): the same bits for the same
 // input on one adapter, and no float atomics. Sums are vec2 so that one pass can reduce two
 // quantities; a single one rides in .x with 0 in .y.
+
+#import common
 
 var<workgroup> reduce_scratch: array<vec2<f32>, WORKGROUP_SIZE>;
 

@@ -1,6 +1,9 @@
 // response.wgsl: the collision response of one particle after a step (the law is in
 // collision_response.wgsl's header, twin crates/cpu/src/collision_response.rs), shared by
-// collision_response.wgsl and fused_step.wgsl (prepended after terrain.wgsl).
+// collision_response.wgsl and fused_step.wgsl.
+
+#import common
+#import terrain
 
 /// A particle at the start of a step: its velocity and the mask of the bands it lies in.
 struct Start {

@@ -1,7 +1,7 @@
-// stencil.wgsl ↔ crates/cpu/src/spring_forces/stencil.rs: the fused step's springs for models
-// whose bodies are all lattices (cuboids, mesh bodies), found on the body's lattice by
-// lattice.wgsl; prepended to fused_step.wgsl in place of gather.wgsl and fused_gather.wgsl by
-// crates/gpu/src/shaders.rs (`Stage::FusedStencil`). No spring record and no adjacency is read.
+// stencil.wgsl ↔ crates/cpu/src/spring_forces/stencil.rs: the fused step's springs for models whose
+// bodies are all lattices (cuboids, mesh bodies), found on the body's lattice by lattice.wgsl;
+// imported by fused_step.wgsl in place of fused_gather.wgsl (and so gather.wgsl) where it is
+// composed with `stencil` (`Stage::FusedStencil`). No spring record and no adjacency is read.
 //
 // gather(i) has gather.wgsl's result bit for bit. The CSR run of particle i at point p is, in
 // ascending spring order, the springs ending at p (first end p − d, which ascends as the linear
@@ -11,6 +11,9 @@
 // that does not exist is skipped, not added as a zero. Two offsets of equal linear offset
 // never both end at one point (its partner would be one point at two places), so their
 // relative order in `backward` does not matter.
+
+#import common
+#import lattice
 
 // Σ of particle i's spring forces at the state (x, v), own_x and own_v being its own: the
 // CSR gather's sum (above).
