@@ -15,7 +15,7 @@
 //
 // The host resets the status to (NONE, NONE, NONE) before each submission and reads it back
 // after it. The record is finite.wgsl's `check_particle`, shared with the fused step
-// (fused_step.wgsl), which checks the state it has just written.
+// (explicit.wgsl), which checks the state it has just written.
 
 #import common
 #import finite

@@ -10,7 +10,7 @@
 // Each surface sees the position the previous one left. Pinned particles (1/m = 0) are left
 // alone. Then `start` becomes the final velocity and the mask of the bands the final position
 // lies in: the start of the next step. One thread per particle. The response itself is
-// response.wgsl's `respond`, shared with the fused step (fused_step.wgsl).
+// response.wgsl's `respond`, shared with the fused step (explicit.wgsl).
 
 #import common
 #import response

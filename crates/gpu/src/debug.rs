@@ -238,7 +238,7 @@ impl GpuSolver {
         self.submitter.healthy()?;
         match &mut self.stepper {
             Stepper::Implicit(im) => Ok((im, &mut self.submitter, self.body_contact.as_ref())),
-            Stepper::Explicit(_) | Stepper::Fused(_) => Err(StepError::Invalid(
+            Stepper::PerSpring(_) | Stepper::Fused(_) => Err(StepError::Invalid(
                 "not an implicit-euler solver".to_owned(),
             )),
         }

@@ -4,8 +4,10 @@
 //! `shaders/shared/*.wgsl` the pieces they share. WGSL has no includes: each file starts with
 //! `#import` lines naming the pieces it uses, which [`crate::compose`] substitutes, each once, in
 //! dependency order (`common.wgsl`, the parameters, springs and thread index, first in every
-//! module). [`stages!`] below is the one list of the stages: each names its file and, where one
-//! file makes several modules, the defines that choose its `#ifdef` branches.
+//! module). The table of [`Stage`] below is the one list of the stages: each names its file and,
+//! where one file makes several modules, the defines that choose its `#ifdef` branches (the
+//! explicit integrators' kernels, `explicit.wgsl`, on the per-spring path, fused, and fused on
+//! the lattices' stencil).
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
 //! point's bindings (name, number, access) from the composed module with naga and binds
@@ -108,14 +110,9 @@ stages! {
     SpringForces: "spring_forces.wgsl";
     /// `forces.wgsl` (with terrain and contact).
     Forces: "forces.wgsl";
-    /// `explicit_euler.wgsl`.
-    ExplicitEuler: "explicit_euler.wgsl";
-    /// `symplectic_euler.wgsl`.
-    SymplecticEuler: "symplectic_euler.wgsl";
-    /// `midpoint.wgsl`.
-    Midpoint: "midpoint.wgsl";
-    /// `rk4.wgsl`.
-    Rk4: "rk4.wgsl";
+    /// `explicit.wgsl`: the explicit integrators' updates on the per-spring path, after the
+    /// accelerations of [`Stage::Forces`].
+    Explicit: "explicit.wgsl";
     /// `collision_response.wgsl` (with terrain).
     CollisionResponse: "collision_response.wgsl";
     /// `check_finite.wgsl`.
@@ -139,12 +136,12 @@ stages! {
     BodyContact: "body_contact.wgsl";
     /// `pairs_probe.wgsl` (with the grid): the pairs in contact, for the twin tests.
     PairsProbe: "pairs_probe.wgsl";
-    /// `fused_step.wgsl` (with terrain and contact): the explicit integrators' stages, one
-    /// dispatch each, gathering through the CSR adjacency and the spring records.
-    FusedStep: "fused_step.wgsl";
-    /// `fused_step.wgsl` with `stencil`: [`Stage::FusedStep`]'s kernels for models whose bodies
-    /// are all lattices, their springs found on the lattices (`stencil.wgsl`).
-    FusedStencil: "fused_step.wgsl" ["stencil"];
+    /// `explicit.wgsl` with `fused` (with terrain and contact): the explicit integrators'
+    /// stages, one dispatch each, gathering through the CSR adjacency and the spring records.
+    FusedStep: "explicit.wgsl" ["fused"];
+    /// `explicit.wgsl` with `fused` and `stencil`: [`Stage::FusedStep`]'s kernels for models
+    /// whose bodies are all lattices, their springs found on the lattices (`stencil.wgsl`).
+    FusedStencil: "explicit.wgsl" ["fused", "stencil"];
 }
 
 impl Stage {

@@ -399,7 +399,7 @@ impl GpuSolver {
                 self.timings.add("encode", started.elapsed().as_secs_f64());
                 encoder
             }
-            Stepper::Explicit(stepper) => {
+            Stepper::PerSpring(stepper) => {
                 let (collision, check) = (&self.collision_response, &self.check);
                 let contact = &self.body_contact;
                 let band_stale = std::mem::take(&mut self.band_stale);
@@ -714,7 +714,7 @@ impl Solver for GpuSolver {
     fn statistics(&self) -> Statistics {
         let implicit = match &self.stepper {
             Stepper::Implicit(im) => im.statistics.clone(),
-            Stepper::Explicit(_) | Stepper::Fused(_) => Statistics::default(),
+            Stepper::PerSpring(_) | Stepper::Fused(_) => Statistics::default(),
         };
         let (dispatches, device_bytes) = self.builder.traffic().totals();
         Statistics {
@@ -729,7 +729,7 @@ impl Solver for GpuSolver {
             kernel: match &self.stepper {
                 Stepper::Implicit(implicit) => implicit.kernel(),
                 Stepper::Fused(fused) => fused.kernel(),
-                Stepper::Explicit(_) => "per-spring + gather",
+                Stepper::PerSpring(_) => "per-spring + gather",
             },
             ..implicit
         }

@@ -1,5 +1,5 @@
 // acceleration.wgsl: a particle's acceleration from the forces the other particles exert on it,
-// imported by forces.wgsl and fused_step.wgsl, so that both paths
+// imported by forces.wgsl and the fused step (explicit.wgsl), so that both paths
 // add the same terms in the same order (crates/cpu/src/forces.rs, `acceleration_with`):
 //
 //   f = m g − drag·m·v + between,   a = (f + contact_force(f)) / m,

@@ -1,5 +1,5 @@
 // finite.wgsl: the instability record of one particle (check_finite.wgsl's header has the
-// scheme), imported by check_finite.wgsl and fused_step.wgsl.
+// scheme), imported by check_finite.wgsl and the fused step (explicit.wgsl).
 // Twins: `softbody_gpu::layout::{Status, StepIndex}`.
 
 #import common

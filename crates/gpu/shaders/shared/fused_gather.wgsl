@@ -1,7 +1,7 @@
 // fused_gather.wgsl: the fused step's springs through the CSR adjacency (gather.wgsl's loop over
-// `gathered(s)`), for any model: imported by fused_step.wgsl (`Stage::FusedStep`). Models whose
-// bodies are all lattices take stencil.wgsl instead (`Stage::FusedStencil`), which reads no spring
-// record and no adjacency.
+// `gathered(s)`), for any model: imported by the fused step (explicit.wgsl, `Stage::FusedStep`).
+// Models whose bodies are all lattices take stencil.wgsl instead (`Stage::FusedStencil`), which
+// reads no spring record and no adjacency.
 
 #import common
 #import gather

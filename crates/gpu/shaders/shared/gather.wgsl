@@ -1,5 +1,5 @@
 // gather.wgsl: the per-particle gather over the CSR adjacency, imported by forces.wgsl,
-// system.wgsl and product.wgsl, and by fused_gather.wgsl for fused_step.wgsl.
+// system.wgsl and product.wgsl, and by fused_gather.wgsl for the fused step (explicit.wgsl).
 //
 // `adjacency` holds the offsets (n + 1 words) followed by the entries (2·springs words): particle
 // i's run is entries[offsets[i]..offsets[i+1]], in ascending spring order, entry e = 2s + side.
@@ -8,7 +8,7 @@
 // float atomics, so a run repeats bit for bit on one adapter.
 //
 // `gathered(s)`, spring s's vector as seen from its end a, is the including stage's: forces.wgsl
-// and system.wgsl read it from the per-spring vectors a per-spring kernel wrote; fused_step.wgsl
+// and system.wgsl read it from the per-spring vectors a per-spring kernel wrote; the fused step
 // computes the spring force itself from the two ends' states. The same loop in both keeps the
 // order, hence the bits: the fused step gathers exactly what the per-spring path gathers.
 

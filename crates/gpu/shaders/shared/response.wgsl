@@ -1,6 +1,6 @@
 // response.wgsl: the collision response of one particle after a step (the law is in
 // collision_response.wgsl's header, twin crates/cpu/src/collision_response.rs), shared by
-// collision_response.wgsl and fused_step.wgsl.
+// collision_response.wgsl and the fused step (explicit.wgsl).
 
 #import common
 #import terrain

@@ -1,7 +1,8 @@
 // stencil.wgsl ↔ crates/cpu/src/spring_forces/stencil.rs: the fused step's springs for models whose
 // bodies are all lattices (cuboids, mesh bodies), found on the body's lattice by lattice.wgsl;
-// imported by fused_step.wgsl in place of fused_gather.wgsl (and so gather.wgsl) where it is
-// composed with `stencil` (`Stage::FusedStencil`). No spring record and no adjacency is read.
+// imported by the fused step (explicit.wgsl) in place of fused_gather.wgsl (and so gather.wgsl)
+// where it is composed with `stencil` (`Stage::FusedStencil`). No spring record and no adjacency is
+// read.
 //
 // gather(i) has gather.wgsl's result bit for bit. The CSR run of particle i at point p is, in
 // ascending spring order, the springs ending at p (first end p − d, which ascends as the linear

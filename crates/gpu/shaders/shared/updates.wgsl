@@ -1,7 +1,7 @@
-// updates.wgsl: the explicit integrators' update equations on y = (x, v), y' = (v, a), written
-// once for the per-spring path's kernels (<integrator>.wgsl, a read from its buffer) and the
-// fused step (fused_step.wgsl, a computed in the kernel). Each is the same f32 operations in
-// the same order wherever it is called, which is what keeps the two paths bit-identical.
+// updates.wgsl: the explicit integrators' update equations on y = (x, v), y' = (v, a), which
+// explicit.wgsl's kernels apply on both paths (a read from its buffer on the per-spring path,
+// computed in the kernel on the fused one): the same f32 operations in the same order on both,
+// which is what keeps the two paths bit-identical.
 
 struct Y {
     x: vec4<f32>,

@@ -1,4 +1,4 @@
-//! `shaders/fused_step.wgsl` ↔ `softbody_cpu::pipeline`: the explicit integrators with one
+//! `shaders/explicit.wgsl` with `fused` ↔ `softbody_cpu::pipeline`: the explicit integrators with one
 //! dispatch per stage — each thread gathers its springs' forces from its neighbours, updates its
 //! particle, and after a step's last stage responds to the terrain and checks finiteness — in
 //! place of the per-spring path's spring forces → gather → update → collision response →
@@ -29,6 +29,7 @@ use std::sync::Arc;
 
 use softbody_scene::Integrator;
 
+use super::entries;
 use crate::buffers::SpringBuffers;
 use crate::builder::Setup;
 use crate::grid::Grid;
@@ -59,17 +60,6 @@ pub(crate) struct Fused {
 }
 
 impl Fused {
-    /// Names of the kernels of `integrator`, in the order of a step.
-    pub fn entries(integrator: Integrator) -> &'static [&'static str] {
-        match integrator {
-            Integrator::ExplicitEuler => &["explicit_euler"],
-            Integrator::SymplecticEuler => &["symplectic_euler"],
-            Integrator::Midpoint => &["midpoint_stage", "midpoint_update"],
-            Integrator::Rk4 => &["rk4_first", "rk4_second", "rk4_third", "rk4_last"],
-            Integrator::ImplicitEuler => &[],
-        }
-    }
-
     /// `integrator` fused, with the collision response's record of each step's start in
     /// `start` (None without terrain), gathering by the stencil of the lattices where the
     /// buffers hold them (the stencil route), through the spring records otherwise. Fails with
@@ -85,7 +75,7 @@ impl Fused {
             SpringBuffers::Lattices { .. } => (Stage::FusedStencil, true),
             SpringBuffers::List(_) => (Stage::FusedStep, false),
         };
-        let entries = Fused::entries(integrator);
+        let entries = entries(integrator);
         for entry in entries {
             s.builder.fits(stage, entry)?;
         }

@@ -3,48 +3,28 @@
 //!
 //! The explicit family is encoded on the device step after step (many steps per submission),
 //! fused where it can be ([`fused`]: one dispatch per stage, the collision response and the
-//! finiteness check included), otherwise on the per-spring path:
-//!
-//! | integrator | dispatches of a step (per-spring path) |
-//! |---|---|
-//! | explicit / symplectic Euler | forces(x, v) → update |
-//! | midpoint | forces(x, v) → `midpoint_stage` → forces(stage) → `midpoint_update` |
-//! | RK4 | forces(x, v) → `rk4_first` → forces(stage) → `rk4_second` → forces(stage) → `rk4_third` → forces(stage) → `rk4_last` |
-//!
-//! where forces(·) is [`Accelerations`] (spring forces, then the gather). The solver adds the
-//! collision response (with terrain) and the instability check. The per-spring path serves
-//! models whose bodies touch (their pair forces need the broad phase's grid of each stage's
-//! state) and adapters that cannot bind the fused kernels' buffers. Implicit Euler is driven
-//! from the host, which reads the CG's progress back ([`implicit_euler`]).
+//! finiteness check included), otherwise on the per-spring path ([`per_spring`]: the forces of
+//! each stage's state, then its update; the solver adds the collision response and the
+//! instability check). Both paths run the kernels of one file, `shaders/explicit.wgsl`, whose
+//! entry points are each method's stages ([`entries`]). Implicit Euler is driven from the host,
+//! which reads the CG's progress back ([`implicit_euler`]).
 //!
 //! Where the fused step finds its springs on the lattices (every body a lattice), the run needs
 //! no spring list at all: [`Route`] decides that before anything is allocated, and both the
 //! buffers ([`crate::buffers`]) and the [`Stepper`] follow its decision.
 
-pub mod explicit_euler;
 pub mod fused;
 pub mod implicit_euler;
-pub mod midpoint;
-pub mod rk4;
-pub mod symplectic_euler;
+pub mod per_spring;
 
 use softbody_scene::{Integrator, Model};
 
 use crate::builder::{Setup, answer, fits};
 use crate::chunks::Chunking;
-use crate::forces::Accelerations;
-use crate::grid::Grid;
-use crate::kernel::Call;
 use crate::layout::{SpringBlockGpu, SpringGpu};
 use crate::limits::check_chunks;
 use crate::shaders::Stage;
 use crate::{GpuError, GpuOptions};
-
-/// An integrator whose steps are encoded on the device alone.
-pub(crate) trait ExplicitStep: Send {
-    /// Encodes one step's force evaluations and updates.
-    fn encode(&self, pass: &mut wgpu::ComputePass<'_>);
-}
 
 /// The integrator of a run.
 pub(crate) enum Stepper {
@@ -52,7 +32,7 @@ pub(crate) enum Stepper {
     /// check are its own.
     Fused(fused::Fused),
     /// Explicit Euler, symplectic Euler, midpoint or RK4 on the per-spring path.
-    Explicit(Box<dyn ExplicitStep>),
+    PerSpring(per_spring::PerSpring),
     /// Implicit Euler.
     Implicit(Box<implicit_euler::ImplicitEuler>),
 }
@@ -93,7 +73,7 @@ impl Route {
             std::mem::size_of::<SpringGpu>()
         } as u64;
         let fused = fused_applies(integrator, model.contact.enabled(), options.per_spring);
-        let entries = fused::Fused::entries(integrator);
+        let entries = entries(integrator);
         // Whether `stage`'s fused kernels fit; a limit is an answer, anything else an error.
         let fit = |stage, chunking| answer(fits(limits, adapter, stage, entries, chunking));
         let lattices = model.lattices().len() == model.bodies.len();
@@ -138,39 +118,22 @@ impl Stepper {
             return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?));
         }
         Ok(match integrator {
-            Integrator::ExplicitEuler => Stepper::Explicit(Box::new(explicit_euler::new(s)?)),
-            Integrator::SymplecticEuler => Stepper::Explicit(Box::new(symplectic_euler::new(s)?)),
-            Integrator::Midpoint => Stepper::Explicit(Box::new(midpoint::Midpoint::new(s)?)),
-            Integrator::Rk4 => Stepper::Explicit(Box::new(rk4::Rk4::new(s)?)),
             Integrator::ImplicitEuler => Stepper::Implicit(Box::new(
                 implicit_euler::ImplicitEuler::new(s, terrain, per_spring)?,
             )),
+            _ => Stepper::PerSpring(per_spring::PerSpring::new(s, integrator)?),
         })
     }
 }
 
-/// A single-stage explicit method: forces at (x, v), then one update kernel.
-pub(crate) struct SingleStage {
-    forces: Accelerations,
-    update: Call,
-    grid: Grid,
-}
-
-impl SingleStage {
-    /// The method whose update is `entry` of `stage`.
-    fn new(s: Setup<'_>, stage: Stage, entry: &'static str) -> Result<SingleStage, GpuError> {
-        let b = s.buffers;
-        Ok(SingleStage {
-            forces: Accelerations::new(s, &b.x, &b.v)?,
-            update: s.builder.call(stage, entry, &b.resources())?,
-            grid: s.particles,
-        })
-    }
-}
-
-impl ExplicitStep for SingleStage {
-    fn encode(&self, pass: &mut wgpu::ComputePass<'_>) {
-        self.forces.encode(pass);
-        self.update.run(pass, self.grid);
+/// Names of `integrator`'s kernels in `shaders/explicit.wgsl`, in the order of a step, on
+/// either path (none for implicit Euler).
+pub(crate) fn entries(integrator: Integrator) -> &'static [&'static str] {
+    match integrator {
+        Integrator::ExplicitEuler => &["explicit_euler"],
+        Integrator::SymplecticEuler => &["symplectic_euler"],
+        Integrator::Midpoint => &["midpoint_stage", "midpoint_update"],
+        Integrator::Rk4 => &["rk4_first", "rk4_second", "rk4_third", "rk4_last"],
+        Integrator::ImplicitEuler => &[],
     }
 }

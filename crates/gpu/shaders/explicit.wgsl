@@ -1,6 +1,40 @@
-// fused_step.wgsl ↔ crates/cpu/src/pipeline.rs (the fused passes of the explicit integrators):
-// one dispatch per integrator stage, one thread per particle, in place of today's spring forces
-// per spring → gather → update → collision response → check_finite.
+// explicit.wgsl ↔ crates/cpu/src/integrators/{explicit_euler,symplectic_euler,midpoint,rk4}.rs
+// and crates/cpu/src/pipeline.rs: the explicit integrators' kernels, one per stage of each
+// method, written once for both of the GPU's paths (crates/gpu/src/integrators/). On
+// y = (x, v), y' = (v, a(x, v)), with the update equations of updates.wgsl:
+//
+//   explicit (forward) Euler:  x' = x + h v,   v' = v + h a;
+//   symplectic Euler:          v' = v + h a,   x' = x + h v';
+//   midpoint (RK2):            y_m = y + (h/2) y'(y),   then   y ← y + h y'(y_m);
+//   RK4:                       k1 = y'(y), k2 = y'(y + h/2 k1), k3 = y'(y + h/2 k2),
+//                              k4 = y'(y + h k3),   y ← y + h/6 (k1 + 2k2 + 2k3 + k4),
+//
+// RK4's weighted sum accumulated as the stages go (the CPU's memory-lean scheme: one stage state
+// and the running sums sum_x, sum_v). A kernel reads the state it evaluates at as (x, v), and
+// reaches everything else through six functions its path defines: `acceleration(i)` (a at that
+// state), `stage_velocity(i)` (its velocity, where it is a stage state), `step_start(i)` (the
+// step's start y, which the step's last kernel updates), `stage_base(i)` (y, read by a kernel
+// that writes the next stage), `set_stage(i, y)` and `end_step(i, y)`.
+//
+// # The per-spring path (no define: `Stage::Explicit`)
+//
+// `accelerations` (forces.wgsl) has written a = a(x, v) of the state, the solver's (x, v) or the
+// stage state (stage_x, stage_v), and each kernel updates element-wise, one thread per
+// particle, so the result does not depend on the dispatch (each thread reads its stage velocity
+// before overwriting it). A step is:
+//
+//   Euler:     accelerations(x, v) → explicit_euler | symplectic_euler
+//   midpoint:  accelerations(x, v) → midpoint_stage (x_m = x + h/2 v, v_m = v + h/2 a)
+//              → accelerations(x_m, v_m) → midpoint_update (x ← x + h v_m, v ← v + h a)
+//   RK4:       accelerations(x, v)  → rk4_first:  sum = (v, a);       stage = y + h/2 (v, a)
+//              accelerations(stage) → rk4_second: sum += 2 (v_s, a);  stage = y + h/2 (v_s, a)
+//              accelerations(stage) → rk4_third:  sum += 2 (v_s, a);  stage = y + h (v_s, a)
+//              accelerations(stage) → rk4_last:   sum += (v_s, a);    y += h/6 sum
+//
+// # The fused path (`fused`: `Stage::FusedStep`; with `stencil` too, `Stage::FusedStencil`)
+//
+// One dispatch per integrator stage, one thread per particle, in place of the per-spring path's
+// spring forces per spring → gather → update → collision response → check_finite.
 //
 // Thread i, for the state (x, v) this dispatch evaluates the forces at:
 //
@@ -16,8 +50,7 @@
 //    by its lattice's stencil (stencil.wgsl, `Stage::FusedStencil`) with the same terms in the
 //    same order;
 // 2. a = (m g − drag·m·v + Σ + contact(f)) / m (acceleration.wgsl; a = 0 when pinned);
-// 3. the stage's update (below; its equations are updates.wgsl's, which the per-spring path's
-//    kernels call too), into `x_next`, `v_next`;
+// 3. the stage's update (below, the per-spring path's kernels), into `x_next`, `v_next`;
 // 4. after a step's last stage: the collision response with terrain (response.wgsl, pinned
 //    particles left alone) and the finiteness record of step `step_index` (finite.wgsl).
 //
@@ -41,6 +74,7 @@
 // as do adapters with too few storage buffers per stage for these kernels.
 
 #import common
+#ifdef fused
 #import finite
 #ifdef stencil
 #import stencil
@@ -49,8 +83,10 @@
 #endif
 #import acceleration
 #import response
+#endif
 #import updates
 
+#ifdef fused
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> v: array<vec4<f32>>;
 // status (3) and step_index (5) are declared by finite.wgsl; adjacency (4) and springs (7) by
@@ -71,7 +107,7 @@ var<private> own_x: vec3<f32>;
 var<private> own_v: vec3<f32>;
 
 // a(x, v) of particle i, as forces.wgsl's `accelerations` writes it.
-fn acceleration_of(i: u32) -> vec4<f32> {
+fn acceleration(i: u32) -> vec4<f32> {
     let mw = mass[i];
     if mw.y == 0.0 {
         return vec4<f32>(0.0);
@@ -82,11 +118,31 @@ fn acceleration_of(i: u32) -> vec4<f32> {
     return vec4<f32>(free_acceleration(mw, own_x, own_v, gather(i)), 0.0);
 }
 
-// The end of a step: particle i's new state (xn, vn) after the collision response, into
+// A stage state is bound as (x, v).
+fn stage_velocity(i: u32) -> vec4<f32> {
+    return v[i];
+}
+
+// The last kernel of a step updates y in place, so y is its (x_next, v_next).
+fn step_start(i: u32) -> Y {
+    return Y(x_next[i], v_next[i]);
+}
+
+// RK4's middle stages write the next stage into (x_next, v_next) and read y beside it.
+fn stage_base(i: u32) -> Y {
+    return Y(base_x[i], base_v[i]);
+}
+
+fn set_stage(i: u32, y: Y) {
+    x_next[i] = y.x;
+    v_next[i] = y.v;
+}
+
+// The end of a step: particle i's new state y after the collision response, into
 // (x_next, v_next), and its finiteness record.
-fn finish(i: u32, xn: vec4<f32>, vn: vec4<f32>) {
-    var xi = xn.xyz;
-    var vi = vn.xyz;
+fn end_step(i: u32, y: Y) {
+    var xi = y.x.xyz;
+    var vi = y.v.xyz;
     if params.n_surfaces > 0u && mass[i].y != 0.0 {
         let r = respond(start[i], xi, vi);
         xi = r.x;
@@ -97,16 +153,44 @@ fn finish(i: u32, xn: vec4<f32>, vn: vec4<f32>) {
     v_next[i] = vec4<f32>(vi, 0.0);
     check_particle(i, xi, vi);
 }
+#else
+@group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> a: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read_write> stage_x: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> stage_v: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> sum_x: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read_write> sum_v: array<vec4<f32>>;
 
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn symplectic_euler(id: Invocation) {
-    let i = thread_of(id);
-    if i >= params.n_particles {
-        return;
-    }
-    let y = symplectic(Y(x[i], v[i]), acceleration_of(i), params.dt);
-    finish(i, y.x, y.v);
+fn acceleration(i: u32) -> vec4<f32> {
+    return a[i];
 }
+
+// The forces of a stage state are those of (stage_x, stage_v), which a kernel updates after
+// reading.
+fn stage_velocity(i: u32) -> vec4<f32> {
+    return stage_v[i];
+}
+
+// y stays in the solver's (x, v), which only a step's last kernel writes.
+fn step_start(i: u32) -> Y {
+    return Y(x[i], v[i]);
+}
+
+fn stage_base(i: u32) -> Y {
+    return step_start(i);
+}
+
+fn set_stage(i: u32, y: Y) {
+    stage_x[i] = y.x;
+    stage_v[i] = y.v;
+}
+
+fn end_step(i: u32, y: Y) {
+    x[i] = y.x;
+    v[i] = y.v;
+}
+#endif
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn explicit_euler(id: Invocation) {
@@ -115,8 +199,16 @@ fn explicit_euler(id: Invocation) {
         return;
     }
     let vi = v[i];
-    let y = advance(Y(x[i], vi), vi, acceleration_of(i), params.dt);
-    finish(i, y.x, y.v);
+    end_step(i, advance(Y(x[i], vi), vi, acceleration(i), params.dt));
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn symplectic_euler(id: Invocation) {
+    let i = thread_of(id);
+    if i >= params.n_particles {
+        return;
+    }
+    end_step(i, symplectic(Y(x[i], v[i]), acceleration(i), params.dt));
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -126,9 +218,7 @@ fn midpoint_stage(id: Invocation) {
         return;
     }
     let vi = v[i];
-    let stage = advance(Y(x[i], vi), vi, acceleration_of(i), 0.5 * params.dt);
-    x_next[i] = stage.x;
-    v_next[i] = stage.v;
+    set_stage(i, advance(Y(x[i], vi), vi, acceleration(i), 0.5 * params.dt));
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -137,8 +227,7 @@ fn midpoint_update(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let y = advance(Y(x_next[i], v_next[i]), v[i], acceleration_of(i), params.dt);
-    finish(i, y.x, y.v);
+    end_step(i, advance(step_start(i), stage_velocity(i), acceleration(i), params.dt));
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -148,24 +237,20 @@ fn rk4_first(id: Invocation) {
         return;
     }
     let vi = v[i];
-    let ai = acceleration_of(i);
+    let ai = acceleration(i);
     sum_x[i] = vi;
     sum_v[i] = ai;
-    let stage = advance(Y(x[i], vi), vi, ai, 0.5 * params.dt);
-    x_next[i] = stage.x;
-    v_next[i] = stage.v;
+    set_stage(i, advance(Y(x[i], vi), vi, ai, 0.5 * params.dt));
 }
 
 // k2 and k3: add 2·(v_s, a) to the sums and move to the stage y + next·(v_s, a).
 fn rk4_middle(i: u32, next: f32) {
-    let vs = v[i];
-    let ai = acceleration_of(i);
+    let vs = stage_velocity(i);
+    let ai = acceleration(i);
     let sum = rk4_accumulate(Y(sum_x[i], sum_v[i]), vs, ai);
     sum_x[i] = sum.x;
     sum_v[i] = sum.v;
-    let stage = advance(Y(base_x[i], base_v[i]), vs, ai, next);
-    x_next[i] = stage.x;
-    v_next[i] = stage.v;
+    set_stage(i, advance(stage_base(i), vs, ai, next));
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -192,7 +277,6 @@ fn rk4_last(id: Invocation) {
     if i >= params.n_particles {
         return;
     }
-    let y = Y(x_next[i], v_next[i]);
-    let z = rk4_finish(y, Y(sum_x[i], sum_v[i]), v[i], acceleration_of(i), params.dt);
-    finish(i, z.x, z.v);
+    let sum = Y(sum_x[i], sum_v[i]);
+    end_step(i, rk4_finish(step_start(i), sum, stage_velocity(i), acceleration(i), params.dt));
 }
