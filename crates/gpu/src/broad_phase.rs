@@ -17,7 +17,7 @@
 //! of the state that the counting kernel writes (the step's start for the penalty forces, its
 //! end for the response; [`Snapshot`]).
 
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources};
 use crate::layout::ScanLevel;

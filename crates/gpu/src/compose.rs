@@ -234,12 +234,23 @@ mod tests {
         let text = "// stage\n#import c\n#import a\nfn main() { c(); }";
         assert_eq!(
             code(text, &[]),
-            ["// stage", "fn a() {}", "fn b() { a(); }", "fn c() { b(); }", "fn main() { c(); }"]
+            [
+                "// stage",
+                "fn a() {}",
+                "fn b() { a(); }",
+                "fn c() { b(); }",
+                "fn main() { c(); }"
+            ]
         );
         let module = compose("stage.wgsl", text, &[], &pieces).unwrap();
         assert_eq!(
             module.files(),
-            ["stage.wgsl", "shared/a.wgsl", "shared/b.wgsl", "shared/c.wgsl"]
+            [
+                "stage.wgsl",
+                "shared/a.wgsl",
+                "shared/b.wgsl",
+                "shared/c.wgsl"
+            ]
         );
         assert!(
             module
@@ -299,10 +310,7 @@ mod tests {
     #[test]
     fn an_import_cycle_is_an_error() {
         let e = composed("#import loop", &[]).unwrap_err();
-        assert_eq!(
-            e,
-            "shared/round.wgsl:1: import cycle: loop → round → loop"
-        );
+        assert_eq!(e, "shared/round.wgsl:1: import cycle: loop → round → loop");
     }
 
     #[test]
@@ -317,13 +325,19 @@ mod tests {
         assert_eq!(code(nested, &["x"]), ["fn x() {}"]);
         assert!(code(nested, &["y"]).is_empty());
         // An import in a dropped branch is not looked up.
-        assert_eq!(code("#ifdef x\n#import nowhere\n#endif", &[]), Vec::<String>::new());
+        assert_eq!(
+            code("#ifdef x\n#import nowhere\n#endif", &[]),
+            Vec::<String>::new()
+        );
     }
 
     #[test]
     fn unbalanced_or_unknown_directives_are_errors_naming_the_line() {
         let e = |text: &str| composed(text, &[]).unwrap_err();
-        assert_eq!(e("fn f() {}\n#endif"), "stage.wgsl:2: #endif without #ifdef");
+        assert_eq!(
+            e("fn f() {}\n#endif"),
+            "stage.wgsl:2: #endif without #ifdef"
+        );
         assert_eq!(e("#else"), "stage.wgsl:1: #else without #ifdef");
         assert_eq!(
             e("#ifdef x\n#else\n#else\n#endif"),
@@ -335,6 +349,9 @@ mod tests {
         );
         assert_eq!(e("#include a"), "stage.wgsl:1: unknown directive #include");
         assert_eq!(e("#import"), "stage.wgsl:1: #import needs a name");
-        assert_eq!(e("#ifdef x\n#endif x"), "stage.wgsl:2: #endif takes no argument");
+        assert_eq!(
+            e("#ifdef x\n#endif x"),
+            "stage.wgsl:2: #endif takes no argument"
+        );
     }
 }

@@ -8,7 +8,8 @@
 //! particles get a = 0.
 
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::body_contact::BodyContact;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
@@ -24,15 +25,16 @@ pub(crate) struct Accelerations {
 }
 
 impl Accelerations {
-    /// The accelerations at the state `(x, v)`: the solver's, or a stage state.
+    /// The accelerations at the state `(x, v)`: the solver's, or a stage state; with the
+    /// penalty forces of the pairs of `contact`, for models whose bodies touch.
     pub fn new(
         s: Setup<'_>,
+        contact: Option<&BodyContact>,
         x: &wgpu::Buffer,
         v: &wgpu::Buffer,
     ) -> Result<Accelerations, GpuError> {
         let resources = s.buffers.resources().buffer("x", x).buffer("v", v);
-        let pair_forces = s
-            .body_contact
+        let pair_forces = contact
             .map(|contact| contact.pair_forces(s, x, v))
             .transpose()?;
         let entry = if pair_forces.is_some() {

@@ -39,11 +39,11 @@ impl Parsed {
     /// the shaders: its message names the line of the file at fault.
     pub fn new(stage: Stage, module: &Composed) -> Result<Parsed, String> {
         let source = &module.source;
-        let at = |location: Option<naga::SourceLocation>, message: String| {
-            match location.and_then(|l| module.locate(l.line_number as usize)) {
-                Some((file, line)) => format!("{file}:{line}: {message}"),
-                None => message,
-            }
+        let at = |location: Option<naga::SourceLocation>, message: String| match location
+            .and_then(|l| module.locate(l.line_number as usize))
+        {
+            Some((file, line)) => format!("{file}:{line}: {message}"),
+            None => message,
         };
         let naga = naga::front::wgsl::parse_str(source).map_err(|e| {
             at(

@@ -19,6 +19,24 @@
 //!
 //! Without an adapter [`GpuSolver::new`] fails with [`GpuError::NoAdapter`], which says which
 //! backends were tried and how to get a software adapter.
+//!
+//! # Layers
+//!
+//! A module uses (`use crate::…`) only modules of its own layer or of the layers above it in
+//! this table, and the crate root's own items (`GpuError`, `WORKGROUP_SIZE`, `VEC4`,
+//! `STEPS_PER_SUBMISSION`), which every layer shares:
+//!
+//! | layer | modules | what they are |
+//! |---|---|---|
+//! | runtime and plain data | `device`, `submit`, `limits`, `layout`, `terrain`, `grid`, `chunks` | the adapter, its queue and what it allows; the host's twins of the WGSL structs and how the data is laid out for them |
+//! | shaders and kernels | `compose`, `shaders`, `kernel` | the WGSL composed per stage; kernels, their bindings read from it |
+//! | builder | `builder`, `buffers` | buffers and calls; the model and state on the device, and `Setup`, what a stage is built from |
+//! | stages | `spring_forces`, `forces`, `collision_response`, `check_finite`, `energy`, `broad_phase`, `body_contact` | one module per stage of a step, each the twin of `softbody-cpu`'s |
+//! | integrators | `integrators/…` | the steps, made of the stages |
+//! | solver | `plan`, `solver`, `debug` | the plan of a solver, the solver built from it, the stage read-backs |
+//!
+//! What a stage needs of another (the forces the contact between bodies, say) is handed to it
+//! by the layer that builds both, not kept in `Setup`.
 #![warn(missing_docs)]
 
 pub mod body_contact;
@@ -39,6 +57,7 @@ mod integrators;
 mod kernel;
 pub mod layout;
 mod limits;
+mod plan;
 pub mod shaders;
 mod solver;
 mod spring_forces;
@@ -48,7 +67,11 @@ pub mod terrain;
 pub use device::{ADAPTER_VARIABLE, Gpu};
 pub use grid::Grid;
 pub use integrators::implicit_euler::CG_TOLERANCE_F32;
-pub use solver::{GpuOptions, GpuSolver, STEPS_PER_SUBMISSION};
+pub use plan::GpuOptions;
+pub use solver::GpuSolver;
+
+/// Steps encoded into one command buffer at most (the check's table of step numbers).
+pub const STEPS_PER_SUBMISSION: u64 = 256;
 
 /// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/shared/common.wgsl`; the
 /// kernels are checked against it when their pipelines are made).

@@ -2,11 +2,11 @@
 //!
 //! `shaders/*.wgsl` are the stages, one file per module the host compiles ([`Stage`]), and
 //! `shaders/shared/*.wgsl` the pieces they share. WGSL has no includes: each file starts with
-//! `#import` lines naming the pieces it uses, which [`crate::compose`] substitutes, each once, in
-//! dependency order (`common.wgsl`, the parameters, springs and thread index, first in every
-//! module). The table of [`Stage`] below is the one list of the stages: each names its file and,
-//! where one file makes several modules, the defines that choose its `#ifdef` branches (the
-//! explicit integrators' kernels, `explicit.wgsl`, on the per-spring path, fused, and fused on
+//! `#import` lines naming the pieces it uses, which the preprocessor (`compose.rs`) substitutes,
+//! each once, in dependency order (`common.wgsl`, the parameters, springs and thread index, first
+//! in every module). The table of [`Stage`] below is the one list of the stages: each names its
+//! file and, where one file makes several modules, the defines that choose its `#ifdef` branches
+//! (the explicit integrators' kernels, `explicit.wgsl`, on the per-spring path, fused, and fused on
 //! the lattices' stencil).
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
@@ -19,24 +19,15 @@
 //! `gathered(s)`, the stored per-spring vector `gather.wgsl` sums), `block_chunks`
 //! (`block_at(s)`) and `spring_chunks` (`spring_at(s)`). They declare the extra chunks as
 //! `per_spring_1`, `per_spring_2`, … from [`PER_SPRING_CHUNK_BINDING`], `block_1`, … from
-//! [`BLOCK_CHUNK_BINDING`] and `spring_1`, … from [`SPRING_CHUNK_BINDING`].
+//! [`BLOCK_CHUNK_BINDING`] and `spring_1`, … from [`SPRING_CHUNK_BINDING`] (numbers of
+//! [`crate::chunks`]).
 
 use std::borrow::Cow;
 
-use crate::chunks::Chunking;
+use crate::chunks::{
+    BLOCK_CHUNK_BINDING, Chunking, PER_SPRING_CHUNK_BINDING, SPRING_CHUNK_BINDING,
+};
 use crate::compose::{Composed, Piece, compose};
-
-/// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
-/// chunk 0 is binding 3).
-pub const PER_SPRING_CHUNK_BINDING: u32 = 16;
-
-/// Binding of implicit Euler's spring blocks' chunk 1 in `assemble_particles` and the fused
-/// product (chunk c at this + c − 1; chunk 0 is binding 7).
-pub const BLOCK_CHUNK_BINDING: u32 = 32;
-
-/// Binding of the spring records' chunk 1 in the fused step's kernels and the fused product
-/// (chunk c at this + c − 1; chunk 0 is binding 7 in the fused step, 6 in the fused product).
-pub const SPRING_CHUNK_BINDING: u32 = 16;
 
 /// The uniforms bound at a dynamic offset, which WGSL cannot say: the step number of
 /// `finite.wgsl`, one slot of a constant table per step of a submission; the level of the broad

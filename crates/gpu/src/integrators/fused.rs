@@ -1,8 +1,8 @@
-//! `shaders/explicit.wgsl` with `fused` ↔ `softbody_cpu::pipeline`: the explicit integrators with one
-//! dispatch per stage — each thread gathers its springs' forces from its neighbours, updates its
-//! particle, and after a step's last stage responds to the terrain and checks finiteness — in
-//! place of the per-spring path's spring forces → gather → update → collision response →
-//! check (5 dispatches per symplectic-Euler step, 2 + 3 per further force evaluation).
+//! `shaders/explicit.wgsl` with `fused` ↔ `softbody_cpu::pipeline`: the explicit integrators with
+//! one dispatch per stage — each thread gathers its springs' forces from its neighbours, updates
+//! its particle, and after a step's last stage responds to the terrain and checks finiteness — in
+//! place of the per-spring path's spring forces → gather → update → collision response → check (5
+//! dispatches per symplectic-Euler step, 2 + 3 per further force evaluation).
 //!
 //! | integrator | dispatches of a step |
 //! |---|---|
@@ -19,7 +19,7 @@
 //! place: their last stage reads the neighbours from a stage state and writes only its own
 //! particle of (x, v).
 //!
-//! On the stencil route ([`crate::integrators::Route`]: every body a lattice, cuboids and mesh
+//! On the stencil route ([`crate::buffers::Route`]: every body a lattice, cuboids and mesh
 //! bodies) the kernels find their springs on the lattices (`Stage::FusedStencil`,
 //! `shaders/shared/stencil.wgsl`): per body a table of its offsets' parameters and their two
 //! orders, per mesh body its mask, and no spring record or adjacency read — the same sums bit for
@@ -30,8 +30,7 @@ use std::sync::Arc;
 use softbody_scene::Integrator;
 
 use super::entries;
-use crate::buffers::SpringBuffers;
-use crate::builder::Setup;
+use crate::buffers::{Setup, SpringBuffers};
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources, Traffic};
 use crate::shaders::Stage;

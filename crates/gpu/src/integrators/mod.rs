@@ -10,21 +10,19 @@
 //! which reads the CG's progress back ([`implicit_euler`]).
 //!
 //! Where the fused step finds its springs on the lattices (every body a lattice), the run needs
-//! no spring list at all: [`Route`] decides that before anything is allocated, and both the
-//! buffers ([`crate::buffers`]) and the [`Stepper`] follow its decision.
+//! no spring list at all: the run's [`Route`], decided before anything is allocated
+//! ([`crate::plan`]), says so, and both the buffers ([`crate::buffers`]) and the [`Stepper`]
+//! follow it.
 
 pub mod fused;
 pub mod implicit_euler;
 pub mod per_spring;
 
-use softbody_scene::{Integrator, Model};
+use softbody_scene::Integrator;
 
-use crate::builder::{Setup, answer, fits};
-use crate::chunks::Chunking;
-use crate::layout::{SpringBlockGpu, SpringGpu};
-use crate::limits::check_chunks;
-use crate::shaders::Stage;
-use crate::{GpuError, GpuOptions};
+use crate::GpuError;
+use crate::body_contact::BodyContact;
+use crate::buffers::{Route, Setup};
 
 /// The integrator of a run.
 pub(crate) enum Stepper {
@@ -37,91 +35,43 @@ pub(crate) enum Stepper {
     Implicit(Box<implicit_euler::ImplicitEuler>),
 }
 
-/// How a run finds each particle's springs, and so what the device holds of them: decided
-/// once, before anything is allocated, by [`Route::of`]; the buffers uploaded and the
-/// [`Stepper`] built follow it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Route {
-    /// The explicit integrators fused, finding the springs on the lattices (`stencil.wgsl`):
-    /// neither the host nor the device holds a spring list.
-    Stencil,
-    /// The explicit integrators fused, gathering through the spring records and the CSR
-    /// adjacency (`fused_gather.wgsl`): nothing per spring is written.
-    Gather,
-    /// The spring list and what the per-spring kernels write into (the per-spring vectors, the
-    /// accelerations): the per-spring path and implicit Euler.
-    PerSpring,
-}
-
-impl Route {
-    /// The route of `model` on an adapter with `limits`, and the chunking of its spring list
-    /// (one empty chunk on the stencil route). The explicit integrators run fused
-    /// ([`fused_applies`]) where the adapter can bind the fused kernels (reflected from their
-    /// WGSL): on the stencil where every body is a lattice and `options` do not ask for the
-    /// gather, else on the gather. Everything else takes the per-spring route.
-    pub fn of(
-        model: &Model,
-        options: &GpuOptions,
-        limits: &wgpu::Limits,
-        adapter: &str,
-    ) -> Result<(Route, Chunking), GpuError> {
-        let integrator = model.simulation.integrator;
-        let implicit = integrator == Integrator::ImplicitEuler;
-        let stride = if implicit {
-            std::mem::size_of::<SpringBlockGpu>()
-        } else {
-            std::mem::size_of::<SpringGpu>()
-        } as u64;
-        let fused = fused_applies(integrator, model.contact.enabled(), options.per_spring);
-        let entries = entries(integrator);
-        // Whether `stage`'s fused kernels fit; a limit is an answer, anything else an error.
-        let fit = |stage, chunking| answer(fits(limits, adapter, stage, entries, chunking));
-        let lattices = model.lattices().len() == model.bodies.len();
-        if fused && lattices && !options.gather && fit(Stage::FusedStencil, Chunking::ONE)? {
-            return Ok((
-                Route::Stencil,
-                check_chunks(limits, adapter, 0, stride, implicit)?,
-            ));
-        }
-        let springs = model.spring_count() as u64;
-        let chunking = check_chunks(limits, adapter, springs, stride, implicit)?;
-        let route = if fused && fit(Stage::FusedStep, chunking)? {
-            Route::Gather
-        } else {
-            Route::PerSpring
-        };
-        Ok((route, chunking))
-    }
-}
-
-/// Whether `integrator` runs fused unless the adapter cannot bind the fused kernels: an
-/// explicit integrator, bodies that do not touch (`contact`: their pair forces need the broad
-/// phase of each stage's state), and `per_spring` not asking for the per-spring path.
-fn fused_applies(integrator: Integrator, contact: bool, per_spring: bool) -> bool {
-    integrator != Integrator::ImplicitEuler && !contact && !per_spring
+/// What an integrator's kernels work with besides the model's buffers: the stages the solver
+/// built before it, and whether there is terrain.
+#[derive(Clone, Copy)]
+pub(crate) struct Around<'a> {
+    /// The contact between bodies, for models whose bodies touch: every force evaluation adds
+    /// its pairs' penalty forces, implicit Euler's system their terms.
+    pub contact: Option<&'a BodyContact>,
+    /// The collision response's record of each step's start (explicit integrators with
+    /// terrain), which the fused step's last stage reads and renews.
+    pub start: Option<&'a wgpu::Buffer>,
+    /// Whether the scene has terrain (implicit Euler's contacts).
+    pub terrain: bool,
 }
 
 impl Stepper {
-    /// `integrator`'s buffers and calls on `route` ([`Route::of`], which found that the fused
-    /// kernels fit where it chose them); `terrain` says whether the scene has terrain, `start`
-    /// is the collision response's record of each step's start (explicit integrators with
-    /// terrain); `per_spring` keeps implicit Euler's product in its two passes.
+    /// `integrator`'s buffers and calls on `route` (where the plan chose a fused route, it
+    /// found that the fused kernels fit); `per_spring` keeps implicit Euler's product in its two
+    /// passes.
     pub fn new(
         s: Setup<'_>,
+        around: Around<'_>,
         integrator: Integrator,
-        terrain: bool,
-        start: Option<&wgpu::Buffer>,
         route: Route,
         per_spring: bool,
     ) -> Result<Stepper, GpuError> {
         if route != Route::PerSpring {
-            return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?));
+            return Ok(Stepper::Fused(fused::Fused::new(
+                s,
+                integrator,
+                around.start,
+            )?));
         }
         Ok(match integrator {
             Integrator::ImplicitEuler => Stepper::Implicit(Box::new(
-                implicit_euler::ImplicitEuler::new(s, terrain, per_spring)?,
+                implicit_euler::ImplicitEuler::new(s, around.contact, around.terrain, per_spring)?,
             )),
-            _ => Stepper::PerSpring(per_spring::PerSpring::new(s, integrator)?),
+            _ => Stepper::PerSpring(per_spring::PerSpring::new(s, around.contact, integrator)?),
         })
     }
 }

@@ -17,7 +17,8 @@
 use softbody_scene::Integrator;
 
 use super::entries;
-use crate::builder::Setup;
+use crate::body_contact::BodyContact;
+use crate::buffers::Setup;
 use crate::forces::Accelerations;
 use crate::grid::Grid;
 use crate::kernel::Call;
@@ -35,18 +36,23 @@ pub(crate) struct PerSpring {
 }
 
 impl PerSpring {
-    /// `integrator`'s stage state (midpoint, RK4) and running sums (RK4), and its calls.
-    pub fn new(s: Setup<'_>, integrator: Integrator) -> Result<PerSpring, GpuError> {
+    /// `integrator`'s stage state (midpoint, RK4) and running sums (RK4), and its calls; the
+    /// forces add the pairs' of `contact`.
+    pub fn new(
+        s: Setup<'_>,
+        contact: Option<&BodyContact>,
+        integrator: Integrator,
+    ) -> Result<PerSpring, GpuError> {
         let b = s.buffers;
         let entries = entries(integrator);
         let vectors = |label| s.builder.storage(label, s.n, VEC4);
         let stage = (entries.len() > 1).then(|| (vectors("stage_x"), vectors("stage_v")));
         let sums = (integrator == Integrator::Rk4).then(|| (vectors("sum_x"), vectors("sum_v")));
         let mut resources = b.resources();
-        let mut forces = vec![Accelerations::new(s, &b.x, &b.v)?];
+        let mut forces = vec![Accelerations::new(s, contact, &b.x, &b.v)?];
         if let Some((x, v)) = &stage {
             resources = resources.buffer("stage_x", x).buffer("stage_v", v);
-            forces.push(Accelerations::new(s, x, v)?);
+            forces.push(Accelerations::new(s, contact, x, v)?);
         }
         if let Some((x, v)) = &sums {
             resources = resources.buffer("sum_x", x).buffer("sum_v", v);

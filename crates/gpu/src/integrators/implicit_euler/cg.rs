@@ -18,7 +18,7 @@
 use super::system::{System, Vector};
 use super::{Buffers, SLOTS_RUNNING};
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
