@@ -10,11 +10,12 @@
 //                              k4 = y'(y + h k3),   y ← y + h/6 (k1 + 2k2 + 2k3 + k4),
 //
 // RK4's weighted sum accumulated as the stages go (the CPU's memory-lean scheme: one stage state
-// and the running sums sum_x, sum_v). A kernel reads the state it evaluates at as (x, v), and
-// reaches everything else through six functions its path defines: `acceleration(i)` (a at that
-// state), `stage_velocity(i)` (its velocity, where it is a stage state), `step_start(i)` (the
-// step's start y, which the step's last kernel updates), `stage_base(i)` (y, read by a kernel
-// that writes the next stage), `set_stage(i, y)` and `end_step(i, y)`.
+// and the running sums sum_x, sum_v). A method's first kernel reads the step's start y as (x, v)
+// on both paths; the paths differ in where the rest is, so the kernels reach it through six
+// functions each path defines: `acceleration(i)` (a at the state the dispatch evaluates),
+// `stage_velocity(i)` (that state's velocity, where it is a stage state), `step_start(i)` (y,
+// which the step's last kernel updates), `stage_base(i)` (y, read by a kernel that writes the
+// next stage), `set_stage(i, y)` and `end_step(i, y)`.
 //
 // # The per-spring path (no define: `Stage::Explicit`)
 //
@@ -166,8 +167,8 @@ fn acceleration(i: u32) -> vec4<f32> {
     return a[i];
 }
 
-// The forces of a stage state are those of (stage_x, stage_v), which a kernel updates after
-// reading.
+// The stage state is (stage_x, stage_v), whose accelerations `a` holds after the stage's
+// forces; a kernel reads it before overwriting it with the next stage.
 fn stage_velocity(i: u32) -> vec4<f32> {
     return stage_v[i];
 }
