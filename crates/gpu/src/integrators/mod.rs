@@ -1,5 +1,5 @@
-//! The integrators on the GPU, each a type owning its buffers and kernel calls, one module each
-//! (twins of `softbody_cpu::integrators`); [`Stepper`] holds the one a run uses.
+//! The integrators on the GPU (twins of `softbody_cpu::integrators`), each path a type owning
+//! its buffers and kernel calls; [`Stepper`] holds the one a run uses.
 //!
 //! The explicit family is encoded on the device step after step (many steps per submission),
 //! fused where it can be ([`fused`]: one dispatch per stage, the collision response and the
