@@ -4,7 +4,7 @@
 //! not a list) are summed plane by plane in parallel and the planes' sums added in plane order
 //! ([`energy_lattices`]): the same bits for any thread count.
 //!
-//! Twin of `shaders/energy.wgsl`: `energy_particles` (kinetic and gravitational terms),
+//! Twin of `crates/gpu/shaders/energy.wgsl`: `energy_particles` (kinetic and gravitational terms),
 //! `energy_springs` (a spring list) and `energy_lattices` (the lattices, on the GPU's stencil
 //! route).
 

@@ -35,8 +35,7 @@ use softbody_scene::Model;
 use softbody_scene::model::{SELF_CONTACT_EXCLUSION, SLOP, penalty};
 
 use crate::broad_phase::{BroadPhase, Snapshot, count_words};
-use crate::buffers::ModelBuffers;
-use crate::builder::Setup;
+use crate::buffers::{ModelBuffers, Setup};
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources};
 use crate::layout::{ContactParams, ContactParticleGpu, friction_code};

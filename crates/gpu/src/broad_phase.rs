@@ -1,6 +1,6 @@
 //! `shaders/broad_phase.wgsl` ↔ `softbody_cpu::broad_phase`: the hashed uniform grid of the
 //! particles with a contact radius, in which contact between bodies finds its pairs
-//! (`shaders/neighbours.wgsl` searches it).
+//! (`shaders/shared/neighbours.wgsl` searches it).
 //!
 //! Each particle's cell c = ⌊x/s⌋ (s a hair above 2·r_max) is hashed into one of B buckets (a
 //! power of two ≥ 2n: a particle far from the others costs nothing) with the CPU's hash, and
@@ -17,7 +17,7 @@
 //! of the state that the counting kernel writes (the step's start for the penalty forces, its
 //! end for the response; [`Snapshot`]).
 
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources};
 use crate::layout::ScanLevel;

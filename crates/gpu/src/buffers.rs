@@ -1,5 +1,5 @@
-//! The model and state on the device: the buffers every stage shares, and the table that binds
-//! them by the names the shaders use.
+//! The model and state on the device: the buffers every stage shares, the table that binds
+//! them by the names the shaders use, and [`Setup`], what a stage is built from.
 //!
 //! Vectors are `vec4<f32>` (w = 0); masses are `vec2(m, 1/m)` and the CSR adjacency is its
 //! offsets followed by its entries in one `u32` buffer, which keeps the force kernel at 8
@@ -17,10 +17,62 @@ use softbody_scene::{Model, State};
 
 use crate::builder::Builder;
 use crate::chunks::SpringChunks;
-use crate::integrators::Route;
-use crate::kernel::Resources;
+use crate::grid::Grid;
+use crate::kernel::{Call, Resources};
 use crate::layout::{LatticeBodyGpu, Params, SpringGpu, Status, StepIndex};
-use crate::{STEPS_PER_SUBMISSION, VEC4};
+use crate::shaders::Stage;
+use crate::{GpuError, STEPS_PER_SUBMISSION, VEC4};
+
+/// How a run finds each particle's springs, and so what the device holds of them: decided
+/// once, before anything is allocated (`crate::plan`); the buffers uploaded and the integrator
+/// built follow it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Route {
+    /// The explicit integrators fused, finding the springs on the lattices (`stencil.wgsl`):
+    /// neither the host nor the device holds a spring list.
+    Stencil,
+    /// The explicit integrators fused, gathering through the spring records and the CSR
+    /// adjacency (`fused_gather.wgsl`): nothing per spring is written.
+    Gather,
+    /// The spring list and what the per-spring kernels write into (the per-spring vectors, the
+    /// accelerations): the per-spring path and implicit Euler.
+    PerSpring,
+}
+
+/// What a stage is built from: the builder, the model's buffers, the spring chunks and the
+/// particle grid. (What one stage needs of another, the contact between bodies say, is passed
+/// to it beside this.)
+#[derive(Clone, Copy)]
+pub(crate) struct Setup<'a> {
+    /// Buffers and kernels.
+    pub builder: &'a Builder,
+    /// The model and state.
+    pub buffers: &'a ModelBuffers,
+    /// How the per-spring arrays are split.
+    pub chunks: &'a SpringChunks,
+    /// One thread per particle.
+    pub particles: Grid,
+    /// Particles.
+    pub n: u64,
+}
+
+impl<'a> Setup<'a> {
+    /// Calls of a per-spring kernel, one per spring chunk, each with that chunk's buffers
+    /// ([`ModelBuffers::chunk_resources`]) and what `extra` adds to them.
+    pub fn per_chunk<'r>(
+        &self,
+        stage: Stage,
+        entry: &'static str,
+        extra: impl Fn(usize, Resources<'r>) -> Resources<'r>,
+    ) -> Result<Vec<Call>, GpuError>
+    where
+        'a: 'r,
+    {
+        let tables =
+            (0..self.chunks.len()).map(|c| extra(c, self.buffers.chunk_resources(self.chunks, c)));
+        self.builder.calls(stage, entry, tables)
+    }
+}
 
 /// The buffers of the model and state.
 pub(crate) struct ModelBuffers {
@@ -50,7 +102,7 @@ pub(crate) struct ModelBuffers {
 /// The springs on the device.
 pub(crate) enum SpringBuffers {
     /// The stencil route: each lattice body's table and the mesh bodies' masks
-    /// (`lattice_bodies`, `lattice_points` of `shaders/lattice.wgsl`).
+    /// (`lattice_bodies`, `lattice_points` of `shaders/shared/lattice.wgsl`).
     Lattices {
         bodies: wgpu::Buffer,
         points: wgpu::Buffer,

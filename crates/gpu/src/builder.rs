@@ -1,5 +1,5 @@
-//! [`Builder`]: what every stage is built from — the device, the compiled modules, the terrain's
-//! bind group, and a tally of the device memory allocated.
+//! [`Builder`]: what every stage's buffers and kernels are made with — the device, the compiled
+//! modules, the terrain's bind group, and a tally of the device memory allocated.
 
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
@@ -8,12 +8,8 @@ use std::sync::Arc;
 use wgpu::util::DeviceExt;
 
 use crate::GpuError;
-use crate::body_contact::BodyContact;
-use crate::buffers::ModelBuffers;
 use crate::chunks::Chunking;
-use crate::chunks::SpringChunks;
 use crate::device::Gpu;
-use crate::grid::Grid;
 use crate::kernel::{self, Binding, Call, Kernel, Module, Parsed, Resources, Traffic};
 use crate::shaders::Stage;
 use crate::terrain::{SurfaceGpu, TerrainBuffers};
@@ -34,43 +30,6 @@ pub(crate) struct Builder {
     bytes: Cell<u64>,
     /// What the calls made here dispatch.
     traffic: Arc<Traffic>,
-}
-
-/// What a stage is built from: the builder, the model's buffers, the spring chunks, the
-/// particle grid and the contact between bodies.
-#[derive(Clone, Copy)]
-pub(crate) struct Setup<'a> {
-    /// Buffers and kernels.
-    pub builder: &'a Builder,
-    /// The model and state.
-    pub buffers: &'a ModelBuffers,
-    /// How the per-spring arrays are split.
-    pub chunks: &'a SpringChunks,
-    /// One thread per particle.
-    pub particles: Grid,
-    /// Particles.
-    pub n: u64,
-    /// The contact between bodies, for models whose bodies touch (the stages' forces add its
-    /// penalty forces).
-    pub body_contact: Option<&'a BodyContact>,
-}
-
-impl<'a> Setup<'a> {
-    /// Calls of a per-spring kernel, one per spring chunk, each with that chunk's buffers
-    /// ([`ModelBuffers::chunk_resources`]) and what `extra` adds to them.
-    pub fn per_chunk<'r>(
-        &self,
-        stage: Stage,
-        entry: &'static str,
-        extra: impl Fn(usize, Resources<'r>) -> Resources<'r>,
-    ) -> Result<Vec<Call>, GpuError>
-    where
-        'a: 'r,
-    {
-        let tables =
-            (0..self.chunks.len()).map(|c| extra(c, self.buffers.chunk_resources(self.chunks, c)));
-        self.builder.calls(stage, entry, tables)
-    }
 }
 
 /// Usage of the solver's storage buffers: bound, written by the host, read back.
@@ -189,7 +148,9 @@ impl Builder {
     /// `stage`'s module, compiled once.
     fn module(&self, stage: Stage) -> Result<std::cell::Ref<'_, Module>, GpuError> {
         if !self.modules.borrow().contains_key(&stage) {
-            let module = Module::new(&self.gpu.device, stage, stage.source_chunked(self.chunking))
+            let module = stage
+                .compose(self.chunking)
+                .and_then(|composed| Module::new(&self.gpu.device, stage, composed))
                 .map_err(|e| internal(&self.gpu.name(), e))?;
             self.modules.borrow_mut().insert(stage, module);
         }
@@ -297,8 +258,10 @@ pub(crate) fn fits(
     entries: &[&'static str],
     chunking: Chunking,
 ) -> Result<(), GpuError> {
-    let parsed =
-        Parsed::new(stage, &stage.source_chunked(chunking)).map_err(|e| internal(adapter, e))?;
+    let parsed = stage
+        .compose(chunking)
+        .and_then(|composed| Parsed::new(stage, &composed))
+        .map_err(|e| internal(adapter, e))?;
     let terrain_buffers = kernel::terrain_entries()
         .map_err(|e| internal(adapter, e))?
         .len() as u32;

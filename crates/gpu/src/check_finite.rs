@@ -8,7 +8,7 @@
 //! host write per step. The host resets the status before each submission and reads it after
 //! it: an instability is reported with the exact step, time and particle the CPU would report.
 
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;

@@ -20,6 +20,18 @@ use crate::WORKGROUP_SIZE;
 use crate::grid::Grid;
 use crate::layout::SpringChunk;
 
+/// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
+/// chunk 0 is binding 3).
+pub const PER_SPRING_CHUNK_BINDING: u32 = 16;
+
+/// Binding of implicit Euler's spring blocks' chunk 1 in `assemble_particles` and the fused
+/// product (chunk c at this + c − 1; chunk 0 is binding 7).
+pub const BLOCK_CHUNK_BINDING: u32 = 32;
+
+/// Binding of the spring records' chunk 1 in the fused step's kernels and the fused product
+/// (chunk c at this + c − 1; chunk 0 is binding 7 in the fused step, 6 in the fused product).
+pub const SPRING_CHUNK_BINDING: u32 = 16;
+
 /// Chunks of a per-spring array at most: the gathers' extra bindings are numbered below
 /// 16 + this (the per-spring vectors) and 32 + this (implicit Euler's blocks) in the generated
 /// accessors; in practice the adapter's storage buffers per stage bound the count first.
@@ -68,22 +80,26 @@ pub(crate) struct SpringChunks {
 }
 
 impl SpringChunks {
-    /// The chunks of `springs` springs split as `chunking` says, with their grids (at most
-    /// `width` workgroups wide, `max_rows` rows) and their uniform table; `None` if a grid does
-    /// not fit.
+    /// The dispatch grids of the chunks of `springs` springs split as `chunking` says, at most
+    /// `width` workgroups wide and `max_rows` rows; `None` if one does not fit.
+    pub fn grids(chunking: Chunking, springs: u64, width: u32, max_rows: u32) -> Option<Vec<Grid>> {
+        chunking
+            .ranges(springs)
+            .iter()
+            .map(|&(_, count)| Grid::with_width(count, width, max_rows))
+            .collect()
+    }
+
+    /// The chunks of `springs` springs split as `chunking` says, with their grids `grids`
+    /// ([`SpringChunks::grids`]) and their uniform table.
     pub fn new(
         device: &wgpu::Device,
         chunking: Chunking,
         springs: u64,
-        width: u32,
-        max_rows: u32,
+        grids: Vec<Grid>,
         uniform_alignment: u32,
-    ) -> Option<SpringChunks> {
+    ) -> SpringChunks {
         let ranges = chunking.ranges(springs);
-        let grids = ranges
-            .iter()
-            .map(|&(_, count)| Grid::with_width(count, width, max_rows))
-            .collect::<Option<Vec<Grid>>>()?;
         let stride = u64::from(uniform_alignment).max(std::mem::size_of::<SpringChunk>() as u64);
         let mut table = vec![0u8; (ranges.len() as u64 * stride) as usize];
         for (c, &(base, count)) in ranges.iter().enumerate() {
@@ -102,12 +118,12 @@ impl SpringChunks {
             contents: &table,
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        Some(SpringChunks {
+        SpringChunks {
             ranges,
             grids,
             table,
             stride,
-        })
+        }
     }
 
     /// Chunk `c`'s uniform, for its bind groups.

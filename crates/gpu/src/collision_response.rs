@@ -10,7 +10,7 @@
 //! (the first, and after `set_state`).
 
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;

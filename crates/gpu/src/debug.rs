@@ -10,8 +10,8 @@ use softbody_scene::{State, StepError};
 
 use crate::body_contact::BodyContact;
 use crate::broad_phase::Snapshot;
-use crate::buffers::{PerSpringWrites, to_dvec3, to_vec3, vec4s};
-use crate::builder::{Builder, Setup};
+use crate::buffers::{PerSpringWrites, Setup, to_dvec3, to_vec3, vec4s};
+use crate::builder::Builder;
 use crate::collision_response::CollisionResponse;
 use crate::device::Gpu;
 use crate::forces::Accelerations;
@@ -41,7 +41,6 @@ impl GpuSolver {
             chunks: &self.chunks,
             particles: self.particles,
             n: self.model_len(),
-            body_contact: self.body_contact.as_ref(),
         }
     }
 
@@ -78,7 +77,8 @@ impl GpuSolver {
         let per_spring = self.writes()?.per_spring.clone();
         let forces = {
             let s = self.setup();
-            Accelerations::new(s, &s.buffers.x, &s.buffers.v).map_err(setup_error)?
+            Accelerations::new(s, self.body_contact.as_ref(), &s.buffers.x, &s.buffers.v)
+                .map_err(setup_error)?
         };
         let sources: Vec<(&wgpu::Buffer, u64)> = per_spring
             .iter()
@@ -97,7 +97,8 @@ impl GpuSolver {
         let (a, n) = (self.writes()?.a.clone(), self.model_len());
         let forces = {
             let s = self.setup();
-            Accelerations::new(s, &s.buffers.x, &s.buffers.v).map_err(setup_error)?
+            Accelerations::new(s, self.body_contact.as_ref(), &s.buffers.x, &s.buffers.v)
+                .map_err(setup_error)?
         };
         let submitter = self.stage_submitter()?;
         let encoder = submitter.encode_pass("accelerations", |pass| forces.encode(pass));
@@ -238,7 +239,7 @@ impl GpuSolver {
         self.submitter.healthy()?;
         match &mut self.stepper {
             Stepper::Implicit(im) => Ok((im, &mut self.submitter, self.body_contact.as_ref())),
-            Stepper::Explicit(_) | Stepper::Fused(_) => Err(StepError::Invalid(
+            Stepper::PerSpring(_) | Stepper::Fused(_) => Err(StepError::Invalid(
                 "not an implicit-euler solver".to_owned(),
             )),
         }

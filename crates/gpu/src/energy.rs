@@ -11,8 +11,7 @@
 use softbody_scene::{Energies, StepError};
 
 use crate::GpuError;
-use crate::buffers::{ModelBuffers, SpringBuffers};
-use crate::builder::Setup;
+use crate::buffers::{ModelBuffers, Setup, SpringBuffers};
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;

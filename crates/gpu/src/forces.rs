@@ -1,14 +1,15 @@
 //! `shaders/forces.wgsl` ↔ `softbody_cpu::forces`: a(x, v) = f(x, v)/m with
 //!
 //! f = m g − drag·m·v + Σ_springs ±f_s (gathered in ascending spring order) + contact and
-//! friction (`shaders/contact.wgsl` ↔ `softbody_cpu::contact`),
+//! friction (`shaders/shared/contact.wgsl` ↔ `softbody_cpu::contact`),
 //!
 //! after the spring forces of the same state, and for models whose bodies touch after the
 //! pairs' penalty forces ([`crate::body_contact`]), which the springs' sum takes in; pinned
 //! particles get a = 0.
 
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::body_contact::BodyContact;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
@@ -24,15 +25,16 @@ pub(crate) struct Accelerations {
 }
 
 impl Accelerations {
-    /// The accelerations at the state `(x, v)`: the solver's, or a stage state.
+    /// The accelerations at the state `(x, v)`: the solver's, or a stage state; with the
+    /// penalty forces of the pairs of `contact`, for models whose bodies touch.
     pub fn new(
         s: Setup<'_>,
+        contact: Option<&BodyContact>,
         x: &wgpu::Buffer,
         v: &wgpu::Buffer,
     ) -> Result<Accelerations, GpuError> {
         let resources = s.buffers.resources().buffer("x", x).buffer("v", v);
-        let pair_forces = s
-            .body_contact
+        let pair_forces = contact
             .map(|contact| contact.pair_forces(s, x, v))
             .transpose()?;
         let entry = if pair_forces.is_some() {

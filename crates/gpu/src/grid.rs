@@ -1,7 +1,7 @@
 //! Dispatch grids: how many workgroups of [`WORKGROUP_SIZE`] threads a kernel runs, in one row
 //! or, past the adapter's per-dimension limit (65,535 on most), in a 2-D grid. Kernels compute
 //! their global thread index as `(workgroup.y · workgroups.x + workgroup.x) · 256 + local`
-//! (`thread_of` in `shaders/common.wgsl`) and return past the end of their range.
+//! (`thread_of` in `shaders/shared/common.wgsl`) and return past the end of their range.
 
 use crate::WORKGROUP_SIZE;
 

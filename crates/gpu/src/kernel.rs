@@ -21,8 +21,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use naga::valid::{Capabilities, ModuleInfo, ValidationFlags, Validator};
 
 use crate::WORKGROUP_SIZE;
+use crate::chunks::Chunking;
+use crate::compose::Composed;
 use crate::grid::Grid;
-use crate::shaders::Stage;
+use crate::shaders::{DYNAMIC_UNIFORMS, Stage};
 
 /// A stage's composed module as naga reads it: the IR and its validation info, from which
 /// each entry point's interface is reflected.
@@ -33,14 +35,25 @@ pub(crate) struct Parsed {
 }
 
 impl Parsed {
-    /// Parses and validates `source`, the composed module of `stage`. A failure is a defect of
-    /// the shaders: its message locates the line in the stage's files.
-    pub fn new(stage: Stage, source: &str) -> Result<Parsed, String> {
-        let naga = naga::front::wgsl::parse_str(source)
-            .map_err(|e| e.emit_to_string_with_path(source, stage.file()))?;
+    /// Parses and validates `module`, the composed module of `stage`. A failure is a defect of
+    /// the shaders: its message names the line of the file at fault.
+    pub fn new(stage: Stage, module: &Composed) -> Result<Parsed, String> {
+        let source = &module.source;
+        let at = |location: Option<naga::SourceLocation>, message: String| match location
+            .and_then(|l| module.locate(l.line_number as usize))
+        {
+            Some((file, line)) => format!("{file}:{line}: {message}"),
+            None => message,
+        };
+        let naga = naga::front::wgsl::parse_str(source).map_err(|e| {
+            at(
+                e.location(source),
+                e.emit_to_string_with_path(source, stage.file()),
+            )
+        })?;
         let info = Validator::new(ValidationFlags::all(), Capabilities::default())
             .validate(&naga)
-            .map_err(|e| e.emit_to_string(source))?;
+            .map_err(|e| at(e.location(source), e.emit_to_string(source)))?;
         Ok(Parsed { stage, naga, info })
     }
 
@@ -58,12 +71,12 @@ pub(crate) struct Module {
 }
 
 impl Module {
-    /// Parses, validates and compiles `source`, the composed module of `stage`.
-    pub fn new(device: &wgpu::Device, stage: Stage, source: String) -> Result<Module, String> {
-        let parsed = Parsed::new(stage, &source)?;
+    /// Parses, validates and compiles `module`, the composed module of `stage`.
+    pub fn new(device: &wgpu::Device, stage: Stage, module: Composed) -> Result<Module, String> {
+        let parsed = Parsed::new(stage, &module)?;
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(stage.file()),
-            source: wgpu::ShaderSource::Wgsl(Cow::Owned(source)),
+            source: wgpu::ShaderSource::Wgsl(Cow::Owned(module.source)),
         });
         Ok(Module { parsed, shader })
     }
@@ -85,12 +98,14 @@ pub(crate) fn storage_buffers(bindings: &[Binding], terrain: bool, terrain_buffe
 }
 
 /// The bind group layout entries of the terrain's `@group(1)` declarations in `terrain.wgsl`
-/// (read from the terrain probe's module: every terrain-reading module includes the same
-/// file, so this is one layout for all of them).
+/// (read from the terrain probe's module: every terrain-reading module imports the same
+/// piece, so this is one layout for all of them).
 pub(crate) fn terrain_entries() -> Result<Vec<(String, wgpu::BindGroupLayoutEntry)>, String> {
-    let source = Stage::TerrainProbe.source();
-    let module = naga::front::wgsl::parse_str(&source)
-        .map_err(|e| e.emit_to_string_with_path(&source, Stage::TerrainProbe.file()))?;
+    let module = Parsed::new(
+        Stage::TerrainProbe,
+        &Stage::TerrainProbe.compose(Chunking::ONE)?,
+    )?
+    .naga;
     Ok(module
         .global_variables
         .iter()
@@ -150,7 +165,7 @@ pub struct Binding {
     pub binding: u32,
     /// Its address space and access.
     pub access: Access,
-    /// Bound at a dynamic offset ([`Stage::dynamic_uniforms`]).
+    /// Bound at a dynamic offset ([`DYNAMIC_UNIFORMS`]).
     pub dynamic: bool,
 }
 
@@ -185,7 +200,7 @@ pub(crate) fn reflect(module: &Parsed, entry: &str) -> Result<(Vec<Binding>, boo
             0 => bindings.push(Binding {
                 access: access_of(var.space)
                     .ok_or_else(|| format!("{file}: {name} is not a buffer"))?,
-                dynamic: module.stage.dynamic_uniforms().contains(&name.as_str()),
+                dynamic: DYNAMIC_UNIFORMS.contains(&name.as_str()),
                 binding: binding.binding,
                 name,
             }),

@@ -6,8 +6,8 @@ use bytemuck::{Pod, Zeroable};
 use softbody_scene::implicit::Constraint;
 use softbody_scene::{FrictionModel, Lattice, LatticeMask, Model, Springs, topology};
 
-/// The run's constants: twin of `Params` in `shaders/common.wgsl` (`@group(0) @binding(0)` of
-/// every kernel). WGSL aligns `vec3<f32>` to 16 bytes and rounds a uniform struct to 16, hence
+/// The run's constants: twin of `Params` in `shaders/shared/common.wgsl` (`@group(0) @binding(0)`
+/// of every kernel). WGSL aligns `vec3<f32>` to 16 bytes and rounds a uniform struct to 16, hence
 /// the layout and the padding.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
@@ -47,7 +47,7 @@ impl Params {
     }
 }
 
-/// One spring: twin of `Spring` in `shaders/common.wgsl` (20-byte stride).
+/// One spring: twin of `Spring` in `shaders/shared/common.wgsl` (20-byte stride).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct SpringGpu {
@@ -79,7 +79,7 @@ impl SpringGpu {
 }
 
 /// The springs of one lattice offset of a body: twin of `LatticeOffset` in
-/// `shaders/lattice.wgsl`.
+/// `shaders/shared/lattice.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct LatticeOffsetGpu {
@@ -98,7 +98,7 @@ pub struct LatticeOffsetGpu {
     pub linear: i32,
 }
 
-/// One lattice body: twin of `LatticeBody` in `shaders/lattice.wgsl`.
+/// One lattice body: twin of `LatticeBody` in `shaders/shared/lattice.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct LatticeBodyGpu {
@@ -196,7 +196,7 @@ impl LatticeBodyGpu {
     }
 }
 
-/// The springs of one per-spring dispatch: twin of `SpringChunk` in `shaders/common.wgsl`, a
+/// The springs of one per-spring dispatch: twin of `SpringChunk` in `shaders/shared/common.wgsl`, a
 /// uniform bound per chunk (one slot per chunk of a constant table, at the uniform offset
 /// alignment).
 #[repr(C)]
@@ -365,7 +365,7 @@ pub struct CandidateGpu {
 }
 
 /// The constraint as `constraints[i]` holds it: (n, kind) with kind 0 free, 1 normal, 2 fixed
-/// (`CONSTRAINT_*` in `shaders/common.wgsl`).
+/// (`CONSTRAINT_*` in `shaders/shared/common.wgsl`).
 pub fn constraint_vec4(c: Constraint) -> [f32; 4] {
     match c {
         Constraint::Free => [0.0; 4],
@@ -378,7 +378,7 @@ pub fn constraint_vec4(c: Constraint) -> [f32; 4] {
 }
 
 /// The constants of contact between bodies: twin of `ContactParams` in
-/// `shaders/neighbours.wgsl`, one uniform.
+/// `shaders/shared/neighbours.wgsl`, one uniform.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct ContactParams {
@@ -401,7 +401,7 @@ pub struct ContactParams {
 }
 
 /// A friction model as every shader reads it (terrain and bodies alike): `FRICTION_COULOMB`
-/// and `FRICTION_VISCOUS` in `shaders/common.wgsl`.
+/// and `FRICTION_VISCOUS` in `shaders/shared/common.wgsl`.
 pub fn friction_code(model: FrictionModel) -> u32 {
     match model {
         FrictionModel::Coulomb => FRICTION_COULOMB,
@@ -414,7 +414,7 @@ pub const FRICTION_COULOMB: u32 = 0;
 /// [`friction_code`] of viscous friction.
 pub const FRICTION_VISCOUS: u32 = 1;
 
-/// A particle's contact data: twin of `ContactParticle` in `shaders/neighbours.wgsl`.
+/// A particle's contact data: twin of `ContactParticle` in `shaders/shared/neighbours.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct ContactParticleGpu {

@@ -1,9 +1,9 @@
 //! The GPU solver of `softbody`: the model of `softbody-scene` stepped by wgpu compute shaders,
 //! in f32.
 //!
-//! The shaders live in the workspace's `shaders/`, one file per stage, each named like its CPU
-//! twin in `softbody-cpu` and stating the equation it implements; they are compiled into the
-//! binary and composed per stage by [`shaders`]. [`GpuSolver`] implements the same
+//! The shaders live in the crate's `shaders/`, one file per stage, each named like its CPU twin
+//! in `softbody-cpu` and stating the equation it implements, and the pieces they import in
+//! `shaders/shared/`; they are compiled into the binary and composed per stage by [`shaders`]. [`GpuSolver`] implements the same
 //! [`Solver`](softbody_scene::Solver) trait as the CPU solver, so the CLI and the run driver do not
 //! know which one runs. The crate is laid out by stage like `softbody-cpu` (`spring_forces`,
 //! `forces`, `collision_response`, `check_finite`, `energy`, `integrators/…`); `solver` wires
@@ -19,6 +19,24 @@
 //!
 //! Without an adapter [`GpuSolver::new`] fails with [`GpuError::NoAdapter`], which says which
 //! backends were tried and how to get a software adapter.
+//!
+//! # Layers
+//!
+//! A module uses (`use crate::…`) only modules of its own layer or of the layers above it in
+//! this table, and the crate root's own items (`GpuError`, `WORKGROUP_SIZE`, `VEC4`,
+//! `STEPS_PER_SUBMISSION`), which every layer shares:
+//!
+//! | layer | modules | what they are |
+//! |---|---|---|
+//! | runtime and plain data | `device`, `submit`, `limits`, `layout`, `terrain`, `grid`, `chunks` | the adapter, its queue and what it allows; the host's twins of the WGSL structs and how the data is laid out for them |
+//! | shaders and kernels | `compose`, `shaders`, `kernel` | the WGSL composed per stage; kernels, their bindings read from it |
+//! | builder | `builder`, `buffers` | buffers and calls; the model and state on the device, and `Setup`, what a stage is built from |
+//! | stages | `spring_forces`, `forces`, `collision_response`, `check_finite`, `energy`, `broad_phase`, `body_contact` | one module per stage of a step, each the twin of `softbody-cpu`'s |
+//! | integrators | `integrators/…` | the steps, made of the stages |
+//! | solver | `plan`, `solver`, `debug` | the plan of a solver, the solver built from it, the stage read-backs |
+//!
+//! What a stage needs of another (the forces the contact between bodies, say) is handed to it
+//! by the layer that builds both, not kept in `Setup`.
 #![warn(missing_docs)]
 
 pub mod body_contact;
@@ -28,6 +46,7 @@ mod builder;
 mod check_finite;
 pub mod chunks;
 mod collision_response;
+mod compose;
 #[cfg(feature = "debug")]
 pub mod debug;
 pub mod device;
@@ -38,6 +57,7 @@ mod integrators;
 mod kernel;
 pub mod layout;
 mod limits;
+mod plan;
 pub mod shaders;
 mod solver;
 mod spring_forces;
@@ -47,9 +67,13 @@ pub mod terrain;
 pub use device::{ADAPTER_VARIABLE, Gpu};
 pub use grid::Grid;
 pub use integrators::implicit_euler::CG_TOLERANCE_F32;
-pub use solver::{GpuOptions, GpuSolver, STEPS_PER_SUBMISSION};
+pub use plan::GpuOptions;
+pub use solver::GpuSolver;
 
-/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/common.wgsl`; the
+/// Steps encoded into one command buffer at most (the check's table of step numbers).
+pub const STEPS_PER_SUBMISSION: u64 = 256;
+
+/// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/shared/common.wgsl`; the
 /// kernels are checked against it when their pipelines are made).
 pub const WORKGROUP_SIZE: u64 = 256;
 

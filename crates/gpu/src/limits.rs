@@ -5,15 +5,16 @@
 //! kernel; 8.4 M particles per 128 MiB of `vec4`, 4.2 M for implicit Euler's preconditioner,
 //! 2.8 M for its 48-byte contact records) and the CSR adjacency (n + 1 + 2m words: 16.7 M
 //! springs per 128 MiB). The per-spring arrays are chunked ([`crate::chunks`]) up to what one
-//! kernel may bind. On the stencil route ([`crate::integrators::Route`]) there is neither an
+//! kernel may bind. On the stencil route ([`crate::buffers::Route`]) there is neither an
 //! adjacency nor a per-spring array: the solver checks the lattice tables in their place and
 //! chunks no springs.
 
 use softbody_scene::{Model, State};
 
-use crate::chunks::{Chunking, MAX_SPRING_CHUNKS, plan_chunks};
+use crate::chunks::{
+    BLOCK_CHUNK_BINDING, Chunking, MAX_SPRING_CHUNKS, PER_SPRING_CHUNK_BINDING, plan_chunks,
+};
 use crate::grid::Grid;
-use crate::shaders::{BLOCK_CHUNK_BINDING, PER_SPRING_CHUNK_BINDING};
 use crate::{GpuError, WORKGROUP_SIZE};
 
 /// A storage buffer the scene needs: what it holds, elements, bytes per element.

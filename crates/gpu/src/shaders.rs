@@ -1,453 +1,215 @@
 //! The WGSL sources, compiled into the binary, and how each stage's module is composed.
 //!
-//! WGSL has no includes, so each stage's module is the concatenation of the shared pieces it
-//! needs and its own file: `common.wgsl` (parameters, springs, the thread index) always, then
-//! `finite.wgsl` (the instability record) for the stages that check the state, `reduce.wgsl`
-//! (the workgroup tree sum) for the stages that reduce, `cg_common.wgsl` (the constraints'
-//! filter and the CG's partial sums) for the CG and the products, `gather.wgsl` (the CSR
-//! gather) for the stages that gather over the springs (and `fused_gather.wgsl`, the spring
-//! records the fused step reads, or `stencil.wgsl`, the lattices it reads instead, for the
-//! fused step's two variants), `lattice.wgsl` (the springs found on the lattices) for the
-//! stages of the stencil route (the stencil and the energies), `product.wgsl` (implicit
-//! Euler's product A p) for the system's two modules, `terrain.wgsl` for the stages that query
-//! the terrain, then `contact.wgsl` and `acceleration.wgsl` (a particle's acceleration) for the
-//! stages that compute accelerations, `response.wgsl` (the collision response) for the stages
-//! that respond, and `neighbours.wgsl` (the hashed grid of contact between bodies) for the
-//! stages that build or search it.
+//! `shaders/*.wgsl` are the stages, one file per module the host compiles ([`Stage`]), and
+//! `shaders/shared/*.wgsl` the pieces they share. WGSL has no includes: each file starts with
+//! `#import` lines naming the pieces it uses, which the preprocessor (`compose.rs`) substitutes,
+//! each once, in dependency order (`common.wgsl`, the parameters, springs and thread index, first
+//! in every module). The table of [`Stage`] below is the one list of the stages: each names its
+//! file and, where one file makes several modules, the defines that choose its `#ifdef` branches
+//! (the explicit integrators' kernels, `explicit.wgsl`, on the per-spring path, fused, and fused on
+//! the lattices' stencil).
 //!
 //! The shaders are the only place binding numbers are written: the host reads each entry
 //! point's bindings (name, number, access) from the composed module with naga and binds
 //! buffers by name.
 //!
 //! Per-spring arrays may be split into chunks ([`crate::chunks`]): the per-particle gathers
-//! (`forces.wgsl`, `system.wgsl`, `fused_step.wgsl`) then read every chunk, through
-//! `per_spring_at`, `block_at` and `spring_at`, which [`Stage::source_chunked`] generates for
-//! the chunk count and appends to the module, declaring the extra chunks as `per_spring_1`,
-//! `per_spring_2`, … from [`PER_SPRING_CHUNK_BINDING`], `block_1`, … from
-//! [`BLOCK_CHUNK_BINDING`] and `spring_1`, … from [`SPRING_CHUNK_BINDING`]. For the stages that
-//! gather stored per-spring vectors it also generates `gathered(s)`, the vector `gather.wgsl`
-//! sums (the fused step computes its own).
+//! then read every chunk, through accessors the host generates for the chunk count as pieces
+//! of their own, imported like the others: `per_spring_chunks` (`per_spring_at(s)`, and
+//! `gathered(s)`, the stored per-spring vector `gather.wgsl` sums), `block_chunks`
+//! (`block_at(s)`) and `spring_chunks` (`spring_at(s)`). They declare the extra chunks as
+//! `per_spring_1`, `per_spring_2`, … from [`PER_SPRING_CHUNK_BINDING`], `block_1`, … from
+//! [`BLOCK_CHUNK_BINDING`] and `spring_1`, … from [`SPRING_CHUNK_BINDING`] (numbers of
+//! [`crate::chunks`]).
 
-use crate::chunks::Chunking;
+use std::borrow::Cow;
 
-/// `shaders/common.wgsl`.
-pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
-/// `shaders/terrain.wgsl`.
-pub const TERRAIN: &str = include_str!("../../../shaders/terrain.wgsl");
-/// `shaders/contact.wgsl`.
-pub const CONTACT: &str = include_str!("../../../shaders/contact.wgsl");
-/// `shaders/reduce.wgsl`.
-pub const REDUCE: &str = include_str!("../../../shaders/reduce.wgsl");
-/// `shaders/gather.wgsl`.
-pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
-/// `shaders/neighbours.wgsl`.
-pub const NEIGHBOURS: &str = include_str!("../../../shaders/neighbours.wgsl");
-/// `shaders/acceleration.wgsl`.
-pub const ACCELERATION: &str = include_str!("../../../shaders/acceleration.wgsl");
-/// `shaders/response.wgsl`.
-pub const RESPONSE: &str = include_str!("../../../shaders/response.wgsl");
-/// `shaders/finite.wgsl`.
-pub const FINITE: &str = include_str!("../../../shaders/finite.wgsl");
-/// `shaders/fused_gather.wgsl`.
-pub const FUSED_GATHER: &str = include_str!("../../../shaders/fused_gather.wgsl");
-/// `shaders/lattice.wgsl`.
-pub const LATTICE: &str = include_str!("../../../shaders/lattice.wgsl");
-/// `shaders/stencil.wgsl`.
-pub const STENCIL: &str = include_str!("../../../shaders/stencil.wgsl");
-/// `shaders/updates.wgsl`.
-pub const UPDATES: &str = include_str!("../../../shaders/updates.wgsl");
-/// `shaders/product.wgsl`.
-pub const PRODUCT: &str = include_str!("../../../shaders/product.wgsl");
-/// `shaders/cg_common.wgsl`.
-pub const CG_COMMON: &str = include_str!("../../../shaders/cg_common.wgsl");
+use crate::chunks::{
+    BLOCK_CHUNK_BINDING, Chunking, PER_SPRING_CHUNK_BINDING, SPRING_CHUNK_BINDING,
+};
+use crate::compose::{Composed, Piece, compose};
 
-/// Binding of the per-spring vectors' chunk 1 in the gathering kernels (chunk c at this + c − 1;
-/// chunk 0 is binding 3).
-pub const PER_SPRING_CHUNK_BINDING: u32 = 16;
+/// The uniforms bound at a dynamic offset, which WGSL cannot say: the step number of
+/// `finite.wgsl`, one slot of a constant table per step of a submission; the level of the broad
+/// phase's prefix sum, one slot per level.
+pub(crate) const DYNAMIC_UNIFORMS: [&str; 2] = ["step_index", "scan_level"];
 
-/// Binding of implicit Euler's spring blocks' chunk 1 in `assemble_particles` and the fused
-/// product (chunk c at this + c − 1; chunk 0 is binding 7).
-pub const BLOCK_CHUNK_BINDING: u32 = 32;
-
-/// Binding of the spring records' chunk 1 in the fused step's kernels and the fused product
-/// (chunk c at this + c − 1; chunk 0 is binding 7 in the fused step, 6 in the fused product).
-pub const SPRING_CHUNK_BINDING: u32 = 16;
-
-/// The accessors `per_spring_at(s)` and `gathered(s)` (and for `system.wgsl` `block_at(s)`; for
-/// `fused_step.wgsl` `spring_at(s)` alone; for `fused_product.wgsl` `spring_at(s)` and
-/// `block_at(s)`) with the extra chunks' declarations, for `chunking`: a piece of WGSL appended
-/// to the gathering stages.
-fn accessors(chunking: Chunking, stage: Stage) -> String {
-    let mut out = String::new();
-    out.push_str(&format!(
-        "// Generated by crates/gpu/src/shaders.rs: spring s of {} chunk(s) of 2^{} springs.
-",
-        chunking.count, chunking.shift
-    ));
-    let mut accessor = |name: &str, ty: &str, first: &str, binding: u32| {
-        if chunking.count == 1 {
-            out.push_str(&format!(
-                "fn {name}_at(s: u32) -> {ty} {{
-return {first}[s];
-}}
-"
-            ));
-            return;
+/// The stage table: `Variant: "file.wgsl"`, or `Variant: "file.wgsl" ["define", …]` for a
+/// permutation, with the variant's docs.
+macro_rules! stages {
+    ($($(#[doc = $doc:literal])+ $stage:ident: $file:literal $([$($define:literal),+])?;)+) => {
+        /// One shader module: a stage file composed with the pieces it imports.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum Stage {
+            $($(#[doc = $doc])+ $stage,)+
         }
+
+        impl Stage {
+            /// Every stage.
+            pub const ALL: &'static [Stage] = &[$(Stage::$stage),+];
+
+            /// The stage's file name under `shaders/`.
+            pub fn file(self) -> &'static str {
+                match self {
+                    $(Stage::$stage => $file,)+
+                }
+            }
+
+            /// The stage's file: its path and text.
+            fn text(self) -> (&'static str, &'static str) {
+                match self {
+                    $(Stage::$stage => (
+                        concat!("shaders/", $file),
+                        include_str!(concat!("../shaders/", $file)),
+                    ),)+
+                }
+            }
+
+            /// The defines its module is composed with.
+            fn defines(self) -> &'static [&'static str] {
+                match self {
+                    $(Stage::$stage => &[$($($define),+)?],)+
+                }
+            }
+        }
+    };
+}
+
+/// The pieces `#import` finds under `shaders/shared/`, by name.
+macro_rules! pieces {
+    ($($name:literal)+) => {
+        /// The piece named `name`: its path and text.
+        fn shared(name: &str) -> Option<(&'static str, &'static str)> {
+            match name {
+                $($name => Some((
+                    concat!("shaders/shared/", $name, ".wgsl"),
+                    include_str!(concat!("../shaders/shared/", $name, ".wgsl")),
+                )),)+
+                _ => None,
+            }
+        }
+    };
+}
+
+pieces!(
+    "common" "finite" "reduce" "cg_common" "gather" "fused_gather" "lattice" "stencil" "product"
+    "terrain" "contact" "acceleration" "response" "neighbours" "updates"
+);
+
+stages! {
+    /// `spring_forces.wgsl`.
+    SpringForces: "spring_forces.wgsl";
+    /// `forces.wgsl` (with terrain and contact).
+    Forces: "forces.wgsl";
+    /// `explicit.wgsl`: the explicit integrators' updates on the per-spring path, after the
+    /// accelerations of [`Stage::Forces`].
+    Explicit: "explicit.wgsl";
+    /// `collision_response.wgsl` (with terrain).
+    CollisionResponse: "collision_response.wgsl";
+    /// `check_finite.wgsl`.
+    CheckFinite: "check_finite.wgsl";
+    /// `energy.wgsl` (with the lattices, for the stencil route's `energy_lattices`).
+    Energy: "energy.wgsl";
+    /// `system.wgsl` (implicit Euler's linear system).
+    System: "system.wgsl";
+    /// `fused_product.wgsl`: implicit Euler's product A p in one dispatch, the springs' terms
+    /// computed as they are gathered.
+    FusedProduct: "fused_product.wgsl";
+    /// `cg.wgsl` (implicit Euler's filtered PCG).
+    Cg: "cg.wgsl";
+    /// `implicit_euler.wgsl` (contacts, active set, update; with terrain).
+    ImplicitEuler: "implicit_euler.wgsl";
+    /// `terrain_probe.wgsl` (with terrain): the terrain queries alone, for the twin tests.
+    TerrainProbe: "terrain_probe.wgsl";
+    /// `broad_phase.wgsl` (with the grid): the hashed grid of contact between bodies.
+    BroadPhase: "broad_phase.wgsl";
+    /// `body_contact.wgsl` (with the grid): the penalty forces and the response between bodies.
+    BodyContact: "body_contact.wgsl";
+    /// `pairs_probe.wgsl` (with the grid): the pairs in contact, for the twin tests.
+    PairsProbe: "pairs_probe.wgsl";
+    /// `explicit.wgsl` with `fused` (with terrain and contact): the explicit integrators'
+    /// stages, one dispatch each, gathering through the CSR adjacency and the spring records.
+    FusedStep: "explicit.wgsl" ["fused"];
+    /// `explicit.wgsl` with `fused` and `stencil`: [`Stage::FusedStep`]'s kernels for models
+    /// whose bodies are all lattices, their springs found on the lattices (`stencil.wgsl`).
+    FusedStencil: "explicit.wgsl" ["fused", "stencil"];
+}
+
+impl Stage {
+    /// The composed module for per-spring arrays split as `chunking` says (which only the
+    /// generated chunk accessors depend on). An error is a defect of the shaders, naming the
+    /// file and line at fault.
+    pub(crate) fn compose(self, chunking: Chunking) -> Result<Composed, String> {
+        let (path, text) = self.text();
+        let piece = |name: &str| -> Option<Piece> {
+            match shared(name) {
+                Some((path, text)) => Some((path, Cow::Borrowed(text))),
+                None => chunk_accessors(name, chunking),
+            }
+        };
+        compose(path, text, self.defines(), &piece)
+    }
+}
+
+/// The generated piece `name` for per-spring arrays split as `chunking` says: `{array}_at(s)`,
+/// spring s's element of the array whose chunk 0 is `{first}` and chunk c ≥ 1 `{array}_c` (at
+/// binding `binding` + c − 1), and for the per-spring vectors `gathered(s)` too.
+fn chunk_accessors(name: &str, chunking: Chunking) -> Option<Piece> {
+    let (path, array, ty, first, binding) = match name {
+        "per_spring_chunks" => (
+            "generated per_spring_chunks",
+            "per_spring",
+            "vec4<f32>",
+            "per_spring",
+            PER_SPRING_CHUNK_BINDING,
+        ),
+        "block_chunks" => (
+            "generated block_chunks",
+            "block",
+            "SpringBlock",
+            "blocks",
+            BLOCK_CHUNK_BINDING,
+        ),
+        "spring_chunks" => (
+            "generated spring_chunks",
+            "spring",
+            "Spring",
+            "springs",
+            SPRING_CHUNK_BINDING,
+        ),
+        _ => return None,
+    };
+    let mut out = format!(
+        "// Generated by crates/gpu/src/shaders.rs: spring s of {} chunk(s) of 2^{} springs.\n",
+        chunking.count, chunking.shift
+    );
+    if chunking.count == 1 {
+        out.push_str(&format!(
+            "fn {array}_at(s: u32) -> {ty} {{\n    return {first}[s];\n}}\n"
+        ));
+    } else {
         for c in 1..chunking.count {
             out.push_str(&format!(
-                "@group(0) @binding({}) var<storage, read> {name}_{c}: array<{ty}>;
-",
+                "@group(0) @binding({}) var<storage, read> {array}_{c}: array<{ty}>;\n",
                 binding + c - 1
             ));
         }
         out.push_str(&format!(
-            "fn {name}_at(s: u32) -> {ty} {{
-let j = s & {mask}u;
-switch s >> {shift}u {{
-",
+            "fn {array}_at(s: u32) -> {ty} {{\n    let j = s & {mask}u;\n    switch s >> {shift}u {{\n",
             mask = (1u32 << chunking.shift) - 1,
             shift = chunking.shift,
         ));
         for c in 1..chunking.count {
             out.push_str(&format!(
-                "        case {c}u: {{
-        return {name}_{c}[j];
-    }}
-"
+                "        case {c}u: {{\n            return {array}_{c}[j];\n        }}\n"
             ));
         }
         out.push_str(&format!(
-            "        default: {{
-        return {first}[j];
-    }}
-}}
-}}
-"
+            "        default: {{\n            return {first}[j];\n        }}\n    }}\n}}\n"
         ));
-    };
-    if stage == Stage::FusedStep {
-        accessor("spring", "Spring", "springs", SPRING_CHUNK_BINDING);
-        return out;
     }
-    if stage == Stage::FusedProduct {
-        accessor("spring", "Spring", "springs", SPRING_CHUNK_BINDING);
-        accessor("block", "SpringBlock", "blocks", BLOCK_CHUNK_BINDING);
-        return out;
+    if array == "per_spring" {
+        out.push_str("fn gathered(s: u32) -> vec3<f32> {\n    return per_spring_at(s).xyz;\n}\n");
     }
-    accessor(
-        "per_spring",
-        "vec4<f32>",
-        "per_spring",
-        PER_SPRING_CHUNK_BINDING,
-    );
-    if stage == Stage::System {
-        accessor("block", "SpringBlock", "blocks", BLOCK_CHUNK_BINDING);
-    }
-    out.push_str(
-        "fn gathered(s: u32) -> vec3<f32> {
-    return per_spring_at(s).xyz;
-}
-",
-    );
-    out
-}
-
-/// One shader module: a stage file and the shared pieces it includes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Stage {
-    /// `spring_forces.wgsl`.
-    SpringForces,
-    /// `forces.wgsl` (with terrain and contact).
-    Forces,
-    /// `explicit_euler.wgsl`.
-    ExplicitEuler,
-    /// `symplectic_euler.wgsl`.
-    SymplecticEuler,
-    /// `midpoint.wgsl`.
-    Midpoint,
-    /// `rk4.wgsl`.
-    Rk4,
-    /// `collision_response.wgsl` (with terrain).
-    CollisionResponse,
-    /// `check_finite.wgsl`.
-    CheckFinite,
-    /// `energy.wgsl` (with the lattices, for the stencil route's `energy_lattices`).
-    Energy,
-    /// `system.wgsl` (implicit Euler's linear system).
-    System,
-    /// `fused_product.wgsl` with `product.wgsl`: implicit Euler's product A p in one dispatch,
-    /// the springs' terms computed as they are gathered.
-    FusedProduct,
-    /// `cg.wgsl` (implicit Euler's filtered PCG).
-    Cg,
-    /// `implicit_euler.wgsl` (contacts, active set, update; with terrain).
-    ImplicitEuler,
-    /// `terrain_probe.wgsl` (with terrain): the terrain queries alone, for the twin tests.
-    TerrainProbe,
-    /// `broad_phase.wgsl` (with the grid): the hashed grid of contact between bodies.
-    BroadPhase,
-    /// `body_contact.wgsl` (with the grid): the penalty forces and the response between bodies.
-    BodyContact,
-    /// `pairs_probe.wgsl` (with the grid): the pairs in contact, for the twin tests.
-    PairsProbe,
-    /// `fused_step.wgsl` (with terrain and contact): the explicit integrators' stages, one
-    /// dispatch each, gathering through the CSR adjacency and the spring records.
-    FusedStep,
-    /// `fused_step.wgsl` with `lattice.wgsl` and `stencil.wgsl`: [`Stage::FusedStep`]'s kernels
-    /// for models whose bodies are all lattices, their springs found on the lattices.
-    FusedStencil,
-}
-
-impl Stage {
-    /// Every stage.
-    pub const ALL: [Stage; 19] = [
-        Stage::SpringForces,
-        Stage::Forces,
-        Stage::ExplicitEuler,
-        Stage::SymplecticEuler,
-        Stage::Midpoint,
-        Stage::Rk4,
-        Stage::CollisionResponse,
-        Stage::CheckFinite,
-        Stage::Energy,
-        Stage::System,
-        Stage::FusedProduct,
-        Stage::Cg,
-        Stage::ImplicitEuler,
-        Stage::TerrainProbe,
-        Stage::BroadPhase,
-        Stage::BodyContact,
-        Stage::PairsProbe,
-        Stage::FusedStep,
-        Stage::FusedStencil,
-    ];
-
-    /// The stage's file name under `shaders/`.
-    pub fn file(self) -> &'static str {
-        match self {
-            Stage::SpringForces => "spring_forces.wgsl",
-            Stage::Forces => "forces.wgsl",
-            Stage::ExplicitEuler => "explicit_euler.wgsl",
-            Stage::SymplecticEuler => "symplectic_euler.wgsl",
-            Stage::Midpoint => "midpoint.wgsl",
-            Stage::Rk4 => "rk4.wgsl",
-            Stage::CollisionResponse => "collision_response.wgsl",
-            Stage::CheckFinite => "check_finite.wgsl",
-            Stage::Energy => "energy.wgsl",
-            Stage::System => "system.wgsl",
-            Stage::FusedProduct => "fused_product.wgsl",
-            Stage::Cg => "cg.wgsl",
-            Stage::ImplicitEuler => "implicit_euler.wgsl",
-            Stage::TerrainProbe => "terrain_probe.wgsl",
-            Stage::BroadPhase => "broad_phase.wgsl",
-            Stage::BodyContact => "body_contact.wgsl",
-            Stage::PairsProbe => "pairs_probe.wgsl",
-            Stage::FusedStep | Stage::FusedStencil => "fused_step.wgsl",
-        }
-    }
-
-    /// The stage file's own source.
-    fn own_source(self) -> &'static str {
-        match self {
-            Stage::SpringForces => include_str!("../../../shaders/spring_forces.wgsl"),
-            Stage::Forces => include_str!("../../../shaders/forces.wgsl"),
-            Stage::ExplicitEuler => include_str!("../../../shaders/explicit_euler.wgsl"),
-            Stage::SymplecticEuler => include_str!("../../../shaders/symplectic_euler.wgsl"),
-            Stage::Midpoint => include_str!("../../../shaders/midpoint.wgsl"),
-            Stage::Rk4 => include_str!("../../../shaders/rk4.wgsl"),
-            Stage::CollisionResponse => include_str!("../../../shaders/collision_response.wgsl"),
-            Stage::CheckFinite => include_str!("../../../shaders/check_finite.wgsl"),
-            Stage::Energy => include_str!("../../../shaders/energy.wgsl"),
-            Stage::System => include_str!("../../../shaders/system.wgsl"),
-            Stage::FusedProduct => include_str!("../../../shaders/fused_product.wgsl"),
-            Stage::Cg => include_str!("../../../shaders/cg.wgsl"),
-            Stage::ImplicitEuler => include_str!("../../../shaders/implicit_euler.wgsl"),
-            Stage::TerrainProbe => include_str!("../../../shaders/terrain_probe.wgsl"),
-            Stage::BroadPhase => include_str!("../../../shaders/broad_phase.wgsl"),
-            Stage::BodyContact => include_str!("../../../shaders/body_contact.wgsl"),
-            Stage::PairsProbe => include_str!("../../../shaders/pairs_probe.wgsl"),
-            Stage::FusedStep | Stage::FusedStencil => {
-                include_str!("../../../shaders/fused_step.wgsl")
-            }
-        }
-    }
-
-    /// Whether its module includes the terrain (bound at `@group(1)`).
-    pub fn uses_terrain(self) -> bool {
-        matches!(
-            self,
-            Stage::Forces
-                | Stage::CollisionResponse
-                | Stage::ImplicitEuler
-                | Stage::TerrainProbe
-                | Stage::FusedStep
-                | Stage::FusedStencil
-        )
-    }
-
-    /// The uniforms of its module bound at a dynamic offset (WGSL cannot say so): the step
-    /// number of `check_finite`, one slot of a constant table per step of a submission; the
-    /// level of the broad phase's prefix sum, one slot per level.
-    pub fn dynamic_uniforms(self) -> &'static [&'static str] {
-        match self {
-            Stage::CheckFinite | Stage::FusedStep | Stage::FusedStencil => &["step_index"],
-            Stage::BroadPhase => &["scan_level"],
-            _ => &[],
-        }
-    }
-
-    /// Whether its module includes `neighbours.wgsl`.
-    fn uses_neighbours(self) -> bool {
-        matches!(
-            self,
-            Stage::BroadPhase | Stage::BodyContact | Stage::PairsProbe
-        )
-    }
-
-    /// Whether its module includes `reduce.wgsl`.
-    fn uses_reduce(self) -> bool {
-        matches!(self, Stage::Energy) || self.uses_cg_common()
-    }
-
-    /// Whether its module includes `cg_common.wgsl`: the CG's kernels and the products (the
-    /// CG iteration's filters q and sums cᵀq).
-    fn uses_cg_common(self) -> bool {
-        matches!(self, Stage::Cg | Stage::System | Stage::FusedProduct)
-    }
-
-    /// Whether its module includes `gather.wgsl`.
-    fn uses_gather(self) -> bool {
-        matches!(
-            self,
-            Stage::Forces | Stage::System | Stage::FusedStep | Stage::FusedProduct
-        )
-    }
-
-    /// Whether its module includes `lattice.wgsl`: the stages of the stencil route (the energies
-    /// carry `energy_lattices` beside the spring list's `energy_springs`).
-    fn uses_lattices(self) -> bool {
-        matches!(self, Stage::Energy | Stage::FusedStencil)
-    }
-
-    /// Whether its module includes `contact.wgsl` and `acceleration.wgsl`.
-    fn uses_acceleration(self) -> bool {
-        matches!(self, Stage::Forces | Stage::FusedStep | Stage::FusedStencil)
-    }
-
-    /// Whether its module includes `response.wgsl`.
-    fn uses_response(self) -> bool {
-        matches!(
-            self,
-            Stage::CollisionResponse | Stage::FusedStep | Stage::FusedStencil
-        )
-    }
-
-    /// Whether its module includes `finite.wgsl`.
-    fn uses_finite(self) -> bool {
-        matches!(
-            self,
-            Stage::CheckFinite | Stage::FusedStep | Stage::FusedStencil
-        )
-    }
-
-    /// Whether its module includes `updates.wgsl`: the explicit integrators' kernels, on both
-    /// paths.
-    fn uses_updates(self) -> bool {
-        matches!(
-            self,
-            Stage::ExplicitEuler
-                | Stage::SymplecticEuler
-                | Stage::Midpoint
-                | Stage::Rk4
-                | Stage::FusedStep
-                | Stage::FusedStencil
-        )
-    }
-
-    /// The pieces of its module, in order: (file name, source).
-    pub fn pieces(self) -> Vec<(&'static str, &'static str)> {
-        let mut pieces = vec![("common.wgsl", COMMON)];
-        if self.uses_finite() {
-            pieces.push(("finite.wgsl", FINITE));
-        }
-        if self.uses_reduce() {
-            pieces.push(("reduce.wgsl", REDUCE));
-        }
-        if self.uses_cg_common() {
-            pieces.push(("cg_common.wgsl", CG_COMMON));
-        }
-        if self.uses_gather() {
-            pieces.push(("gather.wgsl", GATHER));
-        }
-        if self.uses_lattices() {
-            pieces.push(("lattice.wgsl", LATTICE));
-        }
-        match self {
-            Stage::FusedStep => pieces.push(("fused_gather.wgsl", FUSED_GATHER)),
-            Stage::FusedStencil => pieces.push(("stencil.wgsl", STENCIL)),
-            _ => {}
-        }
-        if matches!(self, Stage::System | Stage::FusedProduct) {
-            pieces.push(("product.wgsl", PRODUCT));
-        }
-        if self.uses_terrain() {
-            pieces.push(("terrain.wgsl", TERRAIN));
-        }
-        if self.uses_acceleration() {
-            pieces.push(("contact.wgsl", CONTACT));
-            pieces.push(("acceleration.wgsl", ACCELERATION));
-        }
-        if self.uses_response() {
-            pieces.push(("response.wgsl", RESPONSE));
-        }
-        if self.uses_neighbours() {
-            pieces.push(("neighbours.wgsl", NEIGHBOURS));
-        }
-        if self.uses_updates() {
-            pieces.push(("updates.wgsl", UPDATES));
-        }
-        pieces.push((self.file(), self.own_source()));
-        pieces
-    }
-
-    /// The composed module with one spring chunk: its pieces, each introduced by a comment
-    /// naming the file.
-    pub fn source(self) -> String {
-        self.source_chunked(Chunking::ONE)
-    }
-
-    /// The composed module for per-spring arrays split as `chunking` says: [`Stage::source`]
-    /// with, for the gathering stages, the generated accessors appended (after every piece, so
-    /// that [`Stage::locate`] maps the pieces' lines as in the one-chunk module).
-    pub fn source_chunked(self, chunking: Chunking) -> String {
-        let mut source = String::new();
-        for (file, text) in self.pieces() {
-            source.push_str("// ---- shaders/");
-            source.push_str(file);
-            source.push_str(" ----\n");
-            source.push_str(text);
-            if !text.ends_with('\n') {
-                source.push('\n');
-            }
-        }
-        if self.uses_gather() {
-            source.push_str("// ---- generated: spring chunk accessors ----\n");
-            source.push_str(&accessors(chunking, self));
-        }
-        source
-    }
-
-    /// Maps a 1-based line of [`Stage::source`] back to (file, line in it), for error messages.
-    pub fn locate(self, line: usize) -> Option<(&'static str, usize)> {
-        let mut first = 1; // the composed line of the current piece's header
-        for (file, text) in self.pieces() {
-            let lines = text.lines().count();
-            if line > first && line <= first + lines {
-                return Some((file, line - first));
-            }
-            first += lines + 1;
-        }
-        None
-    }
+    Some((path, Cow::Owned(out)))
 }

@@ -9,7 +9,7 @@
 //! ([`crate::integrators::fused`], the explicit integrators unless bodies touch): one dispatch
 //! per integrator stage, the last of which also responds to the terrain and checks
 //! finiteness; where every body is a lattice, on the stencil route, decided before the upload
-//! ([`crate::integrators::Route`]), with no spring list on the host or the device. Otherwise
+//! ([`crate::buffers::Route`]), with no spring list on the host or the device. Otherwise
 //! the integrator's ([`crate::integrators`]), then `collision_response` (when there is
 //! terrain) and `check_finite`. Where bodies touch ([`crate::body_contact`]), the step starts with the grid
 //! of its start state, whose pairs' penalty forces every stage adds, and the collision response
@@ -56,27 +56,25 @@
 use std::sync::Arc;
 
 use softbody_scene::{
-    Energies, History, Instability, Model, Solver, State, Statistics, StepError, Timings,
-    solver::check_state_len,
+    Energies, History, Instability, Integrator, Model, Solver, State, Statistics, StepError,
+    Timings, solver::check_state_len,
 };
 
-use crate::body_contact::{self, BodyContact};
-use crate::buffers::{ModelBuffers, to_dvec3, vec4s};
-use crate::builder::{Builder, Setup};
+use crate::body_contact::BodyContact;
+use crate::buffers::{ModelBuffers, Setup, to_dvec3, vec4s};
+use crate::builder::Builder;
 use crate::check_finite::CheckFinite;
 use crate::chunks::SpringChunks;
 use crate::collision_response::CollisionResponse;
 use crate::device::Gpu;
 use crate::energy::Energy;
+#[cfg(feature = "debug")]
 use crate::grid::Grid;
-use crate::integrators::{Route, Stepper};
-use crate::layout::{CandidateGpu, LatticeBodyGpu, NONE, Status};
-use crate::limits::{Need, check_f32, check_limits};
+use crate::integrators::{Around, Stepper};
+use crate::layout::{NONE, Status};
+use crate::plan::{GpuOptions, Plan};
 use crate::submit::Submitter;
-use crate::{GpuError, VEC4, WORKGROUP_SIZE, terrain};
-
-/// Steps encoded into one command buffer at most (the check's table of step numbers).
-pub const STEPS_PER_SUBMISSION: u64 = 256;
+use crate::{GpuError, STEPS_PER_SUBMISSION, VEC4};
 
 /// Device time one submission aims at: long enough to amortise a submission, short enough that
 /// a very large scene never holds the GPU near a driver's watchdog (2 s on Windows).
@@ -85,30 +83,6 @@ pub const SUBMISSION_SECONDS: f64 = 0.05;
 /// Submissions in flight at most: each copies its status into a slot of a ring, and the host
 /// reads the ring back when it is full or when it needs the results.
 const STATUS_RING: usize = 32;
-
-/// Settings for tests: narrower dispatch grids and smaller storage bindings than the adapter's,
-/// so that small scenes take the paths of very large ones.
-#[doc(hidden)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct GpuOptions {
-    /// Dispatch grids at most this many workgroups wide (instead of the per-dimension limit).
-    pub grid_width: Option<u32>,
-    /// Storage bindings of at most this many bytes (instead of the adapter's
-    /// `max_storage_buffer_binding_size`, if lower): per-spring arrays are split accordingly.
-    pub max_binding_size: Option<u64>,
-    /// The explicit integrators on the per-spring path even where the fused one applies, and
-    /// implicit Euler's product A p in two passes (per spring, then per particle) even where
-    /// the fused product fits, to compare the two.
-    pub per_spring: bool,
-    /// At most this many storage buffers per shader stage (instead of the adapter's
-    /// `max_storage_buffers_per_shader_stage`, if lower): WebGPU's minimum of 8 makes the
-    /// explicit integrators fall back to the per-spring path.
-    pub max_storage_buffers: Option<u32>,
-    /// The fused step through the spring records and the CSR adjacency (the spring list
-    /// uploaded) even where every body is a lattice (which takes the stencil route, without
-    /// the list), to compare the two.
-    pub gather: bool,
-}
 
 /// The GPU backend: the model in device buffers, stepped by compute shaders in f32.
 pub struct GpuSolver {
@@ -180,128 +154,12 @@ impl GpuSolver {
         mut state: State,
         options: GpuOptions,
     ) -> Result<GpuSolver, GpuError> {
-        let integrator = model.simulation.integrator;
-        let implicit = integrator == softbody_scene::Integrator::ImplicitEuler;
-        let mut limits = gpu.limits.clone();
-        if let Some(cap) = options.max_binding_size {
-            // As if the adapter allowed no more: the device itself keeps its limits.
-            let limit = &mut limits.max_storage_buffer_binding_size;
-            *limit = (*limit).min(cap);
-        }
-        if let Some(cap) = options.max_storage_buffers {
-            let limit = &mut limits.max_storage_buffers_per_shader_stage;
-            *limit = (*limit).min(cap);
-        }
-        let adapter = gpu.name();
-        if implicit
-            && !gpu
-                .downlevel
-                .contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION)
-        {
-            return Err(GpuError::Unsupported(format!(
-                "{adapter} cannot dispatch compute work indirectly, which the GPU's implicit-euler \
-                 needs (its CG iterations stop on the device): use --backend cpu, or an explicit \
-                 integrator"
-            )));
-        }
-        check_f32(&model, &state)?;
-        let n = model.len() as u64;
-        let packed = terrain::pack(&model.terrain);
-        let (route, chunking) = Route::of(&model, &options, &limits, &adapter)?;
-        // Springs on the device: none on the stencil route, which finds them on the lattices.
-        let m = match route {
-            Route::Stencil => 0,
-            Route::Gather | Route::PerSpring => model.spring_count() as u64,
-        };
-        check_limits(
-            &limits,
-            &adapter,
-            &needs(&model, &packed, route),
-            2 * n * VEC4,
-            &[
-                ("particle", n),
-                ("spring", m),
-                ("broad-phase bucket", body_contact::buckets(n)),
-            ],
-        )?;
-        let max_dim = limits.max_compute_workgroups_per_dimension;
-        let width = options.grid_width.map_or(max_dim, |w| w.clamp(1, max_dim));
-        let alignment = limits.min_uniform_buffer_offset_alignment;
+        let plan = Plan::new(gpu, &model, &state, &options)?;
         let device = &gpu.device;
-        let grids = Grid::with_width(n, width, max_dim).zip(SpringChunks::new(
-            device, chunking, m, width, max_dim, alignment,
-        ));
-        let Some((particles, chunks)) = grids else {
-            // Only with a narrow test width: check_limits checked the adapter's.
-            return Err(GpuError::Unsupported(format!(
-                "the scene needs more than {max_dim} rows of {width} workgroups"
-            )));
-        };
-
         let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
-        // The energies' partial sums of the springs: per spring workgroup, or on the stencil
-        // route per particle workgroup (`energy_lattices`).
-        let spring_groups = match route {
-            Route::Stencil => particles.groups(),
-            Route::Gather | Route::PerSpring => m.div_ceil(WORKGROUP_SIZE),
-        };
-        let built = (|| {
-            let builder = Builder::new(gpu.clone(), limits, chunking, &packed)?;
-            let n_surfaces = packed.surfaces.len() as u32;
-            let buffers = ModelBuffers::new(
-                &builder,
-                &model,
-                &state,
-                route,
-                &chunks,
-                n_surfaces,
-                particles.groups(),
-                spring_groups,
-                alignment,
-            );
-            let s = Setup {
-                builder: &builder,
-                buffers: &buffers,
-                chunks: &chunks,
-                particles,
-                n,
-                body_contact: None,
-            };
-            let body_contact = model
-                .contact
-                .enabled()
-                .then(|| BodyContact::new(s, &model, width, max_dim))
-                .transpose()?;
-            let s = Setup {
-                body_contact: body_contact.as_ref(),
-                ..s
-            };
-            let collision_response = match (implicit, n_surfaces) {
-                (false, 1..) => Some(CollisionResponse::new(s)?),
-                _ => None,
-            };
-            let stepper = Stepper::new(
-                s,
-                integrator,
-                n_surfaces > 0,
-                collision_response.as_ref().map(|c| &c.start),
-                route,
-                options.per_spring,
-            )?;
-            let check = CheckFinite::new(s)?;
-            let energy = Energy::new(s, spring_groups)?;
-            Ok((
-                stepper,
-                body_contact,
-                collision_response,
-                check,
-                energy,
-                buffers,
-                builder,
-            ))
-        })();
+        let built = Parts::build(gpu, &plan, &model, &state);
         // Scopes pop in reverse order.
         let errors = [
             pollster::block_on(internal.pop()),
@@ -310,11 +168,11 @@ impl GpuSolver {
         ];
         if let Some(e) = errors.into_iter().flatten().next() {
             return Err(GpuError::Device {
-                adapter,
+                adapter: plan.adapter,
                 message: format!("cannot set up the solver: {e}"),
             });
         }
-        let (stepper, body_contact, collision_response, check, energy, buffers, builder) = built?;
+        let parts = built?;
         // The host copy is what the device holds: the state rounded to f32.
         for p in state.x.iter_mut().chain(state.v.iter_mut()) {
             *p = p.as_vec3().as_dvec3();
@@ -322,10 +180,10 @@ impl GpuSolver {
         // Holds x and v, the energy partials, the status; implicit Euler's progress and stage
         // tests grow it on demand.
         let status_bytes = std::mem::size_of::<Status>() as u64;
-        let readback = (2 * n * VEC4)
-            .max(particles.groups() * 8 + spring_groups * 4)
+        let readback = (2 * plan.n * VEC4)
+            .max(plan.particles.groups() * 8 + plan.spring_groups * 4)
             .max(STATUS_RING as u64 * status_bytes);
-        let builder_ring = builder.buffer(&wgpu::BufferDescriptor {
+        let status_ring = parts.builder.buffer(&wgpu::BufferDescriptor {
             label: Some("status ring"),
             size: STATUS_RING as u64 * status_bytes,
             usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
@@ -334,21 +192,21 @@ impl GpuSolver {
         Ok(GpuSolver {
             submitter: Submitter::new(gpu.clone(), readback),
             model,
-            builder,
-            buffers,
-            chunks,
+            builder: parts.builder,
+            buffers: parts.buffers,
+            chunks: parts.chunks,
             #[cfg(feature = "debug")]
-            particles,
-            stepper,
-            body_contact,
-            collision_response,
-            check,
-            energy,
+            particles: plan.particles,
+            stepper: parts.stepper,
+            body_contact: parts.body_contact,
+            collision_response: parts.collision_response,
+            check: parts.check,
+            energy: parts.energy,
             state,
             state_fresh: true,
             band_stale: true,
             steps: 0,
-            status_ring: builder_ring,
+            status_ring,
             in_flight: Vec::new(),
             in_flight_since: None,
             batch: None,
@@ -399,7 +257,7 @@ impl GpuSolver {
                 self.timings.add("encode", started.elapsed().as_secs_f64());
                 encoder
             }
-            Stepper::Explicit(stepper) => {
+            Stepper::PerSpring(stepper) => {
                 let (collision, check) = (&self.collision_response, &self.check);
                 let contact = &self.body_contact;
                 let band_stale = std::mem::take(&mut self.band_stale);
@@ -505,81 +363,82 @@ impl GpuSolver {
     }
 }
 
-/// The storage buffers the scene needs on `route`, as [`check_limits`] checks them: the
-/// per-particle arrays, the springs (the lattices on the stencil route, the adjacency
-/// otherwise), the terrain and the integrator's own.
-fn needs(model: &Model, packed: &terrain::TerrainBuffers, route: Route) -> Vec<Need> {
-    let n = model.len() as u64;
-    let need = |what, count, stride| Need {
-        what,
-        count,
-        stride,
-    };
-    let mut needs = vec![
-        need("positions", n, VEC4),
-        need("velocities", n, VEC4),
-        need("masses", n, 8),
-    ];
-    match route {
-        Route::Stencil => {
-            let lattices = model.lattices();
-            needs.push(need(
-                "lattice bodies",
-                lattices.len() as u64,
-                std::mem::size_of::<LatticeBodyGpu>() as u64,
-            ));
-            needs.push(need(
-                "lattice points",
-                LatticeBodyGpu::point_words(lattices),
-                4,
-            ));
-        }
-        Route::Gather | Route::PerSpring => {
-            let m = model.spring_count() as u64;
-            if route == Route::PerSpring {
-                needs.push(need("accelerations", n, VEC4));
-            }
-            // The per-spring arrays are chunked (check_chunks); the adjacency, a gather's
-            // index, stays whole: 2 words per spring, 16.7 M springs per 128 MiB.
-            needs.push(need("adjacency", n + 1 + 2 * m, 4));
-        }
-    }
-    needs.extend([
-        need(
-            "terrain surfaces",
-            packed.surfaces.len() as u64,
-            std::mem::size_of::<terrain::SurfaceGpu>() as u64,
-        ),
-        need("terrain data", packed.data.len() as u64, 4),
-    ]);
-    use softbody_scene::Integrator::*;
-    match model.simulation.integrator {
-        Midpoint | Rk4 => {
-            needs.push(need("stage positions", n, VEC4));
-            needs.push(need("stage velocities", n, VEC4));
-        }
-        ExplicitEuler | SymplecticEuler => {}
-        ImplicitEuler => {
-            needs.push(need("preconditioner blocks", 2 * n, VEC4));
-            needs.push(need(
-                "contact candidates",
-                n,
-                std::mem::size_of::<CandidateGpu>() as u64,
-            ));
-        }
-    }
-    if model.simulation.integrator == Rk4 {
-        needs.push(need("RK4 position sums", n, VEC4));
-        needs.push(need("RK4 velocity sums", n, VEC4));
-    }
-    if model.contact.enabled() {
-        needs.extend(
-            body_contact::needs(model)
-                .into_iter()
-                .map(|(what, count, stride)| need(what, count, stride)),
+/// What the solver is built of: the device side of a [`Plan`].
+struct Parts {
+    builder: Builder,
+    buffers: ModelBuffers,
+    chunks: SpringChunks,
+    stepper: Stepper,
+    body_contact: Option<BodyContact>,
+    collision_response: Option<CollisionResponse>,
+    check: CheckFinite,
+    energy: Energy,
+}
+
+impl Parts {
+    /// The buffers and kernels of `plan` for `model` from `state`, on `gpu`.
+    fn build(gpu: &Arc<Gpu>, plan: &Plan, model: &Model, state: &State) -> Result<Parts, GpuError> {
+        let alignment = plan.limits.min_uniform_buffer_offset_alignment;
+        let chunks = SpringChunks::new(
+            &gpu.device,
+            plan.chunking,
+            plan.m,
+            plan.spring_grids.clone(),
+            alignment,
         );
+        let builder = Builder::new(
+            gpu.clone(),
+            plan.limits.clone(),
+            plan.chunking,
+            &plan.terrain,
+        )?;
+        let buffers = ModelBuffers::new(
+            &builder,
+            model,
+            state,
+            plan.route,
+            &chunks,
+            plan.surfaces(),
+            plan.particles.groups(),
+            plan.spring_groups,
+            alignment,
+        );
+        let s = Setup {
+            builder: &builder,
+            buffers: &buffers,
+            chunks: &chunks,
+            particles: plan.particles,
+            n: plan.n,
+        };
+        let body_contact = model
+            .contact
+            .enabled()
+            .then(|| BodyContact::new(s, model, plan.width, plan.max_rows))
+            .transpose()?;
+        let implicit = plan.integrator == Integrator::ImplicitEuler;
+        let collision_response = match (implicit, plan.surfaces()) {
+            (false, 1..) => Some(CollisionResponse::new(s)?),
+            _ => None,
+        };
+        let around = Around {
+            contact: body_contact.as_ref(),
+            start: collision_response.as_ref().map(|c| &c.start),
+            terrain: plan.surfaces() > 0,
+        };
+        let stepper = Stepper::new(s, around, plan.integrator, plan.route, plan.two_pass)?;
+        let check = CheckFinite::new(s)?;
+        let energy = Energy::new(s, plan.spring_groups)?;
+        Ok(Parts {
+            stepper,
+            body_contact,
+            collision_response,
+            check,
+            energy,
+            buffers,
+            chunks,
+            builder,
+        })
     }
-    needs
 }
 
 impl Solver for GpuSolver {
@@ -714,7 +573,7 @@ impl Solver for GpuSolver {
     fn statistics(&self) -> Statistics {
         let implicit = match &self.stepper {
             Stepper::Implicit(im) => im.statistics.clone(),
-            Stepper::Explicit(_) | Stepper::Fused(_) => Statistics::default(),
+            Stepper::PerSpring(_) | Stepper::Fused(_) => Statistics::default(),
         };
         let (dispatches, device_bytes) = self.builder.traffic().totals();
         Statistics {
@@ -729,7 +588,7 @@ impl Solver for GpuSolver {
             kernel: match &self.stepper {
                 Stepper::Implicit(implicit) => implicit.kernel(),
                 Stepper::Fused(fused) => fused.kernel(),
-                Stepper::Explicit(_) => "per-spring + gather",
+                Stepper::PerSpring(_) => "per-spring + gather",
             },
             ..implicit
         }

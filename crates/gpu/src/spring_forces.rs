@@ -6,7 +6,7 @@
 //! chunk.
 
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;

@@ -1,7 +1,7 @@
 //! Terrain for the GPU: packs the scene's terrain shapes into the two storage buffers that
-//! `shaders/terrain.wgsl` reads at group 1 (`surfaces`: one [`SurfaceGpu`] per shape,
-//! `terrain_data`: heights and signed-distance grids). `shaders/terrain.wgsl` is the f32 twin of
-//! [`softbody_terrain::Surface`]; its header lists which field holds what for each kind.
+//! `shaders/shared/terrain.wgsl` reads at group 1 (`surfaces`: one [`SurfaceGpu`] per shape,
+//! `terrain_data`: heights and signed-distance grids). `shaders/shared/terrain.wgsl` is the f32
+//! twin of [`softbody_terrain::Surface`]; its header lists which field holds what for each kind.
 //!
 //! # Heightfields
 //!
@@ -56,12 +56,12 @@ pub const NORMAL_EPS_REL: f64 = 1e-4;
 pub const NORMAL_EPS_ABS: f64 = 1e-9;
 
 /// Heightfield search window cap, cells on each side of the point's cell; must equal
-/// `TERRAIN_HF_MAX_HALF_WINDOW` in `shaders/terrain.wgsl`.
+/// `TERRAIN_HF_MAX_HALF_WINDOW` in `shaders/shared/terrain.wgsl`.
 pub const HF_MAX_HALF_WINDOW: u32 = 8;
 
 /// One terrain shape as the shaders read it; must match `SurfaceGpu` in
-/// `shaders/terrain.wgsl` (112 bytes, 16-byte aligned rows; the per-kind use of each field is
-/// listed in that file's header).
+/// `shaders/shared/terrain.wgsl` (112 bytes, 16-byte aligned rows; the per-kind use of each field
+/// is listed in that file's header).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct SurfaceGpu {
@@ -288,7 +288,7 @@ mod tests {
         assert_eq!(std::mem::offset_of!(SurfaceGpu, rot1), 64);
         assert_eq!(std::mem::offset_of!(SurfaceGpu, rot2), 80);
         assert_eq!(std::mem::offset_of!(SurfaceGpu, dims), 96);
-        let shader = include_str!("../../../shaders/terrain.wgsl");
+        let shader = include_str!("../shaders/shared/terrain.wgsl");
         assert!(shader.contains(&format!(
             "const TERRAIN_HF_MAX_HALF_WINDOW: u32 = {HF_MAX_HALF_WINDOW}u;"
         )));

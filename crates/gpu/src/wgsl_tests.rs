@@ -1,11 +1,11 @@
-//! Tests of the WGSL that need no adapter: every composed module parses and validates with
-//! naga, each entry point's bindings reflect as the host binds them, and every struct shared with the host has the Rust twin's layout.
+//! Tests of the WGSL that need no adapter: every stage composes, and its module parses and
+//! validates with naga; each entry point's bindings reflect as the host binds them; every
+//! struct shared with the host has the Rust twin's layout.
 
 use std::mem::{offset_of, size_of};
 
-use naga::valid::{Capabilities, ValidationFlags, Validator};
-
 use crate::chunks::{Chunking, MAX_SPRING_CHUNKS};
+use crate::compose::Composed;
 use crate::kernel::{Access, Parsed, reflect};
 use crate::layout::{
     CG_DISPATCH_WORDS, CandidateGpu, CgScalars, ContactParams, ContactParticleGpu, LatticeBodyGpu,
@@ -15,37 +15,90 @@ use crate::layout::{
 use crate::shaders::Stage;
 use crate::terrain::SurfaceGpu;
 
+/// The module of `stage` with one spring chunk.
+fn composed(stage: Stage) -> Composed {
+    stage
+        .compose(Chunking::ONE)
+        .unwrap_or_else(|e| panic!("{} does not compose: {e}", stage.file()))
+}
+
+/// `stage`'s module composed for `chunking`, parsed and validated.
+fn parsed(stage: Stage, chunking: Chunking) -> Parsed {
+    let module = stage
+        .compose(chunking)
+        .unwrap_or_else(|e| panic!("{} does not compose: {e}", stage.file()));
+    Parsed::new(stage, &module)
+        .unwrap_or_else(|e| panic!("{} ({chunking:?}) does not validate:\n{e}", stage.file()))
+}
+
 fn parse(stage: Stage) -> naga::Module {
-    let source = stage.source();
-    naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| {
+    let module = composed(stage);
+    naga::front::wgsl::parse_str(&module.source).unwrap_or_else(|e| {
         panic!(
             "{} does not parse:\n{}",
             stage.file(),
-            e.emit_to_string_with_path(&source, stage.file())
+            e.emit_to_string_with_path(&module.source, stage.file())
         )
     })
 }
 
 #[test]
-fn every_composed_module_parses_and_validates() {
-    for stage in Stage::ALL {
-        let module = parse(stage);
-        let source = stage.source();
-        if let Err(e) =
-            Validator::new(ValidationFlags::all(), Capabilities::default()).validate(&module)
-        {
-            panic!(
-                "{} does not validate:\n{}",
-                stage.file(),
-                e.emit_to_string(&source)
-            );
+fn every_stage_composes_and_validates() {
+    for &stage in Stage::ALL {
+        parsed(stage, Chunking::ONE);
+    }
+}
+
+/// Each line of a composed module is the line of the file it is located in, and the composer
+/// writes nothing but a header per piece.
+#[test]
+fn composed_lines_are_located_in_their_files() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    for &stage in Stage::ALL {
+        let module = stage.compose(Chunking { count: 2, shift: 8 }).unwrap();
+        for (k, line) in module.source.lines().enumerate() {
+            match module.locate(k + 1) {
+                Some((file, _)) if file.starts_with("generated ") => {}
+                Some((file, l)) => {
+                    let text = std::fs::read_to_string(root.join(file)).unwrap();
+                    assert_eq!(text.lines().nth(l - 1), Some(line), "{file}:{l}");
+                }
+                None => assert!(line.starts_with("// ---- "), "{}: {line}", stage.file()),
+            }
         }
     }
 }
 
+/// Every file under `shaders/` is a stage, and every one under `shaders/shared/` a piece that
+/// some stage imports.
+#[test]
+fn every_shader_file_is_a_stage_or_an_imported_piece() {
+    let mut used: Vec<&str> = Vec::new();
+    for &stage in Stage::ALL {
+        used.extend(composed(stage).files());
+    }
+    used.retain(|file| !file.starts_with("generated "));
+    used.sort();
+    used.dedup();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = 0;
+    for dir in ["shaders", "shaders/shared"] {
+        for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+            let name = entry.unwrap().file_name().into_string().unwrap();
+            if let Some(stem) = name.strip_suffix(".wgsl") {
+                let path = format!("{dir}/{stem}.wgsl");
+                assert!(used.contains(&path.as_str()), "{path} is not used");
+                files += 1;
+            }
+        }
+    }
+    // And nothing a stage uses is elsewhere.
+    assert_eq!(files, used.len());
+}
+
 /// The names a kernel binds, as reflection reads them.
 fn names(stage: Stage, chunking: Chunking, entry: &str) -> (Vec<String>, bool) {
-    let parsed = Parsed::new(stage, &stage.source_chunked(chunking)).expect("validates");
+    let parsed = parsed(stage, chunking);
     let (bindings, terrain) = reflect(&parsed, entry).expect("reflects");
     (bindings.into_iter().map(|b| b.name).collect(), terrain)
 }
@@ -58,8 +111,11 @@ fn names(stage: Stage, chunking: Chunking, entry: &str) -> (Vec<String>, bool) {
 #[test]
 fn every_entry_point_reflects_within_webgpu_limits() {
     let mut kernels = 0;
-    for stage in Stage::ALL {
-        let parsed = Parsed::new(stage, &stage.source()).expect("validates");
+    for &stage in Stage::ALL {
+        let parsed = parsed(stage, Chunking::ONE);
+        let uses_terrain = composed(stage)
+            .files()
+            .contains(&"shaders/shared/terrain.wgsl");
         for entry in parsed.entry_points() {
             let (bindings, terrain) = reflect(&parsed, entry)
                 .unwrap_or_else(|e| panic!("{entry} in {}: {e}", stage.file()));
@@ -79,7 +135,7 @@ fn every_entry_point_reflects_within_webgpu_limits() {
             );
             assert_eq!(
                 terrain,
-                stage.uses_terrain()
+                uses_terrain
                     && !matches!(
                         entry,
                         "implicit_constrain"
@@ -128,7 +184,7 @@ fn reflection_reads_each_kernels_own_bindings() {
             false
         )
     );
-    let parsed = Parsed::new(Stage::CheckFinite, &Stage::CheckFinite.source()).unwrap();
+    let parsed = parsed(Stage::CheckFinite, one);
     let (bindings, _) = reflect(&parsed, "check_finite").unwrap();
     let access: Vec<(&str, Access, bool)> = bindings
         .iter()
@@ -144,7 +200,7 @@ fn reflection_reads_each_kernels_own_bindings() {
             ("step_index", Access::Uniform, true),
         ]
     );
-    let parsed = Parsed::new(Stage::Rk4, &Stage::Rk4.source()).unwrap();
+    let parsed = self::parsed(Stage::Explicit, one);
     assert!(reflect(&parsed, "no_such_kernel").is_err());
     // The stage forces of bodies that touch: the search of the start grid (neighbours.wgsl)
     // and the admit rule's rest neighbours, the stage state, into `a`; the counting kernels
@@ -202,7 +258,7 @@ fn reflection_reads_each_kernels_own_bindings() {
             "snapshot_v"
         ])
     );
-    let parsed = Parsed::new(Stage::BroadPhase, &Stage::BroadPhase.source()).unwrap();
+    let parsed = self::parsed(Stage::BroadPhase, one);
     let (bindings, _) = reflect(&parsed, "scan_up").unwrap();
     let access: Vec<(&str, Access, bool)> = bindings
         .iter()
@@ -406,8 +462,7 @@ fn spring_chunk_layout_matches() {
 #[test]
 fn the_products_bind_at_most_one_buffer_more_than_the_assembly() {
     let storage = |stage: Stage, chunking: Chunking, entry: &str| {
-        let parsed = Parsed::new(stage, &stage.source_chunked(chunking)).unwrap();
-        let (bindings, _) = reflect(&parsed, entry).unwrap();
+        let (bindings, _) = reflect(&parsed(stage, chunking), entry).unwrap();
         bindings
             .iter()
             .filter(|b| b.access != Access::Uniform)
@@ -465,8 +520,7 @@ fn chunked_gathers_validate_and_read_every_chunk() {
             Stage::FusedStep,
             Stage::FusedProduct,
         ] {
-            let parsed = Parsed::new(stage, &stage.source_chunked(chunking))
-                .unwrap_or_else(|e| panic!("{} ({chunking:?}): {e}", stage.file()));
+            let parsed = parsed(stage, chunking);
             for entry in parsed.entry_points() {
                 let (bindings, _) = reflect(&parsed, entry).unwrap();
                 let chunk_reads: Vec<String> = bindings
@@ -518,32 +572,6 @@ fn surface_size_matches_its_array_stride() {
     // (The terrain module's own test checks the members.)
     let (span, _) = wgsl_struct(Stage::Forces, "SurfaceGpu");
     assert_eq!(span as usize, size_of::<SurfaceGpu>());
-}
-
-#[test]
-fn locate_maps_composed_lines_back_to_files() {
-    for stage in Stage::ALL {
-        let source = stage.source();
-        let pieces = stage.pieces();
-        let mut headers = 0;
-        for (k, line) in source.lines().enumerate() {
-            // The generated chunk accessors come after every piece.
-            if line.starts_with("// ---- generated") {
-                break;
-            }
-            match stage.locate(k + 1) {
-                Some((file, l)) => {
-                    let text = pieces.iter().find(|(f, _)| *f == file).unwrap().1;
-                    assert_eq!(text.lines().nth(l - 1), Some(line), "{file}:{l}");
-                }
-                None => {
-                    assert!(line.starts_with("// ---- shaders/"), "line {}", k + 1);
-                    headers += 1;
-                }
-            }
-        }
-        assert_eq!(headers, pieces.len());
-    }
 }
 
 #[test]

@@ -1,7 +1,7 @@
-//! The fused explicit step (`shaders/fused_step.wgsl`, `softbody_gpu::integrators::fused`): one
-//! dispatch per integrator stage, each particle gathering its springs' forces from its
-//! neighbours, with the update, the collision response and the finiteness check in the same
-//! kernel.
+//! The fused explicit step (`shaders/explicit.wgsl` with `fused`,
+//! `softbody_gpu::integrators::fused`): one dispatch per integrator stage, each particle gathering
+//! its springs' forces from its neighbours, with the update, the collision response and the
+//! finiteness check in the same kernel.
 //!
 //! - Against the CPU, every explicit integrator, on a slope (contact and friction from the
 //!   first step) with pinned particles: within the twin tests' bounds for smooth contact

@@ -1,4 +1,4 @@
-//! `shaders/terrain.wgsl` against its CPU twin `softbody_terrain::Surface::query`, on a
+//! `shaders/shared/terrain.wgsl` against its CPU twin `softbody_terrain::Surface::query`, on a
 //! wgpu adapter: one probe kernel (`shaders/terrain_probe.wgsl`) evaluates every surface of a
 //! terrain list holding each kind at every test point, and each test compares one surface's
 //! column with the CPU's f64 answer at the same (f32-rounded) point.

@@ -11,8 +11,8 @@ use parry3d_f64::utils::Array2;
 use crate::{Contact, eps_for, within};
 
 /// One of the two triangles a heightfield cell is split into: the split rule every user of
-/// heightfields follows (the queries here, the renderer's triangles; `shaders/terrain.wgsl`
-/// states it again in WGSL).
+/// heightfields follows (the queries here, the renderer's triangles;
+/// `crates/gpu/shaders/shared/terrain.wgsl` states it again in WGSL).
 ///
 /// World vertex (r, c) is `origin + (c·dx, heights[r][c], r·dz)`. Parry (default cell status,
 /// no `ZIGZAG_SUBDIVISION`) splits the cell between rows r, r+1 and columns c, c+1 along the

@@ -1,5 +1,5 @@
-//! The signed-distance grid that mesh terrain is baked into for the GPU (`softbody-gpu`
-//! uploads it, `shaders/terrain.wgsl` samples it), and the shader's sampler in f64
+//! The signed-distance grid that mesh terrain is baked into for the GPU (`softbody-gpu` uploads it,
+//! `crates/gpu/shaders/shared/terrain.wgsl` samples it), and the shader's sampler in f64
 //! ([`SdfGrid::sample`]), for tests and error studies.
 //!
 //! # The grid
@@ -159,8 +159,8 @@ impl SdfGrid {
         values
     }
 
-    /// The shader's mesh sampler (`terrain_mesh` in `shaders/terrain.wgsl`) in f64, operation
-    /// for operation: (φ, unit normal) at x from the node values `values` (as
+    /// The shader's mesh sampler (`terrain_mesh` in `crates/gpu/shaders/shared/terrain.wgsl`) in
+    /// f64, operation for operation: (φ, unit normal) at x from the node values `values` (as
     /// [`SdfGrid::bake`] returns them).
     pub fn sample(&self, values: &[f32], x: DVec3) -> (f64, DVec3) {
         let lo = self.origin;

@@ -4,10 +4,10 @@
 //!
 //! f_a = −[k_s(|d| − r) + k_d((v_a − v_b)·l)] l,  f_b = −f_a.
 //!
-//! [`compute`] writes f_a of every spring (in parallel, each spring independent);
-//! [`gather`] sums them per particle over its adjacency run in ascending spring order. No
-//! particle is written by two threads and every sum has one fixed order, so the result is the
-//! same bits for any thread count (the GPU twin, `shaders/spring_forces.wgsl`, does the same).
+//! [`compute`] writes f_a of every spring (in parallel, each spring independent); [`gather`] sums
+//! them per particle over its adjacency run in ascending spring order. No particle is written by
+//! two threads and every sum has one fixed order, so the result is the same bits for any thread
+//! count (the GPU twin, `crates/gpu/shaders/spring_forces.wgsl`, does the same).
 
 use glam::DVec3;
 use rayon::prelude::*;

@@ -1,8 +1,8 @@
-//! `shaders/fused_step.wgsl` ↔ `softbody_cpu::pipeline`: the explicit integrators with one
-//! dispatch per stage — each thread gathers its springs' forces from its neighbours, updates its
-//! particle, and after a step's last stage responds to the terrain and checks finiteness — in
-//! place of the per-spring path's spring forces → gather → update → collision response →
-//! check (5 dispatches per symplectic-Euler step, 2 + 3 per further force evaluation).
+//! `shaders/explicit.wgsl` with `fused` ↔ `softbody_cpu::pipeline`: the explicit integrators with
+//! one dispatch per stage — each thread gathers its springs' forces from its neighbours, updates
+//! its particle, and after a step's last stage responds to the terrain and checks finiteness — in
+//! place of the per-spring path's spring forces → gather → update → collision response → check (5
+//! dispatches per symplectic-Euler step, 2 + 3 per further force evaluation).
 //!
 //! | integrator | dispatches of a step |
 //! |---|---|
@@ -19,18 +19,18 @@
 //! place: their last stage reads the neighbours from a stage state and writes only its own
 //! particle of (x, v).
 //!
-//! On the stencil route ([`crate::integrators::Route`]: every body a lattice, cuboids and mesh
+//! On the stencil route ([`crate::buffers::Route`]: every body a lattice, cuboids and mesh
 //! bodies) the kernels find their springs on the lattices (`Stage::FusedStencil`,
-//! `shaders/stencil.wgsl`): per body a table of its offsets' parameters and their two orders, per
-//! mesh body its mask, and no spring record or adjacency read — the same sums bit for bit
-//! ("fused stencil"; otherwise "fused gather").
+//! `shaders/shared/stencil.wgsl`): per body a table of its offsets' parameters and their two
+//! orders, per mesh body its mask, and no spring record or adjacency read — the same sums bit for
+//! bit ("fused stencil"; otherwise "fused gather").
 
 use std::sync::Arc;
 
 use softbody_scene::Integrator;
 
-use crate::buffers::SpringBuffers;
-use crate::builder::Setup;
+use super::entries;
+use crate::buffers::{Setup, SpringBuffers};
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources, Traffic};
 use crate::shaders::Stage;
@@ -59,17 +59,6 @@ pub(crate) struct Fused {
 }
 
 impl Fused {
-    /// Names of the kernels of `integrator`, in the order of a step.
-    pub fn entries(integrator: Integrator) -> &'static [&'static str] {
-        match integrator {
-            Integrator::ExplicitEuler => &["explicit_euler"],
-            Integrator::SymplecticEuler => &["symplectic_euler"],
-            Integrator::Midpoint => &["midpoint_stage", "midpoint_update"],
-            Integrator::Rk4 => &["rk4_first", "rk4_second", "rk4_third", "rk4_last"],
-            Integrator::ImplicitEuler => &[],
-        }
-    }
-
     /// `integrator` fused, with the collision response's record of each step's start in
     /// `start` (None without terrain), gathering by the stencil of the lattices where the
     /// buffers hold them (the stencil route), through the spring records otherwise. Fails with
@@ -85,7 +74,7 @@ impl Fused {
             SpringBuffers::Lattices { .. } => (Stage::FusedStencil, true),
             SpringBuffers::List(_) => (Stage::FusedStep, false),
         };
-        let entries = Fused::entries(integrator);
+        let entries = entries(integrator);
         for entry in entries {
             s.builder.fits(stage, entry)?;
         }

@@ -1,50 +1,28 @@
-//! The integrators on the GPU, each a type owning its buffers and kernel calls, one module each
-//! (twins of `softbody_cpu::integrators`); [`Stepper`] holds the one a run uses.
+//! The integrators on the GPU (twins of `softbody_cpu::integrators`), each path a type owning
+//! its buffers and kernel calls; [`Stepper`] holds the one a run uses.
 //!
 //! The explicit family is encoded on the device step after step (many steps per submission),
 //! fused where it can be ([`fused`]: one dispatch per stage, the collision response and the
-//! finiteness check included), otherwise on the per-spring path:
-//!
-//! | integrator | dispatches of a step (per-spring path) |
-//! |---|---|
-//! | explicit / symplectic Euler | forces(x, v) → update |
-//! | midpoint | forces(x, v) → `midpoint_stage` → forces(stage) → `midpoint_update` |
-//! | RK4 | forces(x, v) → `rk4_first` → forces(stage) → `rk4_second` → forces(stage) → `rk4_third` → forces(stage) → `rk4_last` |
-//!
-//! where forces(·) is [`Accelerations`] (spring forces, then the gather). The solver adds the
-//! collision response (with terrain) and the instability check. The per-spring path serves
-//! models whose bodies touch (their pair forces need the broad phase's grid of each stage's
-//! state) and adapters that cannot bind the fused kernels' buffers. Implicit Euler is driven
-//! from the host, which reads the CG's progress back ([`implicit_euler`]).
+//! finiteness check included), otherwise on the per-spring path ([`per_spring`]: the forces of
+//! each stage's state, then its update; the solver adds the collision response and the
+//! instability check). Both paths run the kernels of one file, `shaders/explicit.wgsl`, whose
+//! entry points are each method's stages ([`entries`]). Implicit Euler is driven from the host,
+//! which reads the CG's progress back ([`implicit_euler`]).
 //!
 //! Where the fused step finds its springs on the lattices (every body a lattice), the run needs
-//! no spring list at all: [`Route`] decides that before anything is allocated, and both the
-//! buffers ([`crate::buffers`]) and the [`Stepper`] follow its decision.
+//! no spring list at all: the run's [`Route`], decided before anything is allocated
+//! ([`crate::plan`]), says so, and both the buffers ([`crate::buffers`]) and the [`Stepper`]
+//! follow it.
 
-pub mod explicit_euler;
 pub mod fused;
 pub mod implicit_euler;
-pub mod midpoint;
-pub mod rk4;
-pub mod symplectic_euler;
+pub mod per_spring;
 
-use softbody_scene::{Integrator, Model};
+use softbody_scene::Integrator;
 
-use crate::builder::{Setup, answer, fits};
-use crate::chunks::Chunking;
-use crate::forces::Accelerations;
-use crate::grid::Grid;
-use crate::kernel::Call;
-use crate::layout::{SpringBlockGpu, SpringGpu};
-use crate::limits::check_chunks;
-use crate::shaders::Stage;
-use crate::{GpuError, GpuOptions};
-
-/// An integrator whose steps are encoded on the device alone.
-pub(crate) trait ExplicitStep: Send {
-    /// Encodes one step's force evaluations and updates.
-    fn encode(&self, pass: &mut wgpu::ComputePass<'_>);
-}
+use crate::GpuError;
+use crate::body_contact::BodyContact;
+use crate::buffers::{Route, Setup};
 
 /// The integrator of a run.
 pub(crate) enum Stepper {
@@ -52,125 +30,60 @@ pub(crate) enum Stepper {
     /// check are its own.
     Fused(fused::Fused),
     /// Explicit Euler, symplectic Euler, midpoint or RK4 on the per-spring path.
-    Explicit(Box<dyn ExplicitStep>),
+    PerSpring(per_spring::PerSpring),
     /// Implicit Euler.
     Implicit(Box<implicit_euler::ImplicitEuler>),
 }
 
-/// How a run finds each particle's springs, and so what the device holds of them: decided
-/// once, before anything is allocated, by [`Route::of`]; the buffers uploaded and the
-/// [`Stepper`] built follow it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Route {
-    /// The explicit integrators fused, finding the springs on the lattices (`stencil.wgsl`):
-    /// neither the host nor the device holds a spring list.
-    Stencil,
-    /// The explicit integrators fused, gathering through the spring records and the CSR
-    /// adjacency (`fused_gather.wgsl`): nothing per spring is written.
-    Gather,
-    /// The spring list and what the per-spring kernels write into (the per-spring vectors, the
-    /// accelerations): the per-spring path and implicit Euler.
-    PerSpring,
-}
-
-impl Route {
-    /// The route of `model` on an adapter with `limits`, and the chunking of its spring list
-    /// (one empty chunk on the stencil route). The explicit integrators run fused
-    /// ([`fused_applies`]) where the adapter can bind the fused kernels (reflected from their
-    /// WGSL): on the stencil where every body is a lattice and `options` do not ask for the
-    /// gather, else on the gather. Everything else takes the per-spring route.
-    pub fn of(
-        model: &Model,
-        options: &GpuOptions,
-        limits: &wgpu::Limits,
-        adapter: &str,
-    ) -> Result<(Route, Chunking), GpuError> {
-        let integrator = model.simulation.integrator;
-        let implicit = integrator == Integrator::ImplicitEuler;
-        let stride = if implicit {
-            std::mem::size_of::<SpringBlockGpu>()
-        } else {
-            std::mem::size_of::<SpringGpu>()
-        } as u64;
-        let fused = fused_applies(integrator, model.contact.enabled(), options.per_spring);
-        let entries = fused::Fused::entries(integrator);
-        // Whether `stage`'s fused kernels fit; a limit is an answer, anything else an error.
-        let fit = |stage, chunking| answer(fits(limits, adapter, stage, entries, chunking));
-        let lattices = model.lattices().len() == model.bodies.len();
-        if fused && lattices && !options.gather && fit(Stage::FusedStencil, Chunking::ONE)? {
-            return Ok((
-                Route::Stencil,
-                check_chunks(limits, adapter, 0, stride, implicit)?,
-            ));
-        }
-        let springs = model.spring_count() as u64;
-        let chunking = check_chunks(limits, adapter, springs, stride, implicit)?;
-        let route = if fused && fit(Stage::FusedStep, chunking)? {
-            Route::Gather
-        } else {
-            Route::PerSpring
-        };
-        Ok((route, chunking))
-    }
-}
-
-/// Whether `integrator` runs fused unless the adapter cannot bind the fused kernels: an
-/// explicit integrator, bodies that do not touch (`contact`: their pair forces need the broad
-/// phase of each stage's state), and `per_spring` not asking for the per-spring path.
-fn fused_applies(integrator: Integrator, contact: bool, per_spring: bool) -> bool {
-    integrator != Integrator::ImplicitEuler && !contact && !per_spring
+/// What an integrator's kernels work with besides the model's buffers: the stages the solver
+/// built before it, and whether there is terrain.
+#[derive(Clone, Copy)]
+pub(crate) struct Around<'a> {
+    /// The contact between bodies, for models whose bodies touch: every force evaluation adds
+    /// its pairs' penalty forces, implicit Euler's system their terms.
+    pub contact: Option<&'a BodyContact>,
+    /// The collision response's record of each step's start (explicit integrators with
+    /// terrain), which the fused step's last stage reads and renews.
+    pub start: Option<&'a wgpu::Buffer>,
+    /// Whether the scene has terrain (implicit Euler's contacts).
+    pub terrain: bool,
 }
 
 impl Stepper {
-    /// `integrator`'s buffers and calls on `route` ([`Route::of`], which found that the fused
-    /// kernels fit where it chose them); `terrain` says whether the scene has terrain, `start`
-    /// is the collision response's record of each step's start (explicit integrators with
-    /// terrain); `per_spring` keeps implicit Euler's product in its two passes.
+    /// `integrator`'s buffers and calls on `route` (where the plan chose a fused route, it
+    /// found that the fused kernels fit); `per_spring` keeps implicit Euler's product in its two
+    /// passes.
     pub fn new(
         s: Setup<'_>,
+        around: Around<'_>,
         integrator: Integrator,
-        terrain: bool,
-        start: Option<&wgpu::Buffer>,
         route: Route,
         per_spring: bool,
     ) -> Result<Stepper, GpuError> {
         if route != Route::PerSpring {
-            return Ok(Stepper::Fused(fused::Fused::new(s, integrator, start)?));
+            return Ok(Stepper::Fused(fused::Fused::new(
+                s,
+                integrator,
+                around.start,
+            )?));
         }
         Ok(match integrator {
-            Integrator::ExplicitEuler => Stepper::Explicit(Box::new(explicit_euler::new(s)?)),
-            Integrator::SymplecticEuler => Stepper::Explicit(Box::new(symplectic_euler::new(s)?)),
-            Integrator::Midpoint => Stepper::Explicit(Box::new(midpoint::Midpoint::new(s)?)),
-            Integrator::Rk4 => Stepper::Explicit(Box::new(rk4::Rk4::new(s)?)),
             Integrator::ImplicitEuler => Stepper::Implicit(Box::new(
-                implicit_euler::ImplicitEuler::new(s, terrain, per_spring)?,
+                implicit_euler::ImplicitEuler::new(s, around.contact, around.terrain, per_spring)?,
             )),
+            _ => Stepper::PerSpring(per_spring::PerSpring::new(s, around.contact, integrator)?),
         })
     }
 }
 
-/// A single-stage explicit method: forces at (x, v), then one update kernel.
-pub(crate) struct SingleStage {
-    forces: Accelerations,
-    update: Call,
-    grid: Grid,
-}
-
-impl SingleStage {
-    /// The method whose update is `entry` of `stage`.
-    fn new(s: Setup<'_>, stage: Stage, entry: &'static str) -> Result<SingleStage, GpuError> {
-        let b = s.buffers;
-        Ok(SingleStage {
-            forces: Accelerations::new(s, &b.x, &b.v)?,
-            update: s.builder.call(stage, entry, &b.resources())?,
-            grid: s.particles,
-        })
-    }
-}
-
-impl ExplicitStep for SingleStage {
-    fn encode(&self, pass: &mut wgpu::ComputePass<'_>) {
-        self.forces.encode(pass);
-        self.update.run(pass, self.grid);
+/// Names of `integrator`'s kernels in `shaders/explicit.wgsl`, in the order of a step, on
+/// either path (none for implicit Euler).
+pub(crate) fn entries(integrator: Integrator) -> &'static [&'static str] {
+    match integrator {
+        Integrator::ExplicitEuler => &["explicit_euler"],
+        Integrator::SymplecticEuler => &["symplectic_euler"],
+        Integrator::Midpoint => &["midpoint_stage", "midpoint_update"],
+        Integrator::Rk4 => &["rk4_first", "rk4_second", "rk4_third", "rk4_last"],
+        Integrator::ImplicitEuler => &[],
     }
 }

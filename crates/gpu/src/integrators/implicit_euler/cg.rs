@@ -7,7 +7,7 @@
 //! `cg_residual`; `cg_begin`),
 //! then runs batches of iterations of three dispatches: the product of the direction c, which
 //! also filters q = S A c and writes cᵀq's partial sums (`apply_particles_curvature`,
-//! `shaders/product.wgsl`), `cg_advance`, whose workgroups each compute α from those partial
+//! `shaders/shared/product.wgsl`), `cg_advance`, whose workgroups each compute α from those partial
 //! sums, and `cg_direction`, whose workgroups each compute β from those of rᵀP⁻¹r. (Kernels of
 //! their own for cᵀq, α and β took three more.) The product and `cg_advance` are dispatched
 //! indirectly from the argument slots that `cg_begin` and `cg_direction` rewrite:
@@ -18,7 +18,7 @@
 use super::system::{System, Vector};
 use super::{Buffers, SLOTS_RUNNING};
 use crate::GpuError;
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;

@@ -43,7 +43,7 @@ use softbody_scene::{History, Statistics, StepError, Timings};
 use self::cg::Cg;
 use self::system::{System, Vector};
 use crate::body_contact::BodyContact;
-use crate::builder::Setup;
+use crate::buffers::Setup;
 use crate::check_finite::CheckFinite;
 use crate::grid::Grid;
 use crate::kernel::{Call, Resources};
@@ -233,9 +233,15 @@ pub(crate) struct ImplicitEuler {
 }
 
 impl ImplicitEuler {
-    /// Its buffers and calls; `terrain`: whether the scene has terrain to touch; `two_pass`:
-    /// the product in two passes even where the fused one fits ([`System::new`]).
-    pub fn new(s: Setup<'_>, terrain: bool, two_pass: bool) -> Result<ImplicitEuler, GpuError> {
+    /// Its buffers and calls; `contact`: the contact between bodies, for models whose bodies
+    /// touch; `terrain`: whether the scene has terrain to touch; `two_pass`: the product in two
+    /// passes even where the fused one fits ([`System::new`]).
+    pub fn new(
+        s: Setup<'_>,
+        contact: Option<&BodyContact>,
+        terrain: bool,
+        two_pass: bool,
+    ) -> Result<ImplicitEuler, GpuError> {
         let buffers = Buffers::new(s);
         let resources = buffers.resources(s.buffers.resources());
         let call = |entry| s.builder.call(Stage::ImplicitEuler, entry, &resources);
@@ -247,7 +253,7 @@ impl ImplicitEuler {
             false => None,
         };
         Ok(ImplicitEuler {
-            system: System::new(s, &buffers, two_pass)?,
+            system: System::new(s, contact, &buffers, two_pass)?,
             cg: Cg::new(s, &buffers)?,
             constrain: call("implicit_constrain")?,
             remember: call("implicit_remember")?,

@@ -8,7 +8,7 @@
 //! (`shaders/fused_product.wgsl`: each particle computes its springs' terms as it gathers them),
 //! or with `GpuOptions::per_spring` a per-spring product and a gather (`apply_springs`,
 //! `apply_particles`): the same bits. The CG iterations' product of its direction c also
-//! filters it and sums cᵀq (`apply_particles_curvature`, `shaders/product.wgsl`). The fused
+//! filters it and sums cᵀq (`apply_particles_curvature`, `shaders/shared/product.wgsl`). The fused
 //! product of A Δv binds fewer storage buffers than `assemble_particles`, and that of c as
 //! many plus one, for any chunk count (pinned by a reflection test): on an adapter whose limit
 //! is the assembly's exactly, the product takes the two passes, whose gathers bind fewer.
@@ -20,7 +20,9 @@
 
 use super::{Buffers, Slots};
 use crate::GpuError;
-use crate::builder::{Setup, answer};
+use crate::body_contact::BodyContact;
+use crate::buffers::Setup;
+use crate::builder::answer;
 use crate::grid::Grid;
 use crate::kernel::Call;
 use crate::shaders::Stage;
@@ -60,8 +62,14 @@ pub(crate) struct System {
 }
 
 impl System {
-    /// The system's calls over the implicit buffers `im`; the product fused unless `two_pass`.
-    pub fn new(s: Setup<'_>, im: &Buffers, two_pass: bool) -> Result<System, GpuError> {
+    /// The system's calls over the implicit buffers `im`, with the pairs of `contact` (for
+    /// models whose bodies touch); the product fused unless `two_pass`.
+    pub fn new(
+        s: Setup<'_>,
+        contact: Option<&BodyContact>,
+        im: &Buffers,
+        two_pass: bool,
+    ) -> Result<System, GpuError> {
         // The per-spring kernels bind their chunk's blocks; the gathers all chunks (`im`).
         let per_chunk = |entry, p: &wgpu::Buffer| {
             s.per_chunk(Stage::System, entry, |c, r| {
@@ -81,14 +89,14 @@ impl System {
         };
         // The pairs' kernels search the start grid: the contact's buffers with implicit Euler's.
         let pairs = |entry, p: &wgpu::Buffer| {
-            s.body_contact
+            contact
                 .map(|contact| {
                     let r = im.resources(contact.resources(s.buffers)).buffer("p", p);
                     s.builder.call(Stage::BodyContact, entry, &r)
                 })
                 .transpose()
         };
-        let (assemble, product, curvature) = match s.body_contact {
+        let (assemble, product, curvature) = match contact {
             Some(_) => (
                 "assemble_particles_with_pairs",
                 "apply_particles_with_pairs",
