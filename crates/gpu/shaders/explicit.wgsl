@@ -1,5 +1,5 @@
 // explicit.wgsl ↔ crates/cpu/src/integrators/{explicit_euler,symplectic_euler,midpoint,rk4}.rs
-// and crates/cpu/src/pipeline.rs: the explicit integrators' kernels, one per stage of each
+// and crates/cpu/src/pipeline/: the explicit integrators' kernels, one per stage of each
 // method, written once for both of the GPU's paths (crates/gpu/src/integrators/). On
 // y = (x, v), y' = (v, a(x, v)), with the update equations of updates.wgsl:
 //
