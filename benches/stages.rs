@@ -125,15 +125,9 @@ fn cg_solve(c: &mut Criterion) {
     let mut dv = vec![DVec3::ZERO; model.len()];
     let mut solve = |dv: &mut [DVec3], scratch: &mut Scratch| {
         cg::CgProblem {
-            system: &mut system,
-            model: &model,
-            constraints: &constraints,
-            b: &b,
-            z: &z,
-            earlier: &[],
-            preconditioner: cg::Preconditioner::BlockJacobi,
             tolerance: 1e-8,
             max_iterations: 2000,
+            ..cg::CgProblem::new(&mut system, &model, &constraints, &b, &z)
         }
         .solve(dv, scratch)
     };

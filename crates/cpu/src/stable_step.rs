@@ -13,7 +13,7 @@
 //!
 //! K's product is the spring kernel's: a damper of coefficient k_s at velocities v pulls on a
 //! with −k_s(l·(v_a − v_b)) l, which is −(K v)_a. So every product is one pass of the explicit
-//! integrators' pipeline (`pipeline.rs`) over the model with its springs' coefficients
+//! integrators' pipeline (`pipeline/`) over the model with its springs' coefficients
 //! (k_s, k_d) turned into (0, k_s) — the stencil on lattices, the sweep or the gather on lists:
 //! parallel, the same bits for any thread count, and no spring list where the model has none.
 //! (`softbody check` on a 100³ cube: 4.7 s on 2 threads; 56 s with the serial sweep over the

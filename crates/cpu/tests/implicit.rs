@@ -252,18 +252,8 @@ fn cg_solution_matches_a_direct_sparse_solve() {
     let z = vec![DVec3::ZERO; n];
     let mut dv = vec![DVec3::ZERO; n];
     let mut scratch = Scratch::new(n);
-    let outcome = cg::CgProblem {
-        system: &mut system,
-        model: &model,
-        constraints: &constraints,
-        b: &b,
-        z: &z,
-        earlier: &[],
-        preconditioner: cg::Preconditioner::BlockJacobi,
-        tolerance: CG_TOLERANCE,
-        max_iterations: CG_MAX_ITERATIONS,
-    }
-    .solve(&mut dv, &mut scratch);
+    let outcome =
+        cg::CgProblem::new(&mut system, &model, &constraints, &b, &z).solve(&mut dv, &mut scratch);
     let diff: Vec<DVec3> = dv.iter().zip(&direct).map(|(a, b)| *a - *b).collect();
     let rel = norm(&diff) / norm(&direct);
     println!(
@@ -459,18 +449,8 @@ fn filtered_cg_keeps_constraints_and_solves_the_free_subspace() {
     let mut rng = Rng::new(11);
     let mut dv: Vec<DVec3> = (0..n).map(|_| rng.vec(0.1)).collect();
     let mut scratch = Scratch::new(n);
-    let outcome = cg::CgProblem {
-        system: &mut system,
-        model: &model,
-        constraints: &constraints,
-        b: &b,
-        z: &z,
-        earlier: &[],
-        preconditioner: cg::Preconditioner::BlockJacobi,
-        tolerance: CG_TOLERANCE,
-        max_iterations: CG_MAX_ITERATIONS,
-    }
-    .solve(&mut dv, &mut scratch);
+    let outcome =
+        cg::CgProblem::new(&mut system, &model, &constraints, &b, &z).solve(&mut dv, &mut scratch);
     assert!(outcome.relative_residual <= CG_TOLERANCE, "{outcome:?}");
     assert_eq!(dv[fixed], z[fixed], "the fixed particle's Δv is z exactly");
     let along = dv[slid].dot(normal);
@@ -528,15 +508,9 @@ fn started(
     let mut dv = u0.to_vec();
     let mut scratch = Scratch::new(dv.len());
     let outcome = cg::CgProblem {
-        system: &mut f.system,
-        model: &f.model,
-        constraints: &f.constraints,
-        b: &f.b,
-        z: &f.z,
         earlier,
-        preconditioner: cg::Preconditioner::BlockJacobi,
-        tolerance: CG_TOLERANCE,
         max_iterations,
+        ..cg::CgProblem::new(&mut f.system, &f.model, &f.constraints, &f.b, &f.z)
     }
     .solve(&mut dv, &mut scratch);
     (dv, outcome.iterations)

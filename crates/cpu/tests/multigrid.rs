@@ -9,7 +9,7 @@ use softbody_cpu::CpuSolver;
 use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Preconditioner, Scratch};
 use softbody_cpu::integrators::implicit_euler::multigrid::{KEEP_ASSEMBLIES, Multigrid};
 use softbody_cpu::integrators::implicit_euler::system::System;
-use softbody_cpu::integrators::implicit_euler::{CG_MAX_ITERATIONS, CG_TOLERANCE};
+use softbody_cpu::integrators::implicit_euler::CG_TOLERANCE;
 use softbody_scene::{History, Integrator, Model, Solver, SpringParams, State};
 use softbody_testkit::Rng;
 use softbody_testkit::scenes::*;
@@ -84,18 +84,11 @@ fn solve_once(
     let mut scratch = Scratch::new(n);
     let started = Instant::now();
     let outcome = cg::CgProblem {
-        system: &mut system,
-        model,
-        constraints: &constraints,
-        b: &b,
-        z: &z,
-        earlier: &[],
         preconditioner: match multigrid {
             Some(mg) => Preconditioner::Multigrid(mg),
             None => Preconditioner::BlockJacobi,
         },
-        tolerance: CG_TOLERANCE,
-        max_iterations: CG_MAX_ITERATIONS,
+        ..cg::CgProblem::new(&mut system, model, &constraints, &b, &z)
     }
     .solve(&mut dv, &mut scratch);
     (dv, outcome, started.elapsed().as_secs_f64())

@@ -1020,7 +1020,7 @@ fn implicit_cg_dispatches(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Scratch};
     use softbody_cpu::integrators::implicit_euler::system::System;
-    use softbody_cpu::integrators::implicit_euler::{CG_MAX_ITERATIONS, CG_TOLERANCE};
+    use softbody_cpu::integrators::implicit_euler::CG_TOLERANCE;
     use softbody_gpu::CG_TOLERANCE_F32;
     let (model, state) = implicit_cube();
     let n = model.len();
@@ -1058,15 +1058,8 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
         let mut dv = warm.clone();
         let mut scratch = Scratch::new(n);
         let out = cg::CgProblem {
-            system: &mut sys,
-            model: &model,
-            constraints: &constraints,
-            b: &b,
-            z: &z,
-            earlier: &[],
-            preconditioner: cg::Preconditioner::BlockJacobi,
             tolerance: tol,
-            max_iterations: CG_MAX_ITERATIONS,
+            ..cg::CgProblem::new(&mut sys, &model, &constraints, &b, &z)
         }
         .solve(&mut dv, &mut scratch);
         (dv, out)

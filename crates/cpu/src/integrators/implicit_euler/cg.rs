@@ -26,6 +26,7 @@ pub use softbody_scene::implicit::Constraint;
 
 use super::multigrid::Multigrid;
 use super::system::System;
+use super::{CG_MAX_ITERATIONS, CG_TOLERANCE};
 use crate::forces::PARTICLE_CHUNK;
 use crate::reduce::{chunked_sum, fill_and_sum};
 
@@ -113,7 +114,29 @@ pub struct CgProblem<'a> {
     pub max_iterations: u32,
 }
 
-impl CgProblem<'_> {
+impl<'a> CgProblem<'a> {
+    /// The problem as a step poses it without a history: no earlier solutions, block Jacobi,
+    /// [`CG_TOLERANCE`], at most [`CG_MAX_ITERATIONS`] (change any of them with `..`).
+    pub fn new(
+        system: &'a mut System,
+        model: &'a Model,
+        constraints: &'a [Constraint],
+        b: &'a [DVec3],
+        z: &'a [DVec3],
+    ) -> CgProblem<'a> {
+        CgProblem {
+            system,
+            model,
+            constraints,
+            b,
+            z,
+            earlier: &[],
+            preconditioner: Preconditioner::BlockJacobi,
+            tolerance: CG_TOLERANCE,
+            max_iterations: CG_MAX_ITERATIONS,
+        }
+    }
+
     /// Solves for `dv`, which holds a warm start on entry (its constrained part is replaced by
     /// `z`), in `scratch`'s vectors.
     pub fn solve(mut self, dv: &mut [DVec3], scratch: &mut Scratch) -> CgOutcome {

@@ -347,19 +347,20 @@ impl ImplicitEuler {
             let earlier: [&[DVec3]; cg::WARM_START_BASIS - 1] =
                 std::array::from_fn(|j| self.earlier[j].as_slice());
             let outcome = timings.time("cg", || {
-                cg::CgProblem {
-                    system: &mut self.system,
+                let problem = cg::CgProblem::new(
+                    &mut self.system,
                     model,
-                    constraints: &self.constraints,
-                    b: &self.rhs,
-                    z: &self.z,
+                    &self.constraints,
+                    &self.rhs,
+                    &self.z,
+                );
+                cg::CgProblem {
                     earlier: &earlier,
                     preconditioner: match self.multigrid.as_mut() {
                         Some(mg) => cg::Preconditioner::Multigrid(mg),
                         None => cg::Preconditioner::BlockJacobi,
                     },
-                    tolerance: CG_TOLERANCE,
-                    max_iterations: CG_MAX_ITERATIONS,
+                    ..problem
                 }
                 .solve(&mut self.dv, &mut self.scratch)
             });
