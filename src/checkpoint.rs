@@ -440,19 +440,26 @@ mod tests {
     use super::*;
     use crate::Backend;
 
-    /// A frame count damaged so that frames × record wraps around u64 is refused as corrupt,
-    /// and the journal is left as it was (not cut to the wrapped length).
-    #[test]
-    fn a_damaged_frame_count_is_refused_without_touching_the_journal() {
+    /// A jelly's solver, checkpointed every frame into `f.jsonl.checkpoint` in a fresh
+    /// directory.
+    fn checkpointed() -> (tempfile::TempDir, Box<dyn Solver>) {
         let scene = softbody_scene::Scene::from_file(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/scenes/jelly-on-ground.toml"
         ))
         .unwrap();
         let dir = tempfile::tempdir().unwrap();
-        let at = dir.path().join("f.jsonl.checkpoint");
         let mut solver = crate::open(&scene, Backend::Cpu, Some(1)).unwrap();
-        Checkpoints::create(&at, 1, solver.as_mut()).unwrap();
+        Checkpoints::create(&dir.path().join("f.jsonl.checkpoint"), 1, solver.as_mut()).unwrap();
+        (dir, solver)
+    }
+
+    /// A frame count damaged so that frames × record wraps around u64 is refused as corrupt,
+    /// and the journal is left as it was (not cut to the wrapped length).
+    #[test]
+    fn a_damaged_frame_count_is_refused_without_touching_the_journal() {
+        let (dir, mut solver) = checkpointed();
+        let at = dir.path().join("f.jsonl.checkpoint");
         let journal = at.join("frames");
         let record = record_bytes(solver.model().len());
         // The smallest count whose product with the record wraps, and a journal that long:
@@ -481,15 +488,8 @@ mod tests {
     /// not as a failure to read a file (1).
     #[test]
     fn a_missing_journal_is_a_damaged_checkpoint() {
-        let scene = softbody_scene::Scene::from_file(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/scenes/jelly-on-ground.toml"
-        ))
-        .unwrap();
-        let dir = tempfile::tempdir().unwrap();
+        let (dir, mut solver) = checkpointed();
         let at = dir.path().join("f.jsonl.checkpoint");
-        let mut solver = crate::open(&scene, Backend::Cpu, Some(1)).unwrap();
-        Checkpoints::create(&at, 1, solver.as_mut()).unwrap();
         std::fs::remove_file(at.join("frames")).unwrap();
         let e = Checkpoints::resume(&at, None, solver.as_mut())
             .map(|c| c.map(|c| c.resumed_frames()))

@@ -6,10 +6,10 @@ use std::time::Instant;
 
 use glam::DVec3;
 use softbody_cpu::CpuSolver;
+use softbody_cpu::integrators::implicit_euler::CG_TOLERANCE;
 use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Preconditioner, Scratch};
 use softbody_cpu::integrators::implicit_euler::multigrid::{KEEP_ASSEMBLIES, Multigrid};
 use softbody_cpu::integrators::implicit_euler::system::System;
-use softbody_cpu::integrators::implicit_euler::CG_TOLERANCE;
 use softbody_scene::{History, Integrator, Model, Solver, SpringParams, State};
 use softbody_testkit::Rng;
 use softbody_testkit::scenes::*;

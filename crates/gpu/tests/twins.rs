@@ -1018,9 +1018,9 @@ fn implicit_cg_dispatches(gpu: &Arc<Gpu>) -> Result<(), Failed> {
 }
 
 fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
+    use softbody_cpu::integrators::implicit_euler::CG_TOLERANCE;
     use softbody_cpu::integrators::implicit_euler::cg::{self, Constraint, Scratch};
     use softbody_cpu::integrators::implicit_euler::system::System;
-    use softbody_cpu::integrators::implicit_euler::CG_TOLERANCE;
     use softbody_gpu::CG_TOLERANCE_F32;
     let (model, state) = implicit_cube();
     let n = model.len();
