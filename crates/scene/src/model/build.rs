@@ -5,7 +5,7 @@ use glam::DVec3;
 use super::{BodyRange, Contacts, Derived, Embedded, EmbeddedMesh, Lattice, Model, Springs, State};
 use crate::format::SurfaceKind;
 use crate::scene::{BodyShape, Scene};
-use crate::topology::{self, SpringKind};
+use crate::topology;
 
 impl Model {
     /// Builds the model and its initial state from a validated scene. Pinned particles start at
@@ -39,17 +39,12 @@ impl Model {
                     let m = c.mass / x.len() as f64;
                     state.v.extend(std::iter::repeat_n(c.velocity, x.len()));
                     mass.extend(std::iter::repeat_n(m, x.len()));
-                    let params = |kind| match kind {
-                        SpringKind::Structural => c.structural,
-                        SpringKind::Shear => c.shear,
-                        SpringKind::Bending => c.bending,
-                    };
                     let lattice = Lattice::new(
                         b as u32,
                         first,
                         c.resolution,
                         topology::cuboid_spacing(c),
-                        params,
+                        [c.structural, c.shear, c.bending],
                     );
                     lattices.push(lattice);
                     state.x.extend(x);
@@ -73,14 +68,10 @@ impl Model {
                     let mass_each = m.total_mass() / x.len() as f64;
                     state.v.extend(std::iter::repeat_n(m.velocity, x.len()));
                     mass.extend(std::iter::repeat_n(mass_each, x.len()));
-                    let params = |kind| match kind {
-                        SpringKind::Structural => m.structural,
-                        SpringKind::Shear => m.shear,
-                        SpringKind::Bending => m.bending,
-                    };
+                    let families = [m.structural, m.shear, m.bending];
                     let points = v.lattice_points();
                     let lattice =
-                        Lattice::new(b as u32, first, points, DVec3::splat(v.cell()), params);
+                        Lattice::new(b as u32, first, points, DVec3::splat(v.cell()), families);
                     lattices.push(lattice.masked(v.particle_of(), v.present()));
                     state.x.extend(x);
                     match m.surface {

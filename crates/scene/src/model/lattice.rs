@@ -3,6 +3,7 @@
 
 use glam::DVec3;
 
+use crate::scene::SpringParams;
 use crate::topology::{self, SpringKind};
 
 #[cfg(doc)]
@@ -60,15 +61,21 @@ pub struct LatticeSpring {
 }
 
 impl Lattice {
-    /// The lattice of a body of `dims` points at cell edges `spacing` whose families have the
-    /// parameters `params` gives (`None`: left out).
+    /// The lattice of a body of `dims` points at cell edges `spacing` whose structural, shear
+    /// and bending families have the parameters `families` (`None`: left out).
     pub(super) fn new(
         body: u32,
         first: u32,
         dims: [u32; 3],
         spacing: DVec3,
-        params: impl Fn(SpringKind) -> Option<crate::scene::SpringParams>,
+        families: [Option<SpringParams>; 3],
     ) -> Lattice {
+        let [structural, shear, bending] = families;
+        let params = |kind| match kind {
+            SpringKind::Structural => structural,
+            SpringKind::Shear => shear,
+            SpringKind::Bending => bending,
+        };
         let springs = (topology::OFFSETS.iter().enumerate())
             .filter_map(|(offset, &(o, kind))| {
                 params(kind).map(|p| LatticeSpring {
