@@ -13,7 +13,7 @@ use softbody::cpu::integrators::implicit_euler::system::System;
 use softbody::scene::ExplicitSpring;
 use softbody::{Integrator, State};
 use softbody_testkit::scenes::*;
-use softbody_testkit::{Backend, Failed, Law, ensure};
+use softbody_testkit::{Backend, Failed, Law, cg_momentum_bound, ensure};
 
 fn main() -> ExitCode {
     softbody_testkit::run(
@@ -337,28 +337,14 @@ fn internal_springs_conserve_linear_momentum(
     let h = model.simulation.dt;
     let p0 = momentum(&model, &state);
     let scale = momentum_scale(&model, &state);
-    let n = model.len();
     let mut system = System::new(&model);
-    let mut b = vec![DVec3::ZERO; n];
     let mut solver = backend.solver_from(model.clone(), state)?;
     let mut cg_bound = 0.0;
     let steps = 400;
     for _ in 0..steps {
         if integrator == Integrator::ImplicitEuler {
             let st = solver.state().map_err(|e| e.to_string())?;
-            system.assemble(&model, None, &st.x, &st.v, &mut b);
-            let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-            for i in 0..n {
-                // The diagonal block's largest eigenvalue (its smallest is at least the
-                // mass part: the springs' blocks are positive semi-definite).
-                let d = system.diag[i];
-                let block = nalgebra::Matrix3::from_fn(|r, c| d.col(c)[r]);
-                let top = block.symmetric_eigenvalues().max();
-                lo = lo.min(system.mass_diag[i]);
-                hi = hi.max(top);
-            }
-            let norm_b = b.iter().map(|b| b.length_squared()).sum::<f64>().sqrt();
-            cg_bound += (n as f64).sqrt() * backend.cg_tolerance() * (hi / lo).sqrt() * norm_b;
+            cg_bound += cg_momentum_bound(backend, &mut system, &model, &st.x, &st.v);
         }
         solver.advance(1).map_err(|e| e.to_string())?;
     }

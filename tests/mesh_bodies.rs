@@ -13,7 +13,7 @@ use softbody::scene::voxel::{LatticeSize, Voxels};
 use softbody::scene::{Body, BodyShape, MeshBody, MeshMass, SurfaceKind, TriangleMesh};
 use softbody::{Integrator, Model, State};
 use softbody_testkit::scenes::*;
-use softbody_testkit::{Backend, Failed, Law, Rng, ensure};
+use softbody_testkit::{Backend, Failed, Law, Rng, cg_momentum_bound, ensure};
 
 fn main() -> ExitCode {
     softbody_testkit::run(
@@ -105,7 +105,6 @@ fn falling_mesh_body_follows_free_fall_until_contact(
     let v0 = p0 / mass;
     let scale = momentum_scale(&model, &state);
     let mut system = System::new(&model);
-    let mut b = vec![DVec3::ZERO; n_particles];
     let mut solver = backend.solver_from(model.clone(), state)?;
     let (mut cg_p, mut cg_x) = (0.0, 0.0);
     let mut checked = 0u64;
@@ -126,19 +125,7 @@ fn falling_mesh_body_follows_free_fall_until_contact(
     loop {
         if integrator == Integrator::ImplicitEuler {
             let st = solver.state().map_err(|e| e.to_string())?;
-            system.assemble(&model, None, &st.x, &st.v, &mut b);
-            let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-            for i in 0..n_particles {
-                // The diagonal block's largest eigenvalue (its smallest is at least the
-                // mass part: the springs' blocks are positive semi-definite).
-                let d = system.diag[i];
-                let block = nalgebra::Matrix3::from_fn(|r, c| d.col(c)[r]);
-                lo = lo.min(system.mass_diag[i]);
-                hi = hi.max(block.symmetric_eigenvalues().max());
-            }
-            let norm_b = b.iter().map(|b| b.length_squared()).sum::<f64>().sqrt();
-            let step =
-                (n_particles as f64).sqrt() * backend.cg_tolerance() * (hi / lo).sqrt() * norm_b;
+            let step = cg_momentum_bound(backend, &mut system, &model, &st.x, &st.v);
             cg_p += step;
             cg_x += h * cg_p / mass;
         }

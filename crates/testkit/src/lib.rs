@@ -323,3 +323,29 @@ pub fn compare_states(
     )
     .into())
 }
+
+/// What one implicit-Euler step's CG residual can change the momentum by, at the state
+/// (`x`, `v`) the backend reached: |Σ r_i| ≤ √n·ρ·√(λmax(P)/λmin(P))·‖b‖, with ρ the backend's
+/// CG tolerance, P the block-Jacobi preconditioner (λmin at least the mass part: the springs'
+/// blocks are positive semi-definite) and b the step's right-hand side, both assembled with the
+/// CPU's `System`.
+pub fn cg_momentum_bound(
+    backend: &Backend,
+    system: &mut softbody_cpu::integrators::implicit_euler::system::System,
+    model: &Model,
+    x: &[DVec3],
+    v: &[DVec3],
+) -> f64 {
+    let n = model.len();
+    let mut b = vec![DVec3::ZERO; n];
+    system.assemble(model, None, x, v, &mut b);
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for i in 0..n {
+        let d = system.diag[i];
+        let block = nalgebra::Matrix3::from_fn(|r, c| d.col(c)[r]);
+        lo = lo.min(system.mass_diag[i]);
+        hi = hi.max(block.symmetric_eigenvalues().max());
+    }
+    let norm_b = b.iter().map(|b| b.length_squared()).sum::<f64>().sqrt();
+    (n as f64).sqrt() * backend.cg_tolerance() * (hi / lo).sqrt() * norm_b
+}
