@@ -39,6 +39,7 @@
 pub mod benchmark;
 pub mod checkpoint;
 pub mod compare;
+mod fingerprint;
 pub mod lock;
 pub mod output;
 mod overrides;

@@ -5,7 +5,8 @@
 //! A lock is a file (`<output>.lock` beside a file, `OUT/.lock` in a directory) held with the
 //! operating system's advisory lock (`flock`): the kernel releases it when its holder exits,
 //! also by `kill -9`, so a lock is never stale. The file names the holder's process id, for the
-//! message of the process refused.
+//! message of the process refused. On a file system without locks (some network mounts answer
+//! `flock` with ENOLCK or EOPNOTSUPP) outputs are written unlocked.
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, Read, Seek, Write};
@@ -45,7 +46,14 @@ pub enum LockError {
 pub struct OutputLock {
     file: File,
     path: PathBuf,
+    mode: Mode,
     remove: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    Exclusive,
+    Shared,
 }
 
 impl OutputLock {
@@ -54,13 +62,19 @@ impl OutputLock {
     pub fn file(output: &Path) -> Result<OutputLock, LockError> {
         let mut name = output.as_os_str().to_owned();
         name.push(".lock");
-        Self::acquire(output, PathBuf::from(name), true)
+        Self::acquire(output, PathBuf::from(name), Mode::Exclusive, true)
     }
 
     /// Locks the directory `dir` (which must exist) with `dir/.lock`, left there when the lock
     /// is dropped: it is one of the directory's own files.
     pub fn directory(dir: &Path) -> Result<OutputLock, LockError> {
-        Self::acquire(dir, dir.join(".lock"), false)
+        Self::acquire(dir, dir.join(".lock"), Mode::Exclusive, false)
+    }
+
+    /// Locks the directory `dir` shared with other shared holders (Slurm tasks writing files of
+    /// their own in it), against an exclusive holder ([`OutputLock::directory`]).
+    pub fn directory_shared(dir: &Path) -> Result<OutputLock, LockError> {
+        Self::acquire(dir, dir.join(".lock"), Mode::Shared, false)
     }
 
     /// The lock file.
@@ -68,7 +82,12 @@ impl OutputLock {
         &self.path
     }
 
-    fn acquire(output: &Path, path: PathBuf, remove: bool) -> Result<OutputLock, LockError> {
+    fn acquire(
+        output: &Path,
+        path: PathBuf,
+        mode: Mode,
+        remove: bool,
+    ) -> Result<OutputLock, LockError> {
         let io = |source| LockError::Io {
             lock: path.clone(),
             source,
@@ -83,7 +102,11 @@ impl OutputLock {
                 .truncate(false)
                 .open(&path)
                 .map_err(io)?;
-            match file.try_lock() {
+            let locked = match mode {
+                Mode::Exclusive => file.try_lock(),
+                Mode::Shared => file.try_lock_shared(),
+            };
+            match locked {
                 Ok(()) => {}
                 Err(std::fs::TryLockError::WouldBlock) => {
                     let mut text = String::new();
@@ -97,15 +120,26 @@ impl OutputLock {
                         holder,
                     });
                 }
+                // A file system without locks (some network mounts): the output is written
+                // unlocked, as before locks, rather than not at all.
+                Err(std::fs::TryLockError::Error(e)) if unsupported(&e) => {}
                 Err(std::fs::TryLockError::Error(e)) => return Err(io(e)),
             }
             if !same_file(&file, &path) {
                 continue;
             }
-            file.set_len(0).map_err(io)?;
-            file.rewind().map_err(io)?;
-            writeln!(file, "{}", std::process::id()).map_err(io)?;
-            return Ok(OutputLock { file, path, remove });
+            // Shared holders are many: the file names only an exclusive one.
+            if mode == Mode::Exclusive {
+                file.set_len(0).map_err(io)?;
+                file.rewind().map_err(io)?;
+                writeln!(file, "{}", std::process::id()).map_err(io)?;
+            }
+            return Ok(OutputLock {
+                file,
+                path,
+                mode,
+                remove,
+            });
         }
     }
 }
@@ -116,9 +150,18 @@ impl Drop for OutputLock {
         // (`acquire` checks that the file it locked is still the one at the path).
         if self.remove {
             let _ = std::fs::remove_file(&self.path);
+        } else if self.mode == Mode::Exclusive {
+            // A file left behind names no holder, once there is none.
+            let _ = self.file.set_len(0);
         }
         let _ = self.file.unlock();
     }
+}
+
+fn unsupported(e: &io::Error) -> bool {
+    // ENOLCK (37), EOPNOTSUPP (95) and ENOSYS (38) are what Linux's network file systems answer.
+    e.kind() == io::ErrorKind::Unsupported
+        || (cfg!(target_os = "linux") && matches!(e.raw_os_error(), Some(37 | 38 | 95)))
 }
 
 #[cfg(unix)]
@@ -168,6 +211,14 @@ mod tests {
         ));
         drop(lock);
         assert!(dir.path().join(".lock").exists());
+        let shared = OutputLock::directory_shared(dir.path()).unwrap();
+        let second = OutputLock::directory_shared(dir.path()).unwrap();
+        match OutputLock::directory(dir.path()) {
+            Err(LockError::Busy { holder, .. }) => assert_eq!(holder, None),
+            other => panic!("expected Busy, got {other:?}"),
+        }
+        drop(shared);
+        drop(second);
         OutputLock::directory(dir.path()).unwrap();
     }
 }

@@ -131,8 +131,17 @@ impl Overrides {
 pub struct Setting {
     key: KeyPath,
     value: toml::Value,
-    /// The command-line flag it came from (`--dt`), for messages; `None`: a `--set`.
-    flag: Option<&'static str>,
+    /// Where it came from, for messages.
+    origin: Origin,
+}
+
+/// Where a setting came from: a `--set`, a flag of its own, or an entry of a table (a sweep
+/// file's `set`, Python's `set=`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Origin {
+    Set,
+    Flag(&'static str),
+    Entry(&'static str),
 }
 
 impl Setting {
@@ -146,26 +155,35 @@ impl Setting {
         Setting {
             key,
             value,
-            flag: None,
+            origin: Origin::Set,
         }
     }
 
     /// The setting as the flag `flag` gave it (`--dt 0.001` for `simulation.dt`): messages
     /// name the flag instead of a `--set`.
     pub fn from_flag(mut self, flag: &'static str) -> Setting {
-        self.flag = Some(flag);
+        self.origin = Origin::Flag(flag);
         self
     }
 
-    /// Where it came from, as messages say it: `--set body[0].mass=2`, or `--dt 0.001`.
+    /// The setting as an entry of the table `table` gave it (`set` of a sweep file or of a
+    /// Python call): messages say `set: body[0].mass = 2` instead of a `--set`.
+    pub fn from_entry(mut self, table: &'static str) -> Setting {
+        self.origin = Origin::Entry(table);
+        self
+    }
+
+    /// Where it came from, as messages say it: `--set body[0].mass=2`, `--dt 0.001`, or
+    /// `set: body[0].mass = 2`.
     pub fn origin(&self) -> String {
-        match self.flag {
-            Some(flag) => match &self.value {
+        match self.origin {
+            Origin::Flag(flag) => match &self.value {
                 toml::Value::String(s) => format!("{flag} {s}"),
                 toml::Value::Float(x) => format!("{flag} {x}"),
                 v => format!("{flag} {v}"),
             },
-            None => format!("--set {self}"),
+            Origin::Set => format!("--set {self}"),
+            Origin::Entry(table) => format!("{table}: {} = {}", self.key, self.value),
         }
     }
 

@@ -6,8 +6,9 @@ use std::path::Path;
 use serde::Deserialize;
 use softbody_scene::{Invalid, KeyPath, SceneError};
 
-use super::plan::{RandomFile, grid_runs, key, parameters, random_runs};
-use super::{Metric, Sweep, SweepError};
+use super::manifest::Identity;
+use super::plan::{Keys, RandomFile, grid_runs, key, parameters, random_runs};
+use super::{Metric, Sweep, SweepError, to_settings};
 use crate::Backend;
 use crate::output::Format;
 
@@ -42,14 +43,9 @@ impl Sweep {
         let located = |key: KeyPath, message: String| -> SweepError {
             SweepError::File(Invalid::new(key, message).locate(origin, text))
         };
-        let file: SweepFile = toml::from_str(text).map_err(|e| {
-            // Located as a scene file's errors are: the same TOML, the same reporting.
-            let key = e
-                .span()
-                .map(|s| softbody_scene::error::key_at(text, s.start))
-                .unwrap_or_default();
-            located(key, e.message().trim().to_owned())
-        })?;
+        // Located as a scene file's errors are: the same TOML, the same reporting.
+        let file: SweepFile = toml::from_str(text)
+            .map_err(|e| SweepError::File(softbody_scene::error::from_toml(origin, text, &e)))?;
         let base = origin.parent().unwrap_or(Path::new(""));
         let (scene_text, scene_origin) = match &file.scene {
             toml::Value::String(path) => {
@@ -100,7 +96,9 @@ impl Sweep {
                 })
                 .collect::<Result<_, _>>()?,
         };
-        let common = parameters(&file.set, &key("set")).map_err(|(k, m)| located(k, m))?;
+        let mut fixed = Keys::default();
+        let common = parameters(&file.set, &key("set"), "set", &mut fixed)
+            .map_err(|(k, m)| located(k, m))?;
 
         let kinds = [
             file.grid.is_some(),
@@ -116,20 +114,33 @@ impl Sweep {
                         .into(),
                 ));
             }
-            (Some(grid), _, _) => grid_runs(grid).map_err(|(k, m)| located(k, m))?,
+            (Some(grid), _, _) => grid_runs(grid, fixed).map_err(|(k, m)| located(k, m))?,
             (_, Some(list), _) => list
                 .iter()
                 .enumerate()
-                .map(|(i, t)| parameters(t, &key("runs").index(i)))
+                .map(|(i, t)| parameters(t, &key("runs").index(i), "[[runs]]", &mut fixed.clone()))
                 .collect::<Result<_, _>>()
                 .map_err(|(k, m)| located(k, m))?,
-            (_, _, Some(random)) => random_runs(random).map_err(|(k, m)| located(k, m))?,
+            (_, _, Some(random)) => random_runs(random, fixed).map_err(|(k, m)| located(k, m))?,
             _ => unreachable!("one kind is present"),
         };
         if runs.is_empty() {
             return Err(located(KeyPath::root(), "the sweep has no runs".into()));
         }
-        let sweep = Sweep {
+        // The base scene with the common settings must load: a fault there is every run's.
+        let (base, base_text) = crate::overrides::parse_with(
+            &scene_text,
+            &scene_origin,
+            &to_settings(&common, &[], &scene_origin)?,
+        )?;
+        let identity = Identity {
+            scene: Identity::scene_fingerprint(&base, &base_text),
+            format: format.map(|f| f.name().to_owned()),
+            metrics: metrics.iter().map(|m| m.name().to_owned()).collect(),
+            backend: backend.name().to_owned(),
+            threads,
+        };
+        Ok(Sweep {
             file: origin.to_owned(),
             scene_text,
             scene_origin,
@@ -139,13 +150,7 @@ impl Sweep {
             backend,
             threads,
             metrics,
-        };
-        // The base scene with the common settings must load: a fault there is every run's.
-        crate::scene_from_toml(
-            &sweep.scene_text,
-            &sweep.scene_origin,
-            &sweep.settings(&[])?,
-        )?;
-        Ok(sweep)
+            identity,
+        })
     }
 }

@@ -121,7 +121,7 @@ impl Job {
             record
         };
         let origin = &self.scene_origin;
-        let settings = match to_settings(self.common.iter().chain(&self.parameters), origin) {
+        let settings = match to_settings(&self.common, &self.parameters, origin) {
             Ok(s) => s,
             Err(e) => return end(record, Status::Invalid, 2, e.to_string()),
         };

@@ -17,6 +17,25 @@ pub struct Options {
     pub task: Option<(usize, usize)>,
 }
 
+impl Options {
+    /// Refuses zero workers, zero tasks, and a task index that takes none of `runs` runs.
+    pub fn check(&self, runs: usize) -> Result<(), SweepError> {
+        let refuse = |m: String| Err(SweepError::Options(m));
+        match (self.workers, self.task) {
+            (Some(0), _) => refuse("a sweep takes at least 1 worker".into()),
+            (_, Some((_, 0))) => refuse("a sweep is shared by at least 1 task".into()),
+            (_, Some((index, 1))) if index >= runs => refuse(format!(
+                "task index {index} names no run: the sweep has {runs} (0 to {})",
+                runs - 1
+            )),
+            (_, Some((index, count))) if count > 1 && index >= count => refuse(format!(
+                "task index {index} is not below the task count {count}: it takes no run"
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
 /// What a sweep did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Outcome {
@@ -52,6 +71,7 @@ pub fn run_local(
     options: &Options,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Outcome, SweepError> {
+    options.check(sweep.len())?;
     let manifest = Manifest::open(sweep, out, options.task.map(|(i, _)| i))?;
     let planned = task_runs(sweep.len(), options.task);
     let todo: Vec<usize> = planned

@@ -12,12 +12,14 @@ use serde_json::Value as Json;
 
 use super::job::parameter_map;
 use super::{Record, Sweep, SweepError};
+use crate::fingerprint::Fingerprint;
+use crate::lock::OutputLock;
 
 /// The manifest's file name in the out directory.
 pub const MANIFEST: &str = "manifest.jsonl";
 
-/// Version of the manifest's header line (`softbody_sweep`).
-pub const MANIFEST_VERSION: u32 = 1;
+/// Version of the manifest's header line (`softbody_sweep`): 2 carries the job's [`Identity`].
+pub const MANIFEST_VERSION: u32 = 2;
 
 /// The manifest's first line.
 #[derive(Serialize, Deserialize)]
@@ -25,6 +27,63 @@ struct ManifestHeader {
     softbody_sweep: u32,
     sweep: String,
     runs: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    job: Option<Identity>,
+}
+
+/// What makes a sweep's records its own besides each run's parameters: the base scene (its
+/// text with the settings of every run, and a fingerprint of the model it builds, which holds
+/// the meshes it reads), the output format, the metrics, the backend and the threads per run
+/// (the same scene, backend and threads give the same bits). A manifest of another identity
+/// is never taken for this sweep's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(super) struct Identity {
+    /// 16 hex digits: the FNV-1a hash of the base scene's text and model.
+    pub(super) scene: String,
+    pub(super) format: Option<String>,
+    pub(super) metrics: Vec<String>,
+    pub(super) backend: String,
+    pub(super) threads: usize,
+}
+
+impl Identity {
+    /// The fingerprint of a base scene loaded from `text`.
+    pub(super) fn scene_fingerprint(scene: &softbody_scene::Scene, text: &str) -> String {
+        use std::fmt::Write as _;
+        let mut hash = Fingerprint::default();
+        let (model, _) = softbody_scene::Model::build(scene);
+        let _ = write!(hash, "{text}\n{model:?}");
+        format!("{:016x}", hash.finish())
+    }
+
+    /// What differs from `theirs`, in words (`format: npz there, csv here`).
+    fn differences(&self, theirs: &Identity) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.scene != theirs.scene {
+            out.push(
+                "the base scene (its text, a mesh it reads, or the settings of every run)".into(),
+            );
+        }
+        let mut differ = |what: &str, there: String, here: String| {
+            if there != here {
+                out.push(format!("{what}: {there} there, {here} here"));
+            }
+        };
+        let format = |f: &Option<String>| f.clone().unwrap_or_else(|| "none".into());
+        differ("format", format(&theirs.format), format(&self.format));
+        differ(
+            "metrics",
+            theirs.metrics.join(", "),
+            self.metrics.join(", "),
+        );
+        differ("backend", theirs.backend.clone(), self.backend.clone());
+        differ(
+            "threads",
+            theirs.threads.to_string(),
+            self.threads.to_string(),
+        );
+        out
+    }
 }
 
 /// A sweep's manifest in its out directory: the records found there, and the file that new
@@ -33,33 +92,47 @@ pub struct Manifest {
     path: PathBuf,
     file: Mutex<File>,
     records: Mutex<BTreeMap<usize, Record>>,
+    // Held while the manifest is open: released when it is dropped.
+    _locks: Vec<OutputLock>,
 }
 
 impl Manifest {
-    /// Opens the manifest of `sweep` in `out` (made if missing): reads the records of
-    /// `manifest.jsonl` and of every `manifest-task-*.jsonl` there, checks that they belong to
-    /// this sweep (the same parameters for the same run number), keeps one per run (a
-    /// finished one over a failed one, else the last), and opens for appending
-    /// `manifest.jsonl`, rewritten with the finished records kept, or with `task` Some(i) the task's own
-    /// `manifest-task-i.jsonl`, which no other task writes.
+    /// Opens the manifest of `sweep` in `out` (made if missing): locks `out` (shared with the
+    /// other Slurm tasks for a task, else alone), reads the records of `manifest.jsonl` and of
+    /// every `manifest-task-*.jsonl` there, checks that they belong to this sweep (the same
+    /// [`Identity`] in each header, the same parameters for the same run number), keeps one per
+    /// run (a finished one over a failed one, else the last), and opens for appending
+    /// `manifest.jsonl`, rewritten with the finished records kept, or with `task` Some(i) the
+    /// task's own `manifest-task-i.jsonl`, which no other task writes, cut after its last whole
+    /// line.
     pub fn open(sweep: &Sweep, out: &Path, task: Option<usize>) -> Result<Manifest, SweepError> {
         let io = |path: &Path| {
             let path = path.to_owned();
             move |source| SweepError::Io { path, source }
         };
         std::fs::create_dir_all(out).map_err(io(out))?;
-        let mut records = collect(sweep, out)?;
         let path = match task {
             Some(i) => out.join(format!("manifest-task-{i}.jsonl")),
             None => out.join(MANIFEST),
         };
+        let locks = match task {
+            Some(_) => vec![OutputLock::directory_shared(out)?, OutputLock::file(&path)?],
+            None => vec![OutputLock::directory(out)?],
+        };
+        let mut records = collect(sweep, out)?;
         let file = if task.is_some() {
             let mut f = OpenOptions::new()
                 .create(true)
                 .append(true)
                 .open(&path)
                 .map_err(io(&path))?;
-            if f.metadata().map_err(io(&path))?.len() == 0 {
+            let whole = read_journal(&path)?.whole;
+            if f.metadata().map_err(io(&path))?.len() > whole {
+                // What a kill or a full disk left of a line: appended to, it would spoil the
+                // next record's line too.
+                f.set_len(whole).map_err(io(&path))?;
+            }
+            if whole == 0 {
                 writeln!(f, "{}", header_line(sweep)).map_err(io(&path))?;
             }
             f
@@ -85,6 +158,7 @@ impl Manifest {
             path,
             file: Mutex::new(file),
             records: Mutex::new(records),
+            _locks: locks,
         })
     }
 
@@ -145,7 +219,9 @@ fn collect(sweep: &Sweep, out: &Path) -> Result<BTreeMap<usize, Record>, SweepEr
     files.extend(tasks);
     let mut records: BTreeMap<usize, Record> = BTreeMap::new();
     for file in &files {
-        for record in read_records(file)? {
+        let journal = read_journal(file)?;
+        check_identity(sweep, file, &journal)?;
+        for record in journal.records {
             let expected = sweep
                 .runs
                 .get(record.run)
@@ -187,16 +263,73 @@ pub(super) fn header_line(sweep: &Sweep) -> String {
         softbody_sweep: MANIFEST_VERSION,
         sweep: sweep_file.display().to_string(),
         runs: sweep.len(),
+        job: Some(sweep.identity.clone()),
     })
     .expect("the header serialises")
 }
 
-/// The records of a manifest file (none when it does not exist). A last line without its
-/// newline is what a killed sweep leaves mid-write: it is dropped, and its run runs again.
+/// Refuses a manifest file whose header is another job's (or has none, with records).
+fn check_identity(sweep: &Sweep, file: &Path, journal: &Journal) -> Result<(), SweepError> {
+    let refuse = |why: String| SweepError::Manifest {
+        path: file.to_owned(),
+        message: format!(
+            "{why}: its records are not this sweep's answer; give this sweep another --out \
+             directory, or remove {} to start afresh",
+            file.parent().unwrap_or(Path::new(".")).display()
+        ),
+    };
+    match &journal.header {
+        None if journal.records.is_empty() => Ok(()),
+        None => Err(refuse("it has no header line".into())),
+        Some(h) if h.softbody_sweep != MANIFEST_VERSION => Err(refuse(format!(
+            "it is of manifest version {}, this softbody writes {MANIFEST_VERSION}",
+            h.softbody_sweep
+        ))),
+        Some(ManifestHeader { job: None, .. }) => {
+            Err(refuse("its header does not say which job wrote it".into()))
+        }
+        Some(ManifestHeader {
+            job: Some(theirs),
+            sweep: other,
+            ..
+        }) => {
+            let differences = sweep.identity.differences(theirs);
+            if differences.is_empty() {
+                Ok(())
+            } else {
+                Err(refuse(format!(
+                    "it holds the runs of another sweep job ({other}), which differs in {}",
+                    differences.join("; ")
+                )))
+            }
+        }
+    }
+}
+
+/// A manifest file as read: its header, its records, and the length of its whole lines.
+struct Journal {
+    header: Option<ManifestHeader>,
+    records: Vec<Record>,
+    whole: u64,
+}
+
+/// The records of a manifest file (none when it does not exist).
+#[cfg(test)]
 pub(super) fn read_records(path: &Path) -> Result<Vec<Record>, SweepError> {
+    Ok(read_journal(path)?.records)
+}
+
+/// A manifest file (empty when it does not exist). A last line without its newline is what a
+/// killed sweep leaves mid-write: it is dropped, and its run runs again.
+fn read_journal(path: &Path) -> Result<Journal, SweepError> {
+    let mut journal = Journal {
+        header: None,
+        records: Vec::new(),
+        whole: 0,
+    };
     let file = match File::open(path) {
         Ok(f) => f,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(journal),
         Err(source) => {
             return Err(SweepError::Io {
                 path: path.to_owned(),
@@ -204,10 +337,13 @@ pub(super) fn read_records(path: &Path) -> Result<Vec<Record>, SweepError> {
             });
         }
     };
-    let mut records = Vec::new();
     let mut reader = BufReader::new(file);
     let mut line = String::new();
     let mut number = 0;
+    let bad = |number: usize, what: &str, e: serde_json::Error| SweepError::Manifest {
+        path: path.to_owned(),
+        message: format!("line {number} is not {what}: {e}"),
+    };
     loop {
         line.clear();
         let n = reader
@@ -220,14 +356,17 @@ pub(super) fn read_records(path: &Path) -> Result<Vec<Record>, SweepError> {
             break;
         }
         number += 1;
-        if line.trim().is_empty() || line.starts_with("{\"softbody_sweep\"") {
+        journal.whole += n as u64;
+        if line.trim().is_empty() {
             continue;
         }
-        let record: Record = serde_json::from_str(&line).map_err(|e| SweepError::Manifest {
-            path: path.to_owned(),
-            message: format!("line {number} is not a sweep record: {e}"),
-        })?;
-        records.push(record);
+        if line.starts_with("{\"softbody_sweep\"") {
+            let header = serde_json::from_str(&line).map_err(|e| bad(number, "a header", e))?;
+            journal.header = Some(header);
+            continue;
+        }
+        let record = serde_json::from_str(&line).map_err(|e| bad(number, "a sweep record", e))?;
+        journal.records.push(record);
     }
-    Ok(records)
+    Ok(journal)
 }

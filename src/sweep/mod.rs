@@ -73,6 +73,7 @@ pub struct Sweep {
     backend: Backend,
     threads: usize,
     metrics: Vec<Metric>,
+    identity: manifest::Identity,
 }
 
 /// Why a sweep cannot start.
@@ -89,6 +90,12 @@ pub enum SweepError {
         /// What is wrong.
         message: String,
     },
+    /// Another process writes the out directory (or the same Slurm task's manifest).
+    #[error(transparent)]
+    Lock(#[from] crate::lock::LockError),
+    /// The options of a local sweep are out of range (zero workers, a task past the count).
+    #[error("{0}")]
+    Options(String),
     /// The out directory or its manifest cannot be written.
     #[error("{}: {source}", path.display())]
     Io {
@@ -109,18 +116,17 @@ pub enum SweepError {
 
 impl SweepError {
     /// Whether the sweep's input is at fault (the sweep file, its scene, a manifest of another
-    /// sweep: exit status 2) rather than the file system (1).
+    /// sweep, options out of range: exit status 2) rather than the file system or another
+    /// process writing the out directory (1).
     pub fn is_bad_input(&self) -> bool {
-        matches!(self, SweepError::File(_) | SweepError::Manifest { .. })
+        matches!(
+            self,
+            SweepError::File(_) | SweepError::Manifest { .. } | SweepError::Options(_)
+        )
     }
 }
 
 impl Sweep {
-    /// The common settings followed by `parameters`, as [`Setting`]s.
-    fn settings(&self, parameters: &[(String, toml::Value)]) -> Result<Vec<Setting>, SceneError> {
-        to_settings(self.common.iter().chain(parameters), &self.scene_origin)
-    }
-
     /// The sweep file.
     pub fn file(&self) -> &Path {
         &self.file
@@ -171,23 +177,34 @@ impl Sweep {
     }
 }
 
-fn to_settings<'a>(
-    parameters: impl IntoIterator<Item = &'a (String, toml::Value)>,
+/// The settings of a run: the sweep's `set` (`common`), then the run's own `parameters`, each
+/// named in messages by where the sweep file gives it.
+fn to_settings(
+    common: &[(String, toml::Value)],
+    parameters: &[(String, toml::Value)],
     origin: &Path,
 ) -> Result<Vec<Setting>, SceneError> {
-    parameters
-        .into_iter()
-        .map(|(k, v)| {
-            Setting::new(k, v.clone()).map_err(|message| {
-                SceneError::Invalid(Box::new(softbody_scene::Diagnostic {
-                    file: origin.to_owned(),
-                    line: 0,
-                    column: 0,
-                    key: KeyPath(vec![Seg::Key(k.clone())]),
-                    message,
-                    source_line: String::new(),
-                }))
+    let entries = |list: &'static str, values: &[(String, toml::Value)]| {
+        values
+            .iter()
+            .map(move |(k, v)| {
+                Setting::new(k, v.clone())
+                    .map(|s| s.from_entry(list))
+                    .map_err(|message| {
+                        SceneError::Invalid(Box::new(softbody_scene::Diagnostic {
+                            file: origin.to_owned(),
+                            line: 0,
+                            column: 0,
+                            key: KeyPath(vec![Seg::Key(k.clone())]),
+                            message,
+                            source_line: String::new(),
+                        }))
+                    })
             })
-        })
+            .collect::<Vec<_>>()
+    };
+    entries("set", common)
+        .into_iter()
+        .chain(entries("the run's parameters", parameters))
         .collect()
 }

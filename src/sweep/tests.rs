@@ -103,7 +103,7 @@ fn bad_sweep_files_are_located() {
         (
             "[random]\nruns = 2\nseed = 1\n[random.parameters]\n\"body[0].mass\" = { uniform = [2.0, 1.0] }\n",
             "random.parameters.body[0].mass",
-            "uniform = [lo, hi]",
+            "lo ≤ hi",
         ),
         (
             "colour = 1\n[grid]\n\"body[0].mass\" = [1.0]\n",
@@ -124,7 +124,7 @@ fn bad_sweep_files_are_located() {
     let e = sweep("set = { \"body[0].mass\" = -1.0 }\n[grid]\n\"terrain[0].friction\" = [0.1]\n")
         .unwrap_err();
     assert!(
-        e.to_string().contains("(from --set body[0].mass=-1.0)"),
+        e.to_string().contains("(from set: body[0].mass = -1.0)"),
         "{e}"
     );
 }
@@ -216,7 +216,7 @@ fn a_local_sweep_writes_the_manifest_and_resumes() {
     let text = std::fs::read_to_string(out.join(MANIFEST)).unwrap();
     assert_eq!(text.lines().count(), 1 + 4, "a header and a line per run");
     let header: Json = serde_json::from_str(text.lines().next().unwrap()).unwrap();
-    assert_eq!(header["softbody_sweep"], Json::from(1));
+    assert_eq!(header["softbody_sweep"], Json::from(MANIFEST_VERSION));
     assert_eq!(header["runs"], Json::from(4));
     let records = read_records(&out.join(MANIFEST)).unwrap();
     let mut runs: Vec<usize> = records.iter().map(|r| r.run).collect();
@@ -256,7 +256,10 @@ fn a_local_sweep_writes_the_manifest_and_resumes() {
     // Another sweep's manifest is refused.
     let other = sweep("[grid]\n\"body[0].mass\" = [5.0]\n").unwrap();
     let e = run_local(&other, &out, &options, &|_, _| {}).unwrap_err();
-    assert!(e.to_string().contains("is another sweep's"), "{e}");
+    assert!(
+        e.is_bad_input() && e.to_string().contains("another sweep"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -323,4 +326,224 @@ fn runs_are_reproducible_whatever_the_workers() {
         r.into_iter().map(|r| r.metrics).collect::<Vec<_>>()
     };
     assert_eq!(metrics(1), metrics(3));
+}
+
+/// A sweep like `sweep(body)` whose base scene is `scene`, in `dir`.
+fn sweep_in(dir: &Path, scene: &str, body: &str) -> Sweep {
+    std::fs::write(dir.join("s.toml"), scene).unwrap();
+    let text = format!("scene = \"s.toml\"\n{body}");
+    std::fs::write(dir.join("sweep.toml"), &text).unwrap();
+    Sweep::from_file(&dir.join("sweep.toml")).unwrap()
+}
+
+#[test]
+fn a_sweep_of_another_job_into_an_existing_out_is_refused_not_answered_with_old_records() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let grid = "[grid]\n\"body[0].mass\" = [1.0, 2.0]\n";
+    let options = Options {
+        workers: Some(1),
+        task: None,
+    };
+    let first = sweep_in(dir.path(), SCENE, &format!("format = \"none\"\n{grid}"));
+    run_local(&first, &out, &options, &|_, _| {}).unwrap();
+    let manifest = std::fs::read(out.join(MANIFEST)).unwrap();
+
+    // The same parameters, but the base scene edited, another format, other metrics, another
+    // backend, other threads per run, or other settings of every run: each is another job.
+    let edited = SCENE.replace("stiffness = 500.0", "stiffness = 800.0");
+    let others = [
+        (
+            edited.as_str(),
+            format!("format = \"none\"\n{grid}"),
+            "base scene",
+        ),
+        (SCENE, format!("format = \"csv\"\n{grid}"), "format"),
+        (
+            SCENE,
+            format!("format = \"none\"\nmetrics = [\"min_height\"]\n{grid}"),
+            "metrics",
+        ),
+        (
+            SCENE,
+            format!("format = \"none\"\nthreads = 2\n{grid}"),
+            "threads",
+        ),
+        (
+            SCENE,
+            format!("format = \"none\"\nset = {{ \"simulation.duration\" = 0.02 }}\n{grid}"),
+            "base scene",
+        ),
+    ];
+    for (scene, body, differs) in others {
+        let other = sweep_in(dir.path(), scene, &body);
+        let e = run_local(&other, &out, &options, &|_, _| {}).unwrap_err();
+        assert!(e.is_bad_input(), "{e}");
+        let message = e.to_string();
+        assert!(message.contains(differs), "{differs}: {message}");
+        assert!(message.contains("another --out"), "{message}");
+        assert_eq!(
+            std::fs::read(out.join(MANIFEST)).unwrap(),
+            manifest,
+            "{differs}: the manifest is left as it was"
+        );
+        let e = read_manifest(&other, &out).unwrap_err();
+        assert!(
+            e.is_bad_input(),
+            "the records are not another job's answer: {e}"
+        );
+    }
+    // The same job from a copy of the sweep file elsewhere is the same sweep.
+    let again = sweep_in(dir.path(), SCENE, &format!("format = \"none\"\n{grid}"));
+    let o = run_local(&again, &out, &options, &|_, _| {}).unwrap();
+    assert_eq!((o.skipped, o.ok), (2, 0));
+}
+
+#[test]
+fn a_plan_past_the_bound_is_refused_before_it_is_built() {
+    for (body, at) in [
+        (
+            "[random]\nruns = 9223372036854775807\nseed = 1\n[random.parameters]\n\
+             \"body[0].mass\" = { uniform = [1.0, 2.0] }\n",
+            "random.runs",
+        ),
+        (
+            &*format!(
+                "[grid]\n{}",
+                (0..8)
+                    .map(|k| format!(
+                        "\"body[0].{}\" = [{}]\n",
+                        [
+                            "mass",
+                            "center",
+                            "velocity",
+                            "rotation",
+                            "size",
+                            "structural.stiffness",
+                            "structural.damping",
+                            "shear.stiffness"
+                        ][k],
+                        vec!["1.0"; 40].join(", ")
+                    ))
+                    .collect::<String>()
+            ),
+            "grid",
+        ),
+    ] {
+        let e = sweep(body).unwrap_err();
+        let SweepError::File(SceneError::Invalid(d)) = &e else {
+            panic!("{body}: {e}")
+        };
+        assert_eq!(d.key.to_string(), at, "{e}");
+        assert!(d.message.contains("1000000"), "{e}");
+    }
+}
+
+#[test]
+fn a_task_manifest_cut_mid_line_is_cut_before_it_is_appended_to() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = sweep("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0, 2.0]\n").unwrap();
+    let out = dir.path().join("out");
+    let task = |i| Options {
+        workers: Some(1),
+        task: Some((i, 1)),
+    };
+    run_local(&s, &out, &task(0), &|_, _| {}).unwrap();
+    let path = out.join("manifest-task-0.jsonl");
+    let whole = std::fs::read_to_string(&path).unwrap();
+    // A kill (or a full disk) in the middle of the record's line.
+    std::fs::write(&path, &whole[..whole.len() - 20]).unwrap();
+    let o = run_local(&s, &out, &task(0), &|_, _| {}).unwrap();
+    assert_eq!((o.skipped, o.ok), (0, 1), "the cut record's run runs again");
+    assert_eq!(
+        std::fs::read_to_string(&path).unwrap().lines().count(),
+        2,
+        "the header and the new record, no remnant"
+    );
+    run_local(&s, &out, &task(1), &|_, _| {}).unwrap();
+    let merged = run_local(&s, &out, &Options::default(), &|_, _| {}).unwrap();
+    assert_eq!((merged.skipped, merged.ok), (2, 0));
+}
+
+#[test]
+fn a_second_sweep_into_an_out_being_written_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = sweep("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0, 2.0]\n").unwrap();
+    let out = dir.path().join("out");
+    let first = Manifest::open(&s, &out, None).unwrap();
+    let e = run_local(&s, &out, &Options::default(), &|_, _| {}).unwrap_err();
+    assert!(!e.is_bad_input(), "{e}");
+    assert!(e.to_string().contains("another softbody process"), "{e}");
+    // Slurm tasks share the directory with each other, not with a merging sweep.
+    let task = |i| Options {
+        workers: Some(1),
+        task: Some((i, 2)),
+    };
+    assert!(run_local(&s, &out, &task(0), &|_, _| {}).is_err());
+    drop(first);
+    let t0 = Manifest::open(&s, &out, Some(0)).unwrap();
+    run_local(&s, &out, &task(1), &|_, _| {}).unwrap();
+    assert!(
+        run_local(&s, &out, &task(0), &|_, _| {}).is_err(),
+        "task 0 is running"
+    );
+    assert!(run_local(&s, &out, &Options::default(), &|_, _| {}).is_err());
+    drop(t0);
+    run_local(&s, &out, &Options::default(), &|_, _| {}).unwrap();
+}
+
+#[test]
+fn sweep_files_refuse_aliased_keys_unbounded_ranges_and_tasks_past_the_count() {
+    for (body, at, says) in [
+        (
+            "[grid]\n\"body[0].mass\" = [1.0]\n\"body[00].mass\" = [2.0]\n",
+            "grid.body[0].mass",
+            "body[00].mass",
+        ),
+        (
+            "set = { \"body[0].mass\" = 1.0 }\n[grid]\n\"body[0].mass\" = [2.0]\n",
+            "grid.body[0].mass",
+            "set",
+        ),
+        (
+            "[random]\nruns = 2\nseed = 1\n[random.parameters]\n\
+             \"body[0].mass\" = { uniform = [-1e308, 1e308] }\n",
+            "random.parameters.body[0].mass",
+            "finite",
+        ),
+    ] {
+        let e = sweep(body).unwrap_err();
+        let SweepError::File(SceneError::Invalid(d)) = &e else {
+            panic!("{body}: {e}")
+        };
+        assert_eq!(d.key.to_string(), at, "{e}");
+        assert!(d.message.contains(says), "{e}");
+    }
+    // A duplicate key is located on its line.
+    let e = sweep("[grid]\n\"body[0].mass\" = [1.0]\n\"body[0].mass\" = [2.0]\n").unwrap_err();
+    let SweepError::File(SceneError::Invalid(d)) = &e else {
+        panic!("{e}")
+    };
+    assert_eq!(d.line, 4, "{e}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let s = sweep("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0, 2.0]\n").unwrap();
+    for (task, workers) in [
+        (Some((2, 2)), Some(1)),
+        (Some((2, 1)), Some(1)),
+        (None, Some(0)),
+    ] {
+        let options = Options { workers, task };
+        let e = run_local(&s, dir.path(), &options, &|_, _| {}).unwrap_err();
+        assert!(e.is_bad_input(), "{e}");
+    }
+    let zero = Options {
+        workers: Some(1),
+        task: Some((0, 0)),
+    };
+    assert!(
+        run_local(&s, dir.path(), &zero, &|_, _| {})
+            .unwrap_err()
+            .is_bad_input()
+    );
 }

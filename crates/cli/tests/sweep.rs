@@ -19,7 +19,8 @@ fn records(sb: &Sandbox, name: &str) -> Vec<Value> {
     let text = std::fs::read_to_string(sb.path().join("out/sweep").join(name)).unwrap();
     let mut lines = text.lines();
     let header: Value = serde_json::from_str(lines.next().unwrap()).unwrap();
-    assert_eq!(header["softbody_sweep"], 1);
+    assert_eq!(header["softbody_sweep"], 2);
+    assert_eq!(header["job"]["backend"], "cpu");
     let mut records: Vec<Value> = lines.map(|l| serde_json::from_str(l).unwrap()).collect();
     records.sort_by_key(|r| r["run"].as_u64().unwrap());
     records
@@ -96,9 +97,16 @@ fn slurm_array_tasks_each_run_their_share_and_a_plain_sweep_merges_them() {
         assert_eq!(own.len(), 1);
         assert_eq!(own[0]["run"].as_u64().unwrap().to_string(), task);
     }
-    // Past the end: nothing to do.
-    sb.run(&["sweep", &sweep, "--task-index", "7", "--quiet"])
-        .expect_status(EXIT_OK);
+    // Past the end: no run to take, refused rather than an exit 0 that did nothing.
+    let past = sb.run(&["sweep", &sweep, "--task-index", "7", "--quiet"]);
+    past.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        past.stderr.contains("task index 7 names no run"),
+        "{}",
+        past.stderr
+    );
+    let past = sb.run(&["sweep", &sweep, "--task-index", "2", "--task-count", "2"]);
+    past.expect_status(EXIT_BAD_INPUT);
     let merged = sb.run(&["sweep", &sweep]);
     merged.expect_status(EXIT_OK);
     assert!(
@@ -208,4 +216,47 @@ fn batch_needs_ray_and_a_positive_count() {
         assert!(out.stderr.contains("--batch"), "{args:?}: {}", out.stderr);
     }
     assert!(!sb.path().join("out").exists());
+}
+
+#[test]
+fn a_sweep_of_an_edited_scene_into_the_old_out_is_refused_and_the_old_records_kept() {
+    let (sb, sweep) = sandbox("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0, 2.0]\n");
+    sb.run(&["sweep", &sweep, "--quiet"]).expect_status(EXIT_OK);
+    let before = records(&sb, "manifest.jsonl");
+    sb.write(
+        "s.toml",
+        &Cube {
+            stiffness: 900.0,
+            ..Cube::default()
+        }
+        .toml(),
+    );
+    let again = sb.run(&["sweep", &sweep]);
+    again.expect_status(EXIT_BAD_INPUT);
+    assert!(
+        again.stderr.contains("another sweep job") && again.stderr.contains("the base scene"),
+        "{}",
+        again.stderr
+    );
+    assert_eq!(records(&sb, "manifest.jsonl"), before);
+}
+
+#[test]
+fn a_sweep_into_an_out_another_process_writes_is_refused_at_once() {
+    let (sb, sweep) = sandbox("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0]\n");
+    let out = sb.path().join("out/sweep");
+    std::fs::create_dir_all(&out).unwrap();
+    let held = softbody::lock::OutputLock::directory(&out).unwrap();
+    let refused = sb.run(&["sweep", &sweep]);
+    refused.expect_status(EXIT_OUTPUT);
+    assert!(
+        refused
+            .stderr
+            .contains(&format!("(process {})", std::process::id())),
+        "{}",
+        refused.stderr
+    );
+    assert!(!out.join("manifest.jsonl").exists(), "nothing written");
+    drop(held);
+    sb.run(&["sweep", &sweep, "--quiet"]).expect_status(EXIT_OK);
 }

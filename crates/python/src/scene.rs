@@ -70,7 +70,9 @@ fn settings(set: Option<&Bound<'_, PyDict>>) -> PyResult<Vec<Setting>> {
     set.iter()
         .map(|(k, v)| {
             let key: String = k.extract()?;
-            Setting::new(&key, to_toml(&v)?).map_err(SceneError::new_err)
+            Setting::new(&key, to_toml(&v)?)
+                .map(|s| s.from_entry("set"))
+                .map_err(SceneError::new_err)
         })
         .collect()
 }

@@ -60,7 +60,7 @@ pub(crate) fn sweep_local<'py>(
     let sweep = sweep_of(sweep)?;
     let options = Options {
         workers,
-        task: task_index.map(|i| (i, task_count.unwrap_or(1).max(1))),
+        task: task_index.map(|i| (i, task_count.unwrap_or(1))),
     };
     let report = |done: usize, total: usize| {
         if let Some(cb) = &progress {

@@ -58,7 +58,7 @@ def test_a_bad_setting_raises_scene_error_with_the_cli_message() -> None:
     path = SCENES / "jelly-on-ground.toml"
     with pytest.raises(softbody.SceneError) as e:
         softbody.load_scene(path, set={"body[0].mass": -2.0})
-    assert str(e.value) == f"{path}: body[0].mass: must be greater than zero, not -2 (from --set body[0].mass=-2.0)"
+    assert str(e.value) == f"{path}: body[0].mass: must be greater than zero, not -2 (from set: body[0].mass = -2.0)"
     with pytest.raises(softbody.SceneError, match=r"body has 1 entries \(body\[0\] to body\[0\]\)"):
         softbody.load_scene(path, set={"body[3].mass": 1.0})
     with pytest.raises(softbody.SceneError, match="is not a key path"):

@@ -150,7 +150,7 @@ impl Invalid {
 }
 
 /// Turns a serde/TOML error into a located [`SceneError`].
-pub(crate) fn from_toml(file: &Path, text: &str, err: &toml::de::Error) -> SceneError {
+pub fn from_toml(file: &Path, text: &str, err: &toml::de::Error) -> SceneError {
     let key = err
         .span()
         .map(|s| key_at(text, s.start))
