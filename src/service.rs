@@ -433,10 +433,13 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
     let frames = tee.frames;
     drop(tee);
 
+    // A checkpoint refused while its frames were read (damaged, or of another version) gave
+    // the output frames that are not to be kept, and is left as it was.
+    let refused = matches!(&result, Err(RunError::Checkpoint(c)) if c.is_bad_input());
     let keep = match &result {
         Ok(_) => true,
         Err(RunError::Io(_)) => false,
-        Err(e) => !e.is_bad_input() && frames > 0,
+        Err(e) => !refused && !e.is_bad_input() && frames > 0,
     };
     let mut result = result.map_err(RunFailure::from);
     let mut kept = false;
@@ -448,12 +451,13 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
             }
         }
     }
-    // A checkpoint the run refused (of another run, or of another version) is left alone.
     let ended = matches!(&result, Ok(_) | Err(RunFailure::Run(RunError::Unstable(_))))
         || matches!(&result, Err(RunFailure::Run(e)) if e.is_bad_input());
     let mut checkpoint = None;
     if let Some(c) = checkpoints {
-        if ended {
+        if refused {
+            // Left alone, and not named: it is not one to go on from.
+        } else if ended {
             if let Err(e) = c.remove()
                 && result.is_ok()
             {

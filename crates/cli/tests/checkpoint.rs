@@ -85,6 +85,30 @@ fn checkpointed_frames(sb: &Sandbox, out: &str) -> u64 {
         .map_or(0, |b| u64::from_le_bytes(b[24..32].try_into().unwrap()))
 }
 
+/// The CRC-32 (IEEE, reflected, as zlib's) of `bytes`, bit by bit: the checksum of a journal
+/// record and of a `checkpoint` file, computed apart from the library's.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+/// A `checkpoint` file's bytes, edited in place, with their closing checksum made to match.
+fn reseal(bytes: &mut [u8]) {
+    let end = bytes.len() - 4;
+    let sum = crc32(&bytes[..end]);
+    bytes[end..].copy_from_slice(&sum.to_le_bytes());
+}
+
 /// Starts `softbody run ARGS` in `sb`.
 // The child is returned, and its callers wait for it.
 #[allow(clippy::zombie_processes)]
@@ -263,8 +287,8 @@ fn a_run_stopped_by_a_signal_keeps_its_checkpoint() {
 }
 
 /// A checkpoint of another run (here another dt) is refused with status 2 and left as it was,
-/// so is a damaged one and one whose history the solver does not take; `--resume` without a checkpoint starts from the beginning; standard
-/// output cannot be checkpointed.
+/// so is a damaged one and one whose history the solver does not take; `--resume` without a
+/// checkpoint starts from the beginning; standard output cannot be checkpointed.
 #[test]
 fn what_cannot_be_resumed_is_refused_and_left_alone() {
     let sb = Sandbox::new();
@@ -316,6 +340,7 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
     let at = (saved.windows(8).position(|w| w == b"sticking")).expect("implicit Euler's part");
     let mut renamed = saved.clone();
     renamed[at..at + 8].copy_from_slice(b"stickinG");
+    reseal(&mut renamed);
     std::fs::write(&checkpoint, &renamed).unwrap();
     let o = run(&["--resume"]);
     o.expect_status(EXIT_BAD_INPUT);
@@ -333,12 +358,12 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
         "left as it was"
     );
 
-    std::fs::write(&checkpoint, b"SBCKPT01 cut short").unwrap();
+    std::fs::write(&checkpoint, b"SBCKPT02 cut short").unwrap();
     let o = run(&["--resume"]);
     o.expect_status(EXIT_BAD_INPUT);
     assert!(
         o.stderr
-            .contains("not a checkpoint of this version of softbody (it is cut short)"),
+            .contains("checkpoint: the checkpoint is damaged (it does not match its checksum)"),
         "{}",
         o.stderr
     );
@@ -351,4 +376,147 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
         o.stderr
     );
     assert!(o.stdout.is_empty());
+}
+
+/// STICKY_SLOPE to `f.jsonl`, checkpointed every 2 frames and killed once its checkpoint counts
+/// `frames` frames.
+fn killed_checkpoint(sb: &Sandbox, frames: u64) {
+    let args = [
+        "run",
+        "scene.toml",
+        "--out",
+        "f.jsonl",
+        "--checkpoint-every",
+        "2",
+    ];
+    let mut child = spawn(sb, &args);
+    wait_for_checkpoint(sb, &mut child, "f.jsonl", frames);
+    child.kill().unwrap();
+    child.wait().unwrap();
+}
+
+/// `softbody run scene.toml --out f.jsonl ARGS` in `sb`.
+fn run_to_f(sb: &Sandbox, more: &[&str]) -> common::Outcome {
+    let mut args = vec!["run", "scene.toml", "--out", "f.jsonl"];
+    args.extend(more);
+    sb.run(&args)
+}
+
+/// Bytes of a journal record of STICKY_SLOPE's 64 particles: frame number, step, time and the
+/// three energies (48 bytes), each particle's position and velocity (48 bytes), and the
+/// record's CRC-32 (4 bytes).
+const RECORD: usize = 48 + 48 * 64 + 4;
+
+/// A bit flipped in a frame the checkpoint counts, or in the checkpoint itself, is refused with
+/// status 2, naming the file (and the frame), and nothing is touched or written; so is a
+/// checkpoint of the format's first version, which had no checksums.
+#[test]
+fn a_flipped_bit_in_a_checkpoint_is_refused_and_left_alone() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    killed_checkpoint(&sb, 4);
+    let dir = sb.path().join("f.jsonl.checkpoint");
+    let (journal, checkpoint) = (dir.join("frames"), dir.join("checkpoint"));
+    let (frames, saved) = (
+        std::fs::read(&journal).unwrap(),
+        std::fs::read(&checkpoint).unwrap(),
+    );
+    let refused = |what: &str| {
+        let damaged = files(&dir);
+        let o = run_to_f(&sb, &["--resume"]);
+        o.expect_status(EXIT_BAD_INPUT);
+        assert!(o.stderr.contains(what), "{}", o.stderr);
+        assert_eq!(files(&dir), damaged, "left as it was");
+        assert!(!sb.path().join("f.jsonl").exists(), "nothing written");
+    };
+
+    let record = &frames[RECORD..2 * RECORD];
+    assert_eq!(
+        record[RECORD - 4..],
+        crc32(&record[..RECORD - 4]).to_le_bytes(),
+        "a record ends in the CRC-32 of its bytes"
+    );
+    assert_eq!(
+        saved[saved.len() - 4..],
+        crc32(&saved[..saved.len() - 4]).to_le_bytes(),
+        "so does the checkpoint"
+    );
+    // The lowest bit of frame 1's first coordinate: one ulp, which nothing else would notice.
+    let mut flipped = frames.clone();
+    flipped[RECORD + 48] ^= 1;
+    std::fs::write(&journal, &flipped).unwrap();
+    refused(
+        "f.jsonl.checkpoint/frames: the checkpoint is damaged (frame 1 does not match its checksum)",
+    );
+    std::fs::write(&journal, &frames).unwrap();
+
+    // The interval between checkpoints, 2, made 3.
+    let mut flipped = saved.clone();
+    flipped[16] ^= 1;
+    std::fs::write(&checkpoint, &flipped).unwrap();
+    refused(
+        "f.jsonl.checkpoint/checkpoint: the checkpoint is damaged (it does not match its checksum)",
+    );
+
+    let mut old = saved.clone();
+    old[..8].copy_from_slice(b"SBCKPT01");
+    std::fs::write(&checkpoint, &old).unwrap();
+    refused(
+        "f.jsonl.checkpoint/checkpoint: not a checkpoint of this version of softbody (it is of \
+         version 1 of the format, and this version reads version 2)",
+    );
+
+    std::fs::write(&checkpoint, &saved).unwrap();
+    run_to_f(&sb, &["--resume", "--quiet"]).expect_status(EXIT_OK);
+}
+
+/// A directory named `<out>.checkpoint` that is not a checkpoint (it holds a file of the
+/// user's) is refused with status 1 and left as it is, and nothing is written; one holding only
+/// a checkpoint's files is replaced.
+#[test]
+fn a_directory_that_is_not_a_checkpoint_is_refused_and_left_alone() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    sb.write("f.jsonl.checkpoint/notes.txt", "mine");
+    for more in [&[][..], &["--resume"]] {
+        let o = run_to_f(&sb, &[&["--checkpoint-every", "2"][..], more].concat());
+        o.expect_status(common::EXIT_OUTPUT);
+        assert!(
+            o.stderr.contains(
+                "refusing to use f.jsonl.checkpoint as a checkpoint: it holds \
+                 f.jsonl.checkpoint/notes.txt, which is not one of a checkpoint's files; choose \
+                 another --out or remove it"
+            ),
+            "{}",
+            o.stderr
+        );
+        assert_eq!(entries(sb.path()), ["f.jsonl.checkpoint", "scene.toml"]);
+        assert_eq!(
+            files(&sb.path().join("f.jsonl.checkpoint")),
+            [("notes.txt".to_owned(), b"mine".to_vec())]
+        );
+    }
+
+    std::fs::remove_file(sb.path().join("f.jsonl.checkpoint/notes.txt")).unwrap();
+    sb.write("f.jsonl.checkpoint/frames", "an earlier journal");
+    run_to_f(&sb, &["--checkpoint-every", "2", "--duration", "0.1"]).expect_status(EXIT_OK);
+    assert_eq!(entries(sb.path()), ["f.jsonl", "scene.toml"]);
+}
+
+/// A checkpoint that cannot be read (a directory where its file goes) fails with status 1,
+/// naming it and saying why once.
+#[test]
+fn a_checkpoint_that_cannot_be_read_says_why_once() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    sb.mkdir("f.jsonl.checkpoint/checkpoint");
+    let o = run_to_f(&sb, &["--resume"]);
+    o.expect_status(common::EXIT_OUTPUT);
+    assert!(
+        o.stderr
+            .starts_with("error: cannot read f.jsonl.checkpoint/checkpoint: Is a directory"),
+        "{}",
+        o.stderr
+    );
+    assert_eq!(o.stderr.matches("(os error 21)").count(), 1, "{}", o.stderr);
 }
