@@ -28,6 +28,7 @@ use std::time::Instant;
 use softbody_scene::{Integrator, SceneError};
 
 use crate::checkpoint::{CheckpointError, Checkpoints};
+use crate::lock::{LockError, OutputLock};
 use crate::output::{Format, Frame, FrameSink, Header, Output, OutputError};
 use crate::run::{RunError, SceneFile, Summary};
 use crate::{Backend, OpenError, Scene, Setting};
@@ -162,6 +163,10 @@ pub enum RunFailure {
     /// The run stopped early, or its checkpoint cannot be used.
     #[error(transparent)]
     Run(#[from] RunError),
+    /// Another process is checkpointing to the same destination (or its lock cannot be
+    /// taken): an output's failure, exit status 1.
+    #[error(transparent)]
+    Lock(#[from] LockError),
     /// The request itself cannot be met (checkpoints on standard output).
     #[error("{0}")]
     Request(String),
@@ -232,6 +237,7 @@ impl RunFailure {
             RunFailure::Open(OpenError::Gpu(g)) if g.no_usable_gpu() => ExitClass::Device,
             RunFailure::Open(OpenError::Gpu(_)) => ExitClass::BadInput,
             RunFailure::Open(OpenError::Threads { .. }) => ExitClass::Output,
+            RunFailure::Lock(_) => ExitClass::Output,
             RunFailure::Run(e) => match e {
                 RunError::Unstable(_) => ExitClass::Unstable,
                 RunError::Device(_) => ExitClass::Device,
@@ -352,10 +358,26 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
             scene,
         );
     }
+    if request.checkpoint.is_some()
+        && let Some(path) = path
+        && let Err(why) = checkpointable(path)
+    {
+        return Outcome::failed(RunFailure::Request(why), scene);
+    }
     // Before the solver: a destination that cannot be written is refused first.
     let mut output = match format.map(|f| Output::create(f, path)).transpose() {
         Ok(output) => output,
         Err(e) => return Outcome::failed(e, scene),
+    };
+    // Held to the end: a second process checkpointing to this destination would replace this
+    // one's checkpoint. Taken once `Output::create` has made the directory the lock goes in,
+    // and before the solver opens, so that the second is refused at once.
+    let _lock = match (request.checkpoint, path) {
+        (Some(_), Some(path)) => match OutputLock::file(path) {
+            Ok(lock) => Some(lock),
+            Err(e) => return Outcome::failed(e, scene),
+        },
+        _ => None,
     };
     let mut solver = match crate::open(&loaded.scene, request.backend, request.threads) {
         Ok(solver) => solver,
@@ -476,6 +498,42 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
         device,
         seconds,
     }
+}
+
+/// Refuses checkpointing a run to `path` when it is neither a regular file nor a directory (a
+/// series' destination), or absent: a device or a FIFO has no directory of its own to keep a
+/// checkpoint beside (`/dev/null.checkpoint` would go into `/dev`).
+fn checkpointable(path: &Path) -> Result<(), String> {
+    // What cannot be looked at, `Output::create` refuses with its own reason.
+    let Ok(meta) = std::fs::metadata(path) else {
+        return Ok(());
+    };
+    if meta.is_file() || meta.is_dir() {
+        return Ok(());
+    }
+    #[cfg(unix)]
+    let what = {
+        use std::os::unix::fs::FileTypeExt;
+        let kind = meta.file_type();
+        if kind.is_char_device() {
+            "a character device"
+        } else if kind.is_block_device() {
+            "a block device"
+        } else if kind.is_fifo() {
+            "a FIFO"
+        } else if kind.is_socket() {
+            "a socket"
+        } else {
+            "a special file"
+        }
+    };
+    #[cfg(not(unix))]
+    let what = "a special file";
+    let path = path.display();
+    Err(format!(
+        "cannot checkpoint a run to {path}: it is {what}, not a regular file (the checkpoint \
+         goes beside the output, in {path}.checkpoint)"
+    ))
 }
 
 /// The destination's sink and the observer, each given every frame; counts the frames.

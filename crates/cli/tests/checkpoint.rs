@@ -470,6 +470,34 @@ fn a_flipped_bit_in_a_checkpoint_is_refused_and_left_alone() {
     run_to_f(&sb, &["--resume", "--quiet"]).expect_status(EXIT_OK);
 }
 
+/// A checkpointing run (or a resume) aimed at the output of one still running is refused at
+/// once with status 1, naming the process that holds it, and the running one's checkpoint goes
+/// on: the second does not replace it.
+#[test]
+fn a_second_run_to_a_checkpointed_output_is_refused() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    let long = ["--checkpoint-every", "2", "--duration", "60"];
+    let mut args = vec!["run", "scene.toml", "--out", "f.jsonl"];
+    args.extend(long);
+    let mut first = spawn(&sb, &args);
+    wait_for_checkpoint(&sb, &mut first, "f.jsonl", 2);
+    let busy = format!(
+        "error: f.jsonl is being written by another softbody process (process {}) (it holds \
+         f.jsonl.lock); wait for it to end, or write elsewhere",
+        first.id()
+    );
+    for more in [&[][..], &["--resume"]] {
+        let o = run_to_f(&sb, &[&long[..], more].concat());
+        o.expect_status(common::EXIT_OUTPUT);
+        assert!(o.stderr.contains(&busy), "{}", o.stderr);
+    }
+    let counted = checkpointed_frames(&sb, "f.jsonl");
+    wait_for_checkpoint(&sb, &mut first, "f.jsonl", counted + 4);
+    first.kill().unwrap();
+    first.wait().unwrap();
+}
+
 /// A directory named `<out>.checkpoint` that is not a checkpoint (it holds a file of the
 /// user's) is refused with status 1 and left as it is, and nothing is written; one holding only
 /// a checkpoint's files is replaced.
@@ -501,6 +529,32 @@ fn a_directory_that_is_not_a_checkpoint_is_refused_and_left_alone() {
     sb.write("f.jsonl.checkpoint/frames", "an earlier journal");
     run_to_f(&sb, &["--checkpoint-every", "2", "--duration", "0.1"]).expect_status(EXIT_OK);
     assert_eq!(entries(sb.path()), ["f.jsonl", "scene.toml"]);
+}
+
+/// Checkpoints go beside a regular file: a device or a FIFO as the output is refused with
+/// status 2 before anything is written (no `/dev/null.checkpoint`), and a FIFO is not opened.
+#[test]
+fn checkpoints_need_a_regular_file() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    let made = Command::new("mkfifo")
+        .arg(sb.path().join("pipe"))
+        .status()
+        .unwrap();
+    assert!(made.success());
+    for (out, what) in [("/dev/null", "a character device"), ("pipe", "a FIFO")] {
+        let o = sb.run(&["run", "scene.toml", "--out", out, "--checkpoint-every", "2"]);
+        o.expect_status(EXIT_BAD_INPUT);
+        let expected = format!(
+            "cannot checkpoint a run to {out}: it is {what}, not a regular file (the checkpoint \
+             goes beside the output, in {out}.checkpoint)"
+        );
+        assert!(o.stderr.contains(&expected), "{}", o.stderr);
+    }
+    for made in ["/dev/null.checkpoint", "/dev/null.lock"] {
+        assert!(!Path::new(made).exists(), "{made}");
+    }
+    assert_eq!(entries(sb.path()), ["pipe", "scene.toml"]);
 }
 
 /// A checkpoint that cannot be read (a directory where its file goes) fails with status 1,
