@@ -150,7 +150,8 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             } else {
                 format!("nothing was written to {where_}{resumable}")
             };
-            let mut failure = run_failure(e, integrator, &kept);
+            let began = outcome.frames > 0 || outcome.checkpoint.is_some();
+            let mut failure = run_failure(e, integrator, &kept, began);
             if failure.status == ExitClass::Stopped.status()
                 && signals.terminated.load(Ordering::Relaxed)
             {

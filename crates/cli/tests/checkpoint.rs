@@ -498,6 +498,47 @@ fn a_second_run_to_a_checkpointed_output_is_refused() {
     first.wait().unwrap();
 }
 
+/// A run whose output cannot be put in place when it ends (its destination became a
+/// directory) fails with status 1 and says that its checkpoint is kept and that `--resume`
+/// goes on from it, which it does.
+#[test]
+fn a_run_whose_output_fails_says_its_checkpoint_is_kept() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    let args = [
+        "run",
+        "scene.toml",
+        "--out",
+        "f.jsonl",
+        "--checkpoint-every",
+        "2",
+        "--duration",
+        "4",
+        "--quiet",
+    ];
+    let mut child = spawn(&sb, &args);
+    wait_for_checkpoint(&sb, &mut child, "f.jsonl", 2);
+    std::fs::create_dir(sb.path().join("f.jsonl")).unwrap();
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(common::EXIT_OUTPUT), "{stderr}");
+    assert!(
+        stderr.contains("cannot write f.jsonl: it is a directory"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("the checkpoint is in f.jsonl.checkpoint: go on with --resume"),
+        "{stderr}"
+    );
+    assert!(checkpointed_frames(&sb, "f.jsonl") >= 2);
+
+    std::fs::remove_dir(sb.path().join("f.jsonl")).unwrap();
+    let o = run_to_f(&sb, &["--duration", "4", "--resume"]);
+    o.expect_status(EXIT_OK);
+    assert!(o.stderr.contains("resuming after frame"), "{}", o.stderr);
+    assert_eq!(entries(sb.path()), ["f.jsonl", "scene.toml"]);
+}
+
 /// A directory named `<out>.checkpoint` that is not a checkpoint (it holds a file of the
 /// user's) is refused with status 1 and left as it is, and nothing is written; one holding only
 /// a checkpoint's files is replaced.
