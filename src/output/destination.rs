@@ -20,7 +20,7 @@
 //! than replacing it.
 
 use std::fs;
-use std::io::{self, BufWriter};
+use std::io;
 use std::path::{Path, PathBuf};
 
 use tempfile::{NamedTempFile, TempDir};
@@ -114,10 +114,13 @@ impl Output {
         };
         if !format.is_series() {
             let (staged, file) = Staged::file(path)?;
-            let out = Box::new(Named::new(file, path));
+            let out = Box::new(super::Named::new(file, path));
             let sink = match format {
-                // Beside the destination, on the file system the archive needs room on.
-                Format::Npz => Box::new(super::NpzSink::staged_in(parent_of(staged.path()), out)?),
+                // Beside the destination, on the file system the archive needs room on; a
+                // device or a FIFO written in place has no such room (`/dev`): as a stream.
+                Format::Npz if !matches!(staged.temp, Temp::Direct) => {
+                    Box::new(super::NpzSink::staged_in(parent_of(staged.path()), out)?)
+                }
                 _ => super::sink(format, out)?,
             };
             return Ok(Output {
@@ -136,7 +139,7 @@ impl Output {
                     frames_path,
                     stem.clone(),
                     format!("{stem}/"),
-                    Box::new(Named::new(file, path)),
+                    Box::new(super::Named::new(file, path)),
                 );
                 (Box::new(sink), vec![frames, index])
             }
@@ -166,40 +169,6 @@ impl Output {
         // Close every file the sink holds before renaming (Windows will not rename open files).
         drop(self.sink);
         self.staged.into_iter().try_for_each(Staged::commit)
-    }
-}
-
-/// A staged file, buffered, whose failures name the destination it is staged for: the sinks
-/// only see a writer.
-struct Named {
-    file: BufWriter<fs::File>,
-    destination: PathBuf,
-}
-
-impl Named {
-    fn new(file: fs::File, destination: &Path) -> Named {
-        Named {
-            file: BufWriter::new(file),
-            destination: destination.to_owned(),
-        }
-    }
-
-    fn named(&self, e: io::Error) -> io::Error {
-        io::Error::new(e.kind(), format!("{}: {e}", self.destination.display()))
-    }
-}
-
-impl io::Write for Named {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        self.file.write(buf).map_err(|e| self.named(e))
-    }
-
-    fn write_all(&mut self, buf: &[u8]) -> io::Result<()> {
-        self.file.write_all(buf).map_err(|e| self.named(e))
-    }
-
-    fn flush(&mut self) -> io::Result<()> {
-        self.file.flush().map_err(|e| self.named(e))
     }
 }
 

@@ -420,6 +420,34 @@ fn npz_stages_beside_its_destination() {
     assert!(o.stdout.is_empty());
 }
 
+/// A full disk (`/dev/full`, a device written in place) fails with status 1, naming the
+/// destination and saying the cause once, whatever the format.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_full_disk_names_the_destination_once() {
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &scene().toml());
+    for format in ["jsonl", "csv", "npz"] {
+        let o = sb.run(&[
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            "/dev/full",
+            "--format",
+            format,
+            "--quiet",
+        ]);
+        o.expect_status(EXIT_OUTPUT);
+        assert!(
+            o.stderr
+                .contains("cannot write frames: /dev/full: No space left on device (os error 28)"),
+            "{format}: {}",
+            o.stderr
+        );
+        assert_eq!(o.stderr.matches("(os error 28)").count(), 1, "{}", o.stderr);
+    }
+}
+
 #[test]
 fn format_follows_the_out_extension_and_the_flag_must_agree() {
     let sb = Sandbox::new();
