@@ -18,8 +18,16 @@
 //! the run ended by itself (completed, or diverged: going on would diverge again) or was
 //! refused before its first frame (its energy overflows, its output does not fit), and is kept,
 //! and named in the outcome, when a stop request, the device or a file ended it: `--resume`
-//! goes on from there. A checkpoint that cannot be resumed (of another run or version) is left
-//! as it was.
+//! goes on from there. A checkpoint that cannot be resumed (of another run or version, or
+//! damaged, also when that is found in a frame read back) is left as it was, not named, and the
+//! destination is left as it was too.
+//!
+//! **Checkpointing runs.** One that checkpoints or resumes holds an [`OutputLock`] on its
+//! destination from before its checkpoint is touched to its end, so that a second one to the
+//! same destination is refused at once ([`RunFailure::Lock`], exit status 1) rather than
+//! replacing the first's checkpoint; and its destination must be a regular file or a series'
+//! directory (or not exist yet): a device or a FIFO is refused before anything is opened
+//! ([`RunFailure::Request`], exit status 2).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -184,10 +192,12 @@ impl From<CheckpointError> for RunFailure {
 pub enum ExitClass {
     /// The run completed.
     Done,
-    /// The output (or a checkpoint) could not be written, or the CPU threads could not start.
+    /// The output (or a checkpoint) could not be written, another process is checkpointing to
+    /// it, its checkpoint's directory is not one, or the CPU threads could not start.
     Output,
-    /// Bad input: the scene, the arguments, a checkpoint of another run, a scene beyond what
-    /// the GPU adapter runs.
+    /// Bad input: the scene, the arguments, a checkpoint of another run or version or a damaged
+    /// one, a checkpointed destination that is a device or a FIFO, a scene beyond what the GPU
+    /// adapter runs.
     BadInput,
     /// The simulation became unstable.
     Unstable,

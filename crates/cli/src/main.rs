@@ -1,7 +1,8 @@
 //! `softbody`: the command-line tool. Argument parsing, progress and output; the simulation
 //! itself lives in the `softbody` library.
 //!
-//! Exit status (`softbody::service::ExitClass`): 0 done; 1 the output could not be written;
+//! Exit status (`softbody::service::ExitClass`): 0 done; 1 the output could not be written
+//! (also: another process checkpoints to it, or `<out>.checkpoint` is not a checkpoint);
 //! 2 bad input (scene file or arguments, or a scene beyond what `--backend gpu` runs: the
 //! adapter's limits); 3 the simulation became unstable (the frames before it are written);
 //! 4 `--backend gpu` found no usable GPU adapter, or the device failed during the run (the
