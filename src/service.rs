@@ -510,9 +510,9 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
     }
 }
 
-/// Refuses checkpointing a run to `path` when it is neither a regular file nor a directory (a
-/// series' destination), or absent: a device or a FIFO has no directory of its own to keep a
-/// checkpoint beside (`/dev/null.checkpoint` would go into `/dev`).
+/// Refuses checkpointing a run to `path` unless it is absent, a regular file or a directory (a
+/// series' destination): a device or a FIFO has no directory of its own to keep a checkpoint
+/// beside (`/dev/null.checkpoint` would go into `/dev`).
 fn checkpointable(path: &Path) -> Result<(), String> {
     // What cannot be looked at, `Output::create` refuses with its own reason.
     let Ok(meta) = std::fs::metadata(path) else {
