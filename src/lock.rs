@@ -32,12 +32,12 @@ pub enum LockError {
         holder: Option<u32>,
     },
     /// The lock file cannot be made or locked.
-    #[error("cannot lock {}: {source}", lock.display())]
+    #[error("cannot lock {}: {cause}", lock.display())]
     Io {
         /// The lock file.
         lock: PathBuf,
-        /// Why.
-        source: io::Error,
+        /// Why (in the message already, so not a `source`: error chains would repeat it).
+        cause: io::Error,
     },
 }
 
@@ -88,9 +88,9 @@ impl OutputLock {
         mode: Mode,
         remove: bool,
     ) -> Result<OutputLock, LockError> {
-        let io = |source| LockError::Io {
+        let io = |cause| LockError::Io {
             lock: path.clone(),
-            source,
+            cause,
         };
         // A holder that removes its file on release may do so between our open and our lock:
         // the lock is then on a file no longer at `path`, and the open is tried again.

@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use glam::DVec3;
 use softbody_scene::{Energies, History, Instability, Model, Solver, State, StepError};
 
-use crate::checkpoint::{CheckpointError, Checkpoints};
+use crate::checkpoint::{CheckpointError, Checkpoints, JournalFrame};
 
 use crate::output::{Frame, FrameSink, Header};
 
@@ -199,20 +199,27 @@ pub fn run_until(
     let sim = solver.model().simulation;
     let total = sim.steps();
     let frames = sim.frame_count();
-    let (replayed, history) = match checkpoints.as_deref() {
-        Some(c) if c.resumed_frames() > 0 => c.replay()?,
-        _ => (Vec::new(), History::default()),
+    // A resumed run's frames stream from its journal, one record at a time: holding them
+    // would take the journal's size in memory.
+    let (mut replay, history) = match checkpoints.as_deref_mut() {
+        Some(c) if c.resumed_frames() > 0 => {
+            let (replay, history) = c.replay()?;
+            (Some(replay), history)
+        }
+        _ => (None, History::default()),
+    };
+    let mut replayed = JournalFrame::default();
+    let replaying = match &mut replay {
+        Some(replay) => replay.next(&mut replayed)?,
+        None => false,
     };
     // Frame 0 is the initial state, whose energies are E₀.
-    let (e0, scale) = match replayed.first() {
-        Some(f) => (
-            f.energies,
-            energy_scale_of(solver.model(), &f.state.x, &f.energies),
-        ),
-        None => {
-            let e0 = solver.energies()?;
-            (e0, energy_scale(solver, &e0)?)
-        }
+    let (e0, scale) = if replaying {
+        let e0 = replayed.energies;
+        (e0, energy_scale_of(solver.model(), &replayed.state.x, &e0))
+    } else {
+        let e0 = solver.energies()?;
+        (e0, energy_scale(solver, &e0)?)
     };
     if !e0.total().is_finite() {
         return Err(RunError::Overflow(e0));
@@ -233,19 +240,25 @@ pub fn run_until(
     // The last frame's step, state and history: an instability found at a frame is replayed
     // step by step from there to report its exact step.
     let mut previous = None;
-    for f in replayed {
-        sink.frame(&Frame {
-            index: f.index,
-            step: f.step,
-            time: f.time,
-            positions: &f.state.x,
-            velocities: &f.state.v,
-            energies: f.energies,
-        })?;
-        summary.frames += 1;
-        summary.steps = f.step;
-        summary.last_energies = f.energies;
-        previous = Some((f.step, f.state));
+    if replaying && let Some(mut replay) = replay {
+        loop {
+            let f = &replayed;
+            sink.frame(&Frame {
+                index: f.index,
+                step: f.step,
+                time: f.time,
+                positions: &f.state.x,
+                velocities: &f.state.v,
+                energies: f.energies,
+            })?;
+            summary.frames += 1;
+            summary.steps = f.step;
+            summary.last_energies = f.energies;
+            if !replay.next(&mut replayed)? {
+                break;
+            }
+        }
+        previous = Some((replayed.step, replayed.state));
     }
     if let Some((step, state)) = &previous {
         // A history the solver refuses (a part missing or of another size) is a checkpoint

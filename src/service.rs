@@ -18,8 +18,16 @@
 //! the run ended by itself (completed, or diverged: going on would diverge again) or was
 //! refused before its first frame (its energy overflows, its output does not fit), and is kept,
 //! and named in the outcome, when a stop request, the device or a file ended it: `--resume`
-//! goes on from there. A checkpoint that cannot be resumed (of another run or version) is left
-//! as it was.
+//! goes on from there. A checkpoint that cannot be resumed (of another run or version, or
+//! damaged, also when that is found in a frame read back) is left as it was, not named, and the
+//! destination is left as it was too.
+//!
+//! **Checkpointing runs.** One that checkpoints or resumes holds an [`OutputLock`] on its
+//! destination from before its checkpoint is touched to its end, so that a second one to the
+//! same destination is refused at once ([`RunFailure::Lock`], exit status 1) rather than
+//! replacing the first's checkpoint; and its destination must be a regular file or a series'
+//! directory (or not exist yet): a device or a FIFO is refused before anything is opened
+//! ([`RunFailure::Request`], exit status 2).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -28,6 +36,7 @@ use std::time::Instant;
 use softbody_scene::{Integrator, SceneError};
 
 use crate::checkpoint::{CheckpointError, Checkpoints};
+use crate::lock::{LockError, OutputLock};
 use crate::output::{Format, Frame, FrameSink, Header, Output, OutputError};
 use crate::run::{RunError, SceneFile, Summary};
 use crate::{Backend, OpenError, Scene, Setting};
@@ -162,6 +171,10 @@ pub enum RunFailure {
     /// The run stopped early, or its checkpoint cannot be used.
     #[error(transparent)]
     Run(#[from] RunError),
+    /// Another process is checkpointing to the same destination (or its lock cannot be
+    /// taken): an output's failure, exit status 1.
+    #[error(transparent)]
+    Lock(#[from] LockError),
     /// The request itself cannot be met (checkpoints on standard output).
     #[error("{0}")]
     Request(String),
@@ -179,10 +192,12 @@ impl From<CheckpointError> for RunFailure {
 pub enum ExitClass {
     /// The run completed.
     Done,
-    /// The output (or a checkpoint) could not be written, or the CPU threads could not start.
+    /// The output (or a checkpoint) could not be written, another process is checkpointing to
+    /// it, its checkpoint's directory is not one, or the CPU threads could not start.
     Output,
-    /// Bad input: the scene, the arguments, a checkpoint of another run, a scene beyond what
-    /// the GPU adapter runs.
+    /// Bad input: the scene, the arguments, a checkpoint of another run or version or a damaged
+    /// one, a checkpointed destination that is a device or a FIFO, a scene beyond what the GPU
+    /// adapter runs.
     BadInput,
     /// The simulation became unstable.
     Unstable,
@@ -232,6 +247,7 @@ impl RunFailure {
             RunFailure::Open(OpenError::Gpu(g)) if g.no_usable_gpu() => ExitClass::Device,
             RunFailure::Open(OpenError::Gpu(_)) => ExitClass::BadInput,
             RunFailure::Open(OpenError::Threads { .. }) => ExitClass::Output,
+            RunFailure::Lock(_) => ExitClass::Output,
             RunFailure::Run(e) => match e {
                 RunError::Unstable(_) => ExitClass::Unstable,
                 RunError::Device(_) => ExitClass::Device,
@@ -352,10 +368,26 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
             scene,
         );
     }
+    if request.checkpoint.is_some()
+        && let Some(path) = path
+        && let Err(why) = checkpointable(path)
+    {
+        return Outcome::failed(RunFailure::Request(why), scene);
+    }
     // Before the solver: a destination that cannot be written is refused first.
     let mut output = match format.map(|f| Output::create(f, path)).transpose() {
         Ok(output) => output,
         Err(e) => return Outcome::failed(e, scene),
+    };
+    // Held to the end: a second process checkpointing to this destination would replace this
+    // one's checkpoint. Taken once `Output::create` has made the directory the lock goes in,
+    // and before the solver opens, so that the second is refused at once.
+    let _lock = match (request.checkpoint, path) {
+        (Some(_), Some(path)) => match OutputLock::file(path) {
+            Ok(lock) => Some(lock),
+            Err(e) => return Outcome::failed(e, scene),
+        },
+        _ => None,
     };
     let mut solver = match crate::open(&loaded.scene, request.backend, request.threads) {
         Ok(solver) => solver,
@@ -433,10 +465,13 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
     let frames = tee.frames;
     drop(tee);
 
+    // A checkpoint refused while its frames were read (damaged, or of another version) gave
+    // the output frames that are not to be kept, and is left as it was.
+    let refused = matches!(&result, Err(RunError::Checkpoint(c)) if c.is_bad_input());
     let keep = match &result {
         Ok(_) => true,
         Err(RunError::Io(_)) => false,
-        Err(e) => !e.is_bad_input() && frames > 0,
+        Err(e) => !refused && !e.is_bad_input() && frames > 0,
     };
     let mut result = result.map_err(RunFailure::from);
     let mut kept = false;
@@ -448,12 +483,13 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
             }
         }
     }
-    // A checkpoint the run refused (of another run, or of another version) is left alone.
     let ended = matches!(&result, Ok(_) | Err(RunFailure::Run(RunError::Unstable(_))))
         || matches!(&result, Err(RunFailure::Run(e)) if e.is_bad_input());
     let mut checkpoint = None;
     if let Some(c) = checkpoints {
-        if ended {
+        if refused {
+            // Left alone, and not named: it is not one to go on from.
+        } else if ended {
             if let Err(e) = c.remove()
                 && result.is_ok()
             {
@@ -472,6 +508,42 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
         device,
         seconds,
     }
+}
+
+/// Refuses checkpointing a run to `path` unless it is absent, a regular file or a directory (a
+/// series' destination): a device or a FIFO has no directory of its own to keep a checkpoint
+/// beside (`/dev/null.checkpoint` would go into `/dev`).
+fn checkpointable(path: &Path) -> Result<(), String> {
+    // What cannot be looked at, `Output::create` refuses with its own reason.
+    let Ok(meta) = std::fs::metadata(path) else {
+        return Ok(());
+    };
+    if meta.is_file() || meta.is_dir() {
+        return Ok(());
+    }
+    #[cfg(unix)]
+    let what = {
+        use std::os::unix::fs::FileTypeExt;
+        let kind = meta.file_type();
+        if kind.is_char_device() {
+            "a character device"
+        } else if kind.is_block_device() {
+            "a block device"
+        } else if kind.is_fifo() {
+            "a FIFO"
+        } else if kind.is_socket() {
+            "a socket"
+        } else {
+            "a special file"
+        }
+    };
+    #[cfg(not(unix))]
+    let what = "a special file";
+    let path = path.display();
+    Err(format!(
+        "cannot checkpoint a run to {path}: it is {what}, not a regular file (the checkpoint \
+         goes beside the output, in {path}.checkpoint)"
+    ))
 }
 
 /// The destination's sink and the observer, each given every frame; counts the frames.

@@ -20,7 +20,7 @@
 //! than replacing it.
 
 use std::fs;
-use std::io::{self, BufWriter};
+use std::io;
 use std::path::{Path, PathBuf};
 
 use tempfile::{NamedTempFile, TempDir};
@@ -114,8 +114,17 @@ impl Output {
         };
         if !format.is_series() {
             let (staged, file) = Staged::file(path)?;
+            let out = Box::new(super::Named::new(file, path));
+            let sink = match format {
+                // Beside the destination, on the file system the archive needs room on; a
+                // device or a FIFO written in place has no such room (`/dev`): as a stream.
+                Format::Npz if !matches!(staged.temp, Temp::Direct) => {
+                    Box::new(super::NpzSink::staged_in(parent_of(staged.path()), out)?)
+                }
+                _ => super::sink(format, out)?,
+            };
             return Ok(Output {
-                sink: super::sink(format, Box::new(BufWriter::new(file)))?,
+                sink,
                 staged: vec![staged],
             });
         }
@@ -130,7 +139,7 @@ impl Output {
                     frames_path,
                     stem.clone(),
                     format!("{stem}/"),
-                    Box::new(BufWriter::new(file)),
+                    Box::new(super::Named::new(file, path)),
                 );
                 (Box::new(sink), vec![frames, index])
             }

@@ -338,6 +338,40 @@ pub trait FrameSink {
     }
 }
 
+/// A staged file, buffered, whose failures name the destination it is staged for: the sinks
+/// only see a writer.
+pub(crate) struct Named {
+    file: std::io::BufWriter<std::fs::File>,
+    destination: std::path::PathBuf,
+}
+
+impl Named {
+    pub(crate) fn new(file: std::fs::File, destination: &Path) -> Named {
+        Named {
+            file: std::io::BufWriter::new(file),
+            destination: destination.to_owned(),
+        }
+    }
+
+    fn named(&self, e: std::io::Error) -> std::io::Error {
+        std::io::Error::new(e.kind(), format!("{}: {e}", self.destination.display()))
+    }
+}
+
+impl std::io::Write for Named {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.file.write(buf).map_err(|e| self.named(e))
+    }
+
+    fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
+        self.file.write_all(buf).map_err(|e| self.named(e))
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush().map_err(|e| self.named(e))
+    }
+}
+
 /// A sink of single-file `format` writing to `out`; the series formats (VTK, PLY, OBJ) write
 /// into a directory and are made by [`Output::create`].
 pub fn sink<'w>(

@@ -8,13 +8,17 @@
 //! unicode (`<U`), so `str(d["integrator"])` is `"rk4"`.
 //!
 //! The archive is staged in a temporary file (zip needs Seek) and copied to the output by
-//! [`FrameSink::finish`]. What the run was goes in when the header comes, so that the sink keeps
+//! [`FrameSink::finish`]; it and the spools below are unnamed files (gone when closed, also
+//! after a kill) in the staging directory: beside the destination ([`NpzSink::staged_in`]),
+//! whose file system is the one that needs room for the archive, or `$TMPDIR` for a stream
+//! ([`NpzSink::new`]). A failure there names the directory. What the run was goes in when the header comes, so that the sink keeps
 //! none of it (the springs' arrays are 40 bytes a spring). The frame count is only known at the
 //! end (a run may stop early), and `.npy` headers carry the shape, so frames are spooled to two
 //! temporary files and go in at the end. Memory stays at one frame whatever the run's length.
 
 use std::fs::File;
-use std::io::{self, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
+use std::io::{self, BufRead, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
 
 use npyz::{DType, TypeStr, WriterBuilder};
 use zip::write::SimpleFileOptions;
@@ -34,23 +38,98 @@ pub struct NpzSink<'w> {
     particles: u64,
     /// Spooled frames; taken by `finish`.
     spools: Option<(BufWriter<File>, BufWriter<File>)>,
+    /// Where the archive and the spools are staged.
+    staging: PathBuf,
 }
 
 impl<'w> NpzSink<'w> {
-    /// A sink writing the archive to `out` when it finishes.
+    /// A sink writing the archive to `out` when it finishes, staged in `$TMPDIR`.
     pub fn new(out: Box<dyn Write + 'w>) -> io::Result<Self> {
+        Self::staged_in(std::env::temp_dir(), out)
+    }
+
+    /// A sink writing the archive to `out` when it finishes, staged in `dir` (the
+    /// destination's directory).
+    pub fn staged_in(dir: impl Into<PathBuf>, out: Box<dyn Write + 'w>) -> io::Result<Self> {
+        let staging = dir.into();
+        let spool = || {
+            tempfile::tempfile_in(&staging)
+                .map(BufWriter::new)
+                .map_err(|e| in_staging(&staging, e))
+        };
+        let spools = Some((spool()?, spool()?));
         Ok(NpzSink {
             out: Some(out),
             times: Vec::new(),
             energies: Default::default(),
             zip: None,
             particles: 0,
-            spools: Some((
-                BufWriter::new(tempfile::tempfile()?),
-                BufWriter::new(tempfile::tempfile()?),
-            )),
+            spools,
+            staging,
         })
     }
+
+    fn write_header(&mut self, header: &Header) -> io::Result<()> {
+        let staged = tempfile::tempfile_in(&self.staging)?;
+        let mut zip = zip::ZipWriter::new(BufWriter::new(staged));
+        let n = header.particles as u64;
+        let mut arrays = Arrays { zip: &mut zip };
+        arrays.f64("dt", &[], &[header.dt])?;
+        arrays.f64("frame_rate", &[], &[header.frame_rate])?;
+        arrays.strings("integrator", &[], &[&header.integrator])?;
+        arrays.strings("backend", &[], &[&header.backend])?;
+        arrays.strings("device", &[], &[&header.device])?;
+        arrays.f64("masses", &[n], &header.masses)?;
+        let s = header.springs.len() as u64;
+        arrays.u32("springs", &[s, 2], header.springs.iter().flatten())?;
+        arrays.f64("rest_lengths", &[s], &header.rest)?;
+        arrays.f64("stiffness", &[s], &header.stiffness)?;
+        arrays.f64("damping", &[s], &header.damping)?;
+        let b = header.bodies.len() as u64;
+        let names: Vec<&str> = header.bodies.iter().map(|b| b.name.as_str()).collect();
+        arrays.strings("body_names", &[b], &names)?;
+        arrays.u32("body_first", &[b], header.bodies.iter().map(|b| &b.first))?;
+        arrays.u32("body_count", &[b], header.bodies.iter().map(|b| &b.count))?;
+        if let Some(text) = &header.scene_text {
+            arrays.strings("scene_text", &[], &[text])?;
+        }
+        if let Some(file) = &header.scene {
+            arrays.strings("scene_file", &[], &[file])?;
+        }
+        (self.zip, self.particles) = (Some(zip), n);
+        Ok(())
+    }
+
+    /// Completes the staged archive with the frames' arrays, rewound to be copied out.
+    fn complete(
+        &mut self,
+        mut zip: zip::ZipWriter<BufWriter<File>>,
+        (positions, velocities): (BufWriter<File>, BufWriter<File>),
+    ) -> io::Result<File> {
+        let (frames, n) = (self.times.len() as u64, self.particles);
+        let mut arrays = Arrays { zip: &mut zip };
+        arrays.f64("time", &[frames], &self.times)?;
+        copy_spooled(arrays.zip, "positions", &[frames, n, 3], positions)?;
+        copy_spooled(arrays.zip, "velocities", &[frames, n, 3], velocities)?;
+        let [kinetic, gravitational, elastic] = &self.energies;
+        arrays.f64("energy_kinetic", &[frames], kinetic)?;
+        arrays.f64("energy_gravitational", &[frames], gravitational)?;
+        arrays.f64("energy_elastic", &[frames], elastic)?;
+        let archive = zip.finish().map_err(io::Error::other)?;
+        let mut archive = archive
+            .into_inner()
+            .map_err(io::IntoInnerError::into_error)?;
+        archive.seek(SeekFrom::Start(0))?;
+        Ok(archive)
+    }
+}
+
+/// `e`, a failure in the staging directory `dir`, naming it.
+fn in_staging(dir: &Path, e: io::Error) -> io::Error {
+    io::Error::new(
+        e.kind(),
+        format!("cannot stage the NPZ arrays in {}: {e}", dir.display()),
+    )
 }
 
 fn spool(to: &mut impl Write, values: &[glam::DVec3]) -> io::Result<()> {
@@ -89,33 +168,8 @@ fn copy_spooled<W: Write + Seek>(
 
 impl FrameSink for NpzSink<'_> {
     fn header(&mut self, header: &Header) -> io::Result<()> {
-        let mut zip = zip::ZipWriter::new(BufWriter::new(tempfile::tempfile()?));
-        let n = header.particles as u64;
-        let mut arrays = Arrays { zip: &mut zip };
-        arrays.f64("dt", &[], &[header.dt])?;
-        arrays.f64("frame_rate", &[], &[header.frame_rate])?;
-        arrays.strings("integrator", &[], &[&header.integrator])?;
-        arrays.strings("backend", &[], &[&header.backend])?;
-        arrays.strings("device", &[], &[&header.device])?;
-        arrays.f64("masses", &[n], &header.masses)?;
-        let s = header.springs.len() as u64;
-        arrays.u32("springs", &[s, 2], header.springs.iter().flatten())?;
-        arrays.f64("rest_lengths", &[s], &header.rest)?;
-        arrays.f64("stiffness", &[s], &header.stiffness)?;
-        arrays.f64("damping", &[s], &header.damping)?;
-        let b = header.bodies.len() as u64;
-        let names: Vec<&str> = header.bodies.iter().map(|b| b.name.as_str()).collect();
-        arrays.strings("body_names", &[b], &names)?;
-        arrays.u32("body_first", &[b], header.bodies.iter().map(|b| &b.first))?;
-        arrays.u32("body_count", &[b], header.bodies.iter().map(|b| &b.count))?;
-        if let Some(text) = &header.scene_text {
-            arrays.strings("scene_text", &[], &[text])?;
-        }
-        if let Some(file) = &header.scene {
-            arrays.strings("scene_file", &[], &[file])?;
-        }
-        (self.zip, self.particles) = (Some(zip), n);
-        Ok(())
+        self.write_header(header)
+            .map_err(|e| in_staging(&self.staging, e))
     }
 
     fn frame(&mut self, f: &Frame<'_>) -> io::Result<()> {
@@ -131,33 +185,34 @@ impl FrameSink for NpzSink<'_> {
         {
             series.push(value);
         }
-        spool(positions, f.positions)?;
-        spool(velocities, f.velocities)
+        spool(positions, f.positions)
+            .and_then(|()| spool(velocities, f.velocities))
+            .map_err(|e| in_staging(&self.staging, e))
     }
 
     fn finish(&mut self) -> io::Result<()> {
-        let (Some(mut out), Some((positions, velocities))) = (self.out.take(), self.spools.take())
-        else {
+        let (Some(mut out), Some(spools)) = (self.out.take(), self.spools.take()) else {
             return Ok(());
         };
-        let Some(mut zip) = self.zip.take() else {
+        let Some(zip) = self.zip.take() else {
             return Err(io::Error::other("finish without a header"));
         };
-        let (frames, n) = (self.times.len() as u64, self.particles);
-        let mut arrays = Arrays { zip: &mut zip };
-        arrays.f64("time", &[frames], &self.times)?;
-        copy_spooled(arrays.zip, "positions", &[frames, n, 3], positions)?;
-        copy_spooled(arrays.zip, "velocities", &[frames, n, 3], velocities)?;
-        let [kinetic, gravitational, elastic] = &self.energies;
-        arrays.f64("energy_kinetic", &[frames], kinetic)?;
-        arrays.f64("energy_gravitational", &[frames], gravitational)?;
-        arrays.f64("energy_elastic", &[frames], elastic)?;
-        let archive = zip.finish().map_err(io::Error::other)?;
-        let mut archive = archive
-            .into_inner()
-            .map_err(io::IntoInnerError::into_error)?;
-        archive.seek(SeekFrom::Start(0))?;
-        io::copy(&mut archive, &mut out)?;
+        let archive = self
+            .complete(zip, spools)
+            .map_err(|e| in_staging(&self.staging, e))?;
+        // Read here, written there: a failure of the output is the output's to name.
+        let mut archive = BufReader::new(archive);
+        loop {
+            let chunk = archive
+                .fill_buf()
+                .map_err(|e| in_staging(&self.staging, e))?;
+            if chunk.is_empty() {
+                break;
+            }
+            out.write_all(chunk)?;
+            let len = chunk.len();
+            archive.consume(len);
+        }
         out.flush()
     }
 }

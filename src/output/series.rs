@@ -23,9 +23,10 @@ pub(crate) fn write_file(
     name: &str,
     body: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
 ) -> io::Result<()> {
-    let mut out = BufWriter::new(File::create(dir.join(name))?);
-    body(&mut out)?;
-    out.flush()
+    let path = dir.join(name);
+    let named = |e: io::Error| io::Error::new(e.kind(), format!("{}: {e}", path.display()));
+    let mut out = BufWriter::new(File::create(&path).map_err(named)?);
+    body(&mut out).and_then(|()| out.flush()).map_err(named)
 }
 
 /// An error for a header that does not describe its own particles.

@@ -1,7 +1,8 @@
 //! `softbody`: the command-line tool. Argument parsing, progress and output; the simulation
 //! itself lives in the `softbody` library.
 //!
-//! Exit status (`softbody::service::ExitClass`): 0 done; 1 the output could not be written;
+//! Exit status (`softbody::service::ExitClass`): 0 done; 1 the output could not be written
+//! (also: another process checkpoints to it, or `<out>.checkpoint` is not a checkpoint);
 //! 2 bad input (scene file or arguments, or a scene beyond what `--backend gpu` runs: the
 //! adapter's limits); 3 the simulation became unstable (the frames before it are written);
 //! 4 `--backend gpu` found no usable GPU adapter, or the device failed during the run (the
@@ -126,10 +127,26 @@ fn main() -> ExitCode {
         // filter.
         Err(f) if is_broken_pipe(&f.error) => ExitCode::SUCCESS,
         Err(f) => {
-            say!("error: {:#}", f.error);
+            say!("error: {}", said_once(&f.error));
             ExitCode::from(f.status)
         }
     }
+}
+
+/// `e` and its causes, joined by ": ", leaving out a cause whose text is said already: an
+/// error that names its cause in its own message and also gives it as its source would say it
+/// twice.
+fn said_once(e: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if message.is_empty() {
+            message = text;
+        } else if !message.contains(&text) {
+            message = format!("{message}: {text}");
+        }
+    }
+    message
 }
 
 fn is_broken_pipe(e: &anyhow::Error) -> bool {
@@ -190,10 +207,16 @@ fn output_failure(e: OutputError) -> Failure {
     failure(e)
 }
 
-/// A run of `integrator` that did not complete, with what became of its frames (`kept`, said
-/// after a failure that came after frames were written): the advice for an instability, the
-/// device for a device failure.
-fn run_failure(e: impl Into<RunFailure>, integrator: Option<Integrator>, kept: &str) -> Failure {
+/// A run of `integrator` that did not complete, with what became of its frames and its
+/// checkpoint (`kept`, said after an instability, a device failure, a stop, a failure to write
+/// frames, and any failure once the run `began` writing frames or a checkpoint): the advice for
+/// an instability, the device for a device failure.
+fn run_failure(
+    e: impl Into<RunFailure>,
+    integrator: Option<Integrator>,
+    kept: &str,
+    began: bool,
+) -> Failure {
     let e = e.into();
     let status = e.class().status();
     let error = match e {
@@ -207,6 +230,9 @@ fn run_failure(e: impl Into<RunFailure>, integrator: Option<Integrator>, kept: &
         e @ RunFailure::Run(RunError::Stopped { .. } | RunError::Io(_)) => {
             anyhow::anyhow!("{}\n{kept}", e.message())
         }
+        // The output that could not be put in place, the checkpoint that could not be written:
+        // the checkpoint kept is what to go on from.
+        e if began => anyhow::anyhow!("{}\n{kept}", e.message()),
         e => e.into(),
     };
     Failure { status, error }

@@ -188,9 +188,14 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
             };
             // The frames before an instability are drawn and kept, as `run` keeps them.
             drawer.finish(&args, "simulated and drawn", started)?;
-            result
-                .map(drop)
-                .map_err(|e| run_failure(e, Some(sim.integrator), "the frames before it are drawn"))
+            result.map(drop).map_err(|e| {
+                run_failure(
+                    e,
+                    Some(sim.integrator),
+                    "the frames before it are drawn",
+                    true,
+                )
+            })
         }
         Input::Frames => {
             let path = &args.input;

@@ -38,7 +38,8 @@ pub struct RunArgs {
     /// Checkpoint the run every N frames (a directory beside the output, `<out>.checkpoint`,
     /// journaling the frames): a run killed in any way (SIGKILL, a power cut) goes on from its
     /// last checkpoint with --resume. The checkpoint is removed when the run ends, unless a
-    /// signal stopped it.
+    /// signal or a failure stopped it. The output must be a regular file (or a series'
+    /// directory), and one checkpointing process at a time writes it (<out>.lock).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     checkpoint_every: Option<u64>,
     /// Go on from the output's checkpoint (see --checkpoint-every), which must be of the same
@@ -150,7 +151,8 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             } else {
                 format!("nothing was written to {where_}{resumable}")
             };
-            let mut failure = run_failure(e, integrator, &kept);
+            let began = outcome.frames > 0 || outcome.checkpoint.is_some();
+            let mut failure = run_failure(e, integrator, &kept, began);
             if failure.status == ExitClass::Stopped.status()
                 && signals.terminated.load(Ordering::Relaxed)
             {

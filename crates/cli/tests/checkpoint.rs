@@ -85,6 +85,30 @@ fn checkpointed_frames(sb: &Sandbox, out: &str) -> u64 {
         .map_or(0, |b| u64::from_le_bytes(b[24..32].try_into().unwrap()))
 }
 
+/// The CRC-32 (IEEE, reflected, as zlib's) of `bytes`, bit by bit: the checksum of a journal
+/// record and of a `checkpoint` file, computed apart from the library's.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+/// A `checkpoint` file's bytes, edited in place, with their closing checksum made to match.
+fn reseal(bytes: &mut [u8]) {
+    let end = bytes.len() - 4;
+    let sum = crc32(&bytes[..end]);
+    bytes[end..].copy_from_slice(&sum.to_le_bytes());
+}
+
 /// Starts `softbody run ARGS` in `sb`.
 // The child is returned, and its callers wait for it.
 #[allow(clippy::zombie_processes)]
@@ -263,8 +287,8 @@ fn a_run_stopped_by_a_signal_keeps_its_checkpoint() {
 }
 
 /// A checkpoint of another run (here another dt) is refused with status 2 and left as it was,
-/// so is a damaged one and one whose history the solver does not take; `--resume` without a checkpoint starts from the beginning; standard
-/// output cannot be checkpointed.
+/// so is a damaged one and one whose history the solver does not take; `--resume` without a
+/// checkpoint starts from the beginning; standard output cannot be checkpointed.
 #[test]
 fn what_cannot_be_resumed_is_refused_and_left_alone() {
     let sb = Sandbox::new();
@@ -316,6 +340,7 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
     let at = (saved.windows(8).position(|w| w == b"sticking")).expect("implicit Euler's part");
     let mut renamed = saved.clone();
     renamed[at..at + 8].copy_from_slice(b"stickinG");
+    reseal(&mut renamed);
     std::fs::write(&checkpoint, &renamed).unwrap();
     let o = run(&["--resume"]);
     o.expect_status(EXIT_BAD_INPUT);
@@ -333,12 +358,12 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
         "left as it was"
     );
 
-    std::fs::write(&checkpoint, b"SBCKPT01 cut short").unwrap();
+    std::fs::write(&checkpoint, b"SBCKPT02 cut short").unwrap();
     let o = run(&["--resume"]);
     o.expect_status(EXIT_BAD_INPUT);
     assert!(
         o.stderr
-            .contains("not a checkpoint of this version of softbody (it is cut short)"),
+            .contains("checkpoint: the checkpoint is damaged (it does not match its checksum)"),
         "{}",
         o.stderr
     );
@@ -351,4 +376,242 @@ fn what_cannot_be_resumed_is_refused_and_left_alone() {
         o.stderr
     );
     assert!(o.stdout.is_empty());
+}
+
+/// STICKY_SLOPE to `f.jsonl`, checkpointed every 2 frames and killed once its checkpoint counts
+/// `frames` frames.
+fn killed_checkpoint(sb: &Sandbox, frames: u64) {
+    let args = [
+        "run",
+        "scene.toml",
+        "--out",
+        "f.jsonl",
+        "--checkpoint-every",
+        "2",
+    ];
+    let mut child = spawn(sb, &args);
+    wait_for_checkpoint(sb, &mut child, "f.jsonl", frames);
+    child.kill().unwrap();
+    child.wait().unwrap();
+}
+
+/// `softbody run scene.toml --out f.jsonl ARGS` in `sb`.
+fn run_to_f(sb: &Sandbox, more: &[&str]) -> common::Outcome {
+    let mut args = vec!["run", "scene.toml", "--out", "f.jsonl"];
+    args.extend(more);
+    sb.run(&args)
+}
+
+/// Bytes of a journal record of STICKY_SLOPE's 64 particles: frame number, step, time and the
+/// three energies (48 bytes), each particle's position and velocity (48 bytes), and the
+/// record's CRC-32 (4 bytes).
+const RECORD: usize = 48 + 48 * 64 + 4;
+
+/// A bit flipped in a frame the checkpoint counts, or in the checkpoint itself, is refused with
+/// status 2, naming the file (and the frame), and nothing is touched or written; so is a
+/// checkpoint of the format's first version, which had no checksums.
+#[test]
+fn a_flipped_bit_in_a_checkpoint_is_refused_and_left_alone() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    killed_checkpoint(&sb, 4);
+    let dir = sb.path().join("f.jsonl.checkpoint");
+    let (journal, checkpoint) = (dir.join("frames"), dir.join("checkpoint"));
+    let (frames, saved) = (
+        std::fs::read(&journal).unwrap(),
+        std::fs::read(&checkpoint).unwrap(),
+    );
+    let refused = |what: &str| {
+        let damaged = files(&dir);
+        let o = run_to_f(&sb, &["--resume"]);
+        o.expect_status(EXIT_BAD_INPUT);
+        assert!(o.stderr.contains(what), "{}", o.stderr);
+        assert_eq!(files(&dir), damaged, "left as it was");
+        assert!(!sb.path().join("f.jsonl").exists(), "nothing written");
+    };
+
+    let record = &frames[RECORD..2 * RECORD];
+    assert_eq!(
+        record[RECORD - 4..],
+        crc32(&record[..RECORD - 4]).to_le_bytes(),
+        "a record ends in the CRC-32 of its bytes"
+    );
+    assert_eq!(
+        saved[saved.len() - 4..],
+        crc32(&saved[..saved.len() - 4]).to_le_bytes(),
+        "so does the checkpoint"
+    );
+    // The lowest bit of frame 1's first coordinate: one ulp, which nothing else would notice.
+    let mut flipped = frames.clone();
+    flipped[RECORD + 48] ^= 1;
+    std::fs::write(&journal, &flipped).unwrap();
+    refused(
+        "f.jsonl.checkpoint/frames: the checkpoint is damaged (frame 1 does not match its checksum)",
+    );
+    std::fs::write(&journal, &frames).unwrap();
+
+    // The interval between checkpoints, 2, made 3.
+    let mut flipped = saved.clone();
+    flipped[16] ^= 1;
+    std::fs::write(&checkpoint, &flipped).unwrap();
+    refused(
+        "f.jsonl.checkpoint/checkpoint: the checkpoint is damaged (it does not match its checksum)",
+    );
+
+    let mut old = saved.clone();
+    old[..8].copy_from_slice(b"SBCKPT01");
+    std::fs::write(&checkpoint, &old).unwrap();
+    refused(
+        "f.jsonl.checkpoint/checkpoint: not a checkpoint of this version of softbody (it is of \
+         version 1 of the format, and this version reads version 2)",
+    );
+
+    std::fs::write(&checkpoint, &saved).unwrap();
+    run_to_f(&sb, &["--resume", "--quiet"]).expect_status(EXIT_OK);
+}
+
+/// A checkpointing run (or a resume) aimed at the output of one still running is refused at
+/// once with status 1, naming the process that holds it, and the running one's checkpoint goes
+/// on: the second does not replace it.
+#[test]
+fn a_second_run_to_a_checkpointed_output_is_refused() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    let long = ["--checkpoint-every", "2", "--duration", "60"];
+    let mut args = vec!["run", "scene.toml", "--out", "f.jsonl"];
+    args.extend(long);
+    let mut first = spawn(&sb, &args);
+    wait_for_checkpoint(&sb, &mut first, "f.jsonl", 2);
+    let busy = format!(
+        "error: f.jsonl is being written by another softbody process (process {}) (it holds \
+         f.jsonl.lock); wait for it to end, or write elsewhere",
+        first.id()
+    );
+    for more in [&[][..], &["--resume"]] {
+        let o = run_to_f(&sb, &[&long[..], more].concat());
+        o.expect_status(common::EXIT_OUTPUT);
+        assert!(o.stderr.contains(&busy), "{}", o.stderr);
+    }
+    let counted = checkpointed_frames(&sb, "f.jsonl");
+    wait_for_checkpoint(&sb, &mut first, "f.jsonl", counted + 4);
+    first.kill().unwrap();
+    first.wait().unwrap();
+}
+
+/// A run whose output cannot be put in place when it ends (its destination became a
+/// directory) fails with status 1 and says that its checkpoint is kept and that `--resume`
+/// goes on from it, which it does.
+#[test]
+fn a_run_whose_output_fails_says_its_checkpoint_is_kept() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    let args = [
+        "run",
+        "scene.toml",
+        "--out",
+        "f.jsonl",
+        "--checkpoint-every",
+        "2",
+        "--duration",
+        "4",
+        "--quiet",
+    ];
+    let mut child = spawn(&sb, &args);
+    wait_for_checkpoint(&sb, &mut child, "f.jsonl", 2);
+    std::fs::create_dir(sb.path().join("f.jsonl")).unwrap();
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(common::EXIT_OUTPUT), "{stderr}");
+    assert!(
+        stderr.contains("cannot write f.jsonl: it is a directory"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("the checkpoint is in f.jsonl.checkpoint: go on with --resume"),
+        "{stderr}"
+    );
+    assert!(checkpointed_frames(&sb, "f.jsonl") >= 2);
+
+    std::fs::remove_dir(sb.path().join("f.jsonl")).unwrap();
+    let o = run_to_f(&sb, &["--duration", "4", "--resume"]);
+    o.expect_status(EXIT_OK);
+    assert!(o.stderr.contains("resuming after frame"), "{}", o.stderr);
+    assert_eq!(entries(sb.path()), ["f.jsonl", "scene.toml"]);
+}
+
+/// A directory named `<out>.checkpoint` that is not a checkpoint (it holds a file of the
+/// user's) is refused with status 1 and left as it is, and nothing is written; one holding only
+/// a checkpoint's files is replaced.
+#[test]
+fn a_directory_that_is_not_a_checkpoint_is_refused_and_left_alone() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    sb.write("f.jsonl.checkpoint/notes.txt", "mine");
+    for more in [&[][..], &["--resume"]] {
+        let o = run_to_f(&sb, &[&["--checkpoint-every", "2"][..], more].concat());
+        o.expect_status(common::EXIT_OUTPUT);
+        assert!(
+            o.stderr.contains(
+                "refusing to use f.jsonl.checkpoint as a checkpoint: it holds \
+                 f.jsonl.checkpoint/notes.txt, which is not one of a checkpoint's files; choose \
+                 another --out or remove it"
+            ),
+            "{}",
+            o.stderr
+        );
+        assert_eq!(entries(sb.path()), ["f.jsonl.checkpoint", "scene.toml"]);
+        assert_eq!(
+            files(&sb.path().join("f.jsonl.checkpoint")),
+            [("notes.txt".to_owned(), b"mine".to_vec())]
+        );
+    }
+
+    std::fs::remove_file(sb.path().join("f.jsonl.checkpoint/notes.txt")).unwrap();
+    sb.write("f.jsonl.checkpoint/frames", "an earlier journal");
+    run_to_f(&sb, &["--checkpoint-every", "2", "--duration", "0.1"]).expect_status(EXIT_OK);
+    assert_eq!(entries(sb.path()), ["f.jsonl", "scene.toml"]);
+}
+
+/// Checkpoints go beside a regular file: a device or a FIFO as the output is refused with
+/// status 2 before anything is written (no `/dev/null.checkpoint`), and a FIFO is not opened.
+#[test]
+fn checkpoints_need_a_regular_file() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    let made = Command::new("mkfifo")
+        .arg(sb.path().join("pipe"))
+        .status()
+        .unwrap();
+    assert!(made.success());
+    for (out, what) in [("/dev/null", "a character device"), ("pipe", "a FIFO")] {
+        let o = sb.run(&["run", "scene.toml", "--out", out, "--checkpoint-every", "2"]);
+        o.expect_status(EXIT_BAD_INPUT);
+        let expected = format!(
+            "cannot checkpoint a run to {out}: it is {what}, not a regular file (the checkpoint \
+             goes beside the output, in {out}.checkpoint)"
+        );
+        assert!(o.stderr.contains(&expected), "{}", o.stderr);
+    }
+    for made in ["/dev/null.checkpoint", "/dev/null.lock"] {
+        assert!(!Path::new(made).exists(), "{made}");
+    }
+    assert_eq!(entries(sb.path()), ["pipe", "scene.toml"]);
+}
+
+/// A checkpoint that cannot be read (a directory where its file goes) fails with status 1,
+/// naming it and saying why once.
+#[test]
+fn a_checkpoint_that_cannot_be_read_says_why_once() {
+    let sb = Sandbox::new();
+    sb.write("scene.toml", STICKY_SLOPE);
+    sb.mkdir("f.jsonl.checkpoint/checkpoint");
+    let o = run_to_f(&sb, &["--resume"]);
+    o.expect_status(common::EXIT_OUTPUT);
+    assert!(
+        o.stderr
+            .starts_with("error: cannot read f.jsonl.checkpoint/checkpoint: Is a directory"),
+        "{}",
+        o.stderr
+    );
+    assert_eq!(o.stderr.matches("(os error 21)").count(), 1, "{}", o.stderr);
 }

@@ -380,6 +380,74 @@ fn npz_describes_its_run() {
     assert_eq!(v["integrator"].as_str(), Some("rk4"));
 }
 
+/// NPZ stages its arrays beside its destination, not in `$TMPDIR`: a run to a file writes the
+/// archive whatever `$TMPDIR` is (here a directory that does not exist), the same numbers as
+/// JSON Lines, and leaves nothing beside it; a run to standard output, which has no directory
+/// of its own, stages in `$TMPDIR` and names it, once, when it cannot.
+#[test]
+fn npz_stages_beside_its_destination() {
+    let cube = scene();
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &cube.toml());
+    let missing = sb.path().join("no-tmp");
+    let with_missing_tmp = |out: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_softbody"))
+            .args(["run", path.to_str().unwrap(), "--quiet", "--format", "npz"])
+            .args(["--out", out])
+            .current_dir(sb.path())
+            .env("TMPDIR", &missing)
+            .output()
+            .unwrap()
+    };
+    let o = with_missing_tmp("f.npz");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(EXIT_OK), "{stderr}");
+    assert_eq!(run_to(&sb, &path, "f.jsonl", &[]), EXIT_OK);
+    let npz = read_npz(&sb.path().join("f.npz"), cube.particles());
+    let jsonl = read_jsonl(&sb.path().join("f.jsonl"));
+    assert_same_bits(&Table::from_jsonl(&jsonl), &npz.table, "NPZ vs JSON Lines");
+    assert_eq!(entries(sb.path()), ["f.jsonl", "f.npz", "s.toml"]);
+
+    let o = with_missing_tmp("-");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(EXIT_OUTPUT), "{stderr}");
+    let expected = format!(
+        "cannot stage the NPZ arrays in {}: No such file or directory (os error 2)",
+        missing.display()
+    );
+    assert!(stderr.contains(&expected), "{stderr}");
+    assert_eq!(stderr.matches("(os error 2)").count(), 1, "{stderr}");
+    assert!(o.stdout.is_empty());
+}
+
+/// A full disk (`/dev/full`, a device written in place) fails with status 1, naming the
+/// destination and saying the cause once, whatever the format.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_full_disk_names_the_destination_once() {
+    let sb = Sandbox::new();
+    let path = sb.write("s.toml", &scene().toml());
+    for format in ["jsonl", "csv", "npz"] {
+        let o = sb.run(&[
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            "/dev/full",
+            "--format",
+            format,
+            "--quiet",
+        ]);
+        o.expect_status(EXIT_OUTPUT);
+        assert!(
+            o.stderr
+                .contains("cannot write frames: /dev/full: No space left on device (os error 28)"),
+            "{format}: {}",
+            o.stderr
+        );
+        assert_eq!(o.stderr.matches("(os error 28)").count(), 1, "{}", o.stderr);
+    }
+}
+
 #[test]
 fn format_follows_the_out_extension_and_the_flag_must_agree() {
     let sb = Sandbox::new();
