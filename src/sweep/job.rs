@@ -1,6 +1,7 @@
 //! One run of a sweep as a self-contained [`Job`], and the [`Record`] it turns into.
 
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -92,6 +93,12 @@ impl Job {
     /// Runs the job: its frames to its output, its record returned. Never panics on a bad
     /// scene or value: those are records too.
     pub fn run(&self) -> Record {
+        self.run_until(None).expect("nothing stops it")
+    }
+
+    /// [`Job::run`], stopped after its complete frames when `stop` is set: then `None`, no
+    /// record (the run is not an outcome of its values).
+    pub fn run_until(&self, stop: Option<&AtomicBool>) -> Option<Record> {
         let started = Instant::now();
         let mut record = Record {
             run: self.run,
@@ -123,14 +130,14 @@ impl Job {
         let origin = &self.scene_origin;
         let settings = match to_settings(&self.common, &self.parameters, origin) {
             Ok(s) => s,
-            Err(e) => return end(record, Status::Invalid, 2, e.to_string()),
+            Err(e) => return Some(end(record, Status::Invalid, 2, e.to_string())),
         };
         let (backend, format) = match (
             self.backend.parse::<Backend>(),
             self.format.as_deref().map(str::parse::<Format>).transpose(),
         ) {
             (Ok(b), Ok(f)) => (b, f),
-            (Err(e), _) | (_, Err(e)) => return end(record, Status::Invalid, 2, e),
+            (Err(e), _) | (_, Err(e)) => return Some(end(record, Status::Invalid, 2, e)),
         };
         let request = RunRequest {
             scene: SceneSource::Text {
@@ -154,6 +161,7 @@ impl Job {
             &request,
             Hooks {
                 observer: Some(&mut metrics),
+                stop,
                 ..Hooks::default()
             },
         );
@@ -167,7 +175,8 @@ impl Job {
         }
         record.seconds = started.elapsed().as_secs_f64();
         match &outcome.result {
-            Ok(_) => record,
+            Ok(_) => Some(record),
+            Err(e) if e.class() == ExitClass::Stopped => None,
             Err(e) => {
                 let class = e.class();
                 let status = match class {
@@ -175,7 +184,7 @@ impl Job {
                     ExitClass::BadInput => Status::Invalid,
                     _ => Status::Failed,
                 };
-                end(record, status, class.status(), e.message())
+                Some(end(record, status, class.status(), e.message()))
             }
         }
     }

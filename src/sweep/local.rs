@@ -3,21 +3,24 @@
 use std::io;
 use std::path::Path;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use super::{Manifest, Status, Sweep, SweepError};
 
-/// Which runs a local sweep takes, and with how many workers.
+/// Which runs a local sweep takes, with how many workers, and until when.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct Options {
+pub struct Options<'a> {
     /// Runs at once (default: all cores, divided by the threads per run).
     pub workers: Option<usize>,
     /// A Slurm array task: `(index, count)` runs the runs `i` with `i % count == index`
     /// (count 1: the run `index` alone), recording them in the task's own manifest.
     pub task: Option<(usize, usize)>,
+    /// Set (by a signal handler, another thread) to stop: the runs under way end after their
+    /// complete frames and are not recorded (a sweep run again runs them), no run starts.
+    pub stop: Option<&'a AtomicBool>,
 }
 
-impl Options {
+impl Options<'_> {
     /// Refuses zero workers, zero tasks, and a task index that takes none of `runs` runs.
     pub fn check(&self, runs: usize) -> Result<(), SweepError> {
         let refuse = |m: String| Err(SweepError::Options(m));
@@ -51,6 +54,8 @@ pub struct Outcome {
     pub invalid: usize,
     /// Run now and ended `failed`.
     pub failed: usize,
+    /// Stopped under way by [`Options::stop`], not recorded.
+    pub stopped: usize,
 }
 
 /// The runs this invocation takes under `task` (see [`Options::task`]).
@@ -99,9 +104,15 @@ pub fn run_local(
     // nested on one stack until it overflowed (a 1,000-run sweep did).
     let worker = || {
         loop {
+            if options.stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
+                break;
+            }
             let k = next.fetch_add(1, Ordering::Relaxed);
             let Some(&i) = todo.get(k) else { break };
-            let record = sweep.job(i, out).run();
+            let Some(record) = sweep.job(i, out).run_until(options.stop) else {
+                counts.lock().expect("not poisoned").stopped += 1;
+                break;
+            };
             {
                 let mut c = counts.lock().expect("not poisoned");
                 match record.status {

@@ -202,6 +202,7 @@ fn a_local_sweep_writes_the_manifest_and_resumes() {
     let options = Options {
         workers: Some(2),
         task: None,
+        stop: None,
     };
     let first = run_local(&s, &out, &options, &|_, _| {}).unwrap();
     assert_eq!(
@@ -274,6 +275,7 @@ fn slurm_tasks_write_their_own_manifests_and_a_sweep_merges_them() {
         let options = Options {
             workers: Some(1),
             task: Some((i, 1)),
+            stop: None,
         };
         let o = run_local(&s, &out, &options, &|_, _| {}).unwrap();
         assert_eq!((o.planned, o.ok), (1, 1));
@@ -302,6 +304,7 @@ fn a_thousand_runs_finish_on_two_workers() {
     let options = Options {
         workers: Some(2),
         task: None,
+        stop: None,
     };
     let out = dir.path().join("out");
     let o = run_local(&s, &out, &options, &|_, _| {}).unwrap();
@@ -319,6 +322,7 @@ fn runs_are_reproducible_whatever_the_workers() {
         let options = Options {
             workers: Some(workers),
             task: None,
+            stop: None,
         };
         run_local(&s, dir.path(), &options, &|_, _| {}).unwrap();
         let mut r = read_records(&dir.path().join(MANIFEST)).unwrap();
@@ -344,6 +348,7 @@ fn a_sweep_of_another_job_into_an_existing_out_is_refused_not_answered_with_old_
     let options = Options {
         workers: Some(1),
         task: None,
+        stop: None,
     };
     let first = sweep_in(dir.path(), SCENE, &format!("format = \"none\"\n{grid}"));
     run_local(&first, &out, &options, &|_, _| {}).unwrap();
@@ -447,6 +452,7 @@ fn a_task_manifest_cut_mid_line_is_cut_before_it_is_appended_to() {
     let task = |i| Options {
         workers: Some(1),
         task: Some((i, 1)),
+        stop: None,
     };
     run_local(&s, &out, &task(0), &|_, _| {}).unwrap();
     let path = out.join("manifest-task-0.jsonl");
@@ -478,6 +484,7 @@ fn a_second_sweep_into_an_out_being_written_is_refused() {
     let task = |i| Options {
         workers: Some(1),
         task: Some((i, 2)),
+        stop: None,
     };
     assert!(run_local(&s, &out, &task(0), &|_, _| {}).is_err());
     drop(first);
@@ -533,17 +540,48 @@ fn sweep_files_refuse_aliased_keys_unbounded_ranges_and_tasks_past_the_count() {
         (Some((2, 1)), Some(1)),
         (None, Some(0)),
     ] {
-        let options = Options { workers, task };
+        let options = Options {
+            workers,
+            task,
+            stop: None,
+        };
         let e = run_local(&s, dir.path(), &options, &|_, _| {}).unwrap_err();
         assert!(e.is_bad_input(), "{e}");
     }
     let zero = Options {
         workers: Some(1),
         task: Some((0, 0)),
+        stop: None,
     };
     assert!(
         run_local(&s, dir.path(), &zero, &|_, _| {})
             .unwrap_err()
             .is_bad_input()
     );
+}
+
+#[test]
+fn a_stopped_sweep_records_only_the_runs_it_finished_and_a_rerun_takes_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = sweep("format = \"none\"\n[grid]\n\"body[0].mass\" = [1.0, 2.0, 3.0, 4.0]\n").unwrap();
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let options = Options {
+        workers: Some(1),
+        task: None,
+        stop: Some(&stop),
+    };
+    let o = run_local(&s, dir.path(), &options, &|done, _| {
+        if done == 1 {
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    })
+    .unwrap();
+    assert_eq!(
+        (o.ok, o.stopped),
+        (1, 0),
+        "one worker: the stop falls between runs"
+    );
+    assert_eq!(read_manifest(&s, dir.path()).unwrap().len(), 1);
+    let rest = run_local(&s, dir.path(), &Options::default(), &|_, _| {}).unwrap();
+    assert_eq!((rest.skipped, rest.ok), (1, 3));
 }

@@ -163,18 +163,19 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     }
 }
 
-/// SIGINT (Ctrl-C) and SIGTERM (`kill`) stop a run after its complete frames instead of
-/// killing it mid-write: the first sets `stop`, which the run looks at every few hundred steps;
+/// SIGINT (Ctrl-C) and SIGTERM (`kill`) stop a run (or a sweep's runs) after its complete
+/// frames instead of killing it mid-write: the first sets `stop`, which the run looks at every
+/// few hundred steps;
 /// a second ends the process at once (status 128 + the signal), leaving its staged files to the
 /// next run to the same destination to remove.
-struct Signals {
-    stop: Arc<AtomicBool>,
+pub(crate) struct Signals {
+    pub(crate) stop: Arc<AtomicBool>,
     /// SIGTERM was the signal (status 143 rather than 130).
-    terminated: Arc<AtomicBool>,
+    pub(crate) terminated: Arc<AtomicBool>,
 }
 
 impl Signals {
-    fn register() -> Result<Signals, Failure> {
+    pub(crate) fn register() -> Result<Signals, Failure> {
         use signal_hook::consts::{SIGINT, SIGTERM};
         let signals = Signals {
             stop: Arc::new(AtomicBool::new(false)),

@@ -3,11 +3,14 @@
 
 use std::path::PathBuf;
 use std::process::Command;
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use clap::Args;
+use softbody::service::ExitClass;
 use softbody::sweep::{Options, Sweep, SweepError, run_local};
 
+use crate::run::Signals;
 use crate::{Failure, bad_input, file_stem, progress, status};
 
 #[derive(Args)]
@@ -52,11 +55,13 @@ pub fn sweep(args: SweepArgs) -> Result<(), Failure> {
     if let Some(address) = &args.ray {
         return ray(&args, address, &out);
     }
+    let signals = Signals::register()?;
     let options = Options {
         workers: args.workers.map(usize::from),
         task: args
             .task_index
             .map(|i| (i, args.task_count.map_or(1, |n| n as usize))),
+        stop: Some(&signals.stop),
     };
     let bar = progress::bar(0, "runs", args.quiet);
     let started = Instant::now();
@@ -85,6 +90,20 @@ pub fn sweep(args: SweepArgs) -> Result<(), Failure> {
             ran as f64 / seconds.max(1e-9),
             manifest.display()
         );
+    }
+    if signals.stop.load(Ordering::Relaxed) {
+        let terminated = signals.terminated.load(Ordering::Relaxed);
+        return Err(Failure {
+            status: if terminated {
+                status::TERMINATED
+            } else {
+                ExitClass::Stopped.status()
+            },
+            error: anyhow::anyhow!(
+                "stopped: {} runs under way were not recorded; run the sweep again to go on",
+                outcome.stopped
+            ),
+        });
     }
     if outcome.failed > 0 {
         return Err(Failure {

@@ -129,7 +129,10 @@ fn unknown_keys_types_and_missing_entries_are_bad_input() {
             "terrain has 1 entries (terrain[0] to terrain[0])",
         ),
         ("body[1].mass=1", "body has 1 entries (body[0] to body[0])"),
-        ("body[0].mass=heavy", "invalid type: string \"heavy\""),
+        (
+            "body[0].mass=heavy",
+            "invalid type: string \"heavy\", expected a number",
+        ),
         ("body[0]mass=1", "is not a key path"),
         ("mass", "is not KEY=VALUE"),
     ];

@@ -260,3 +260,58 @@ fn a_sweep_into_an_out_another_process_writes_is_refused_at_once() {
     drop(held);
     sb.run(&["sweep", &sweep, "--quiet"]).expect_status(EXIT_OK);
 }
+
+/// Ctrl-C or SIGTERM ends the runs under way after their complete frames and records none of
+/// them: exit 130 / 143, and the manifest holds its header alone, so a sweep run again runs
+/// them.
+#[cfg(unix)]
+#[test]
+fn a_signal_stops_a_sweep_recording_no_run_under_way() {
+    for (name, status) in [("INT", 130), ("TERM", 143)] {
+        let sb = Sandbox::new();
+        let long = Cube {
+            duration: 3600.0,
+            ..Cube::default()
+        };
+        sb.write("s.toml", &long.toml());
+        sb.write(
+            "sweep.toml",
+            "scene = \"s.toml\"\nformat = \"none\"\n[grid]\n\"body[0].mass\" = [1.0, 2.0]\n",
+        );
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_softbody"))
+            .args(["sweep", "sweep.toml", "--workers", "2", "--quiet"])
+            .current_dir(sb.path())
+            .stdin(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // The manifest is opened after the handlers are in place, before the runs start.
+        let manifest = sb.path().join("out/sweep/manifest.jsonl");
+        let started = std::time::Instant::now();
+        while !manifest.exists() {
+            assert!(
+                started.elapsed().as_secs() < 60,
+                "no manifest after a minute"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        let sent = std::process::Command::new("kill")
+            .args([&format!("-{name}"), &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(sent.success());
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(status), "SIG{name}: {stderr}");
+        assert!(
+            stderr.contains("stopped: 2 runs under way were not recorded"),
+            "SIG{name}: {stderr}"
+        );
+        assert_eq!(
+            records(&sb, "manifest.jsonl"),
+            Vec::<Value>::new(),
+            "SIG{name}"
+        );
+    }
+}

@@ -13,6 +13,7 @@
 //! frames' own collection.
 
 mod errors;
+mod interrupt;
 mod scene;
 mod simulation;
 mod sweep;

@@ -89,8 +89,12 @@ pub(crate) struct Scene {
 
 impl Scene {
     fn build(text: &str, origin: &Path, set: Vec<Setting>) -> PyResult<Scene> {
-        let scene = softbody::scene_from_toml(text, origin, &set).map_err(scene_error)?;
-        let text = softbody::scene_text(text, origin, &set).map_err(scene_error)?;
+        Scene::parse(text, origin, set).map_err(scene_error)
+    }
+
+    fn parse(text: &str, origin: &Path, set: Vec<Setting>) -> Result<Scene, softbody::SceneError> {
+        let scene = softbody::scene_from_toml(text, origin, &set)?;
+        let text = softbody::scene_text(text, origin, &set)?;
         Ok(Scene {
             scene,
             text,
@@ -133,7 +137,16 @@ impl Scene {
         let value = to_toml(table.as_any())?;
         let text = toml::to_string(&value).map_err(scene_error)?;
         let origin = origin.unwrap_or_else(|| PathBuf::from("<dict>"));
-        Scene::build(&text, &origin, settings(set)?)
+        Scene::parse(&text, &origin, settings(set)?).map_err(|e| match e {
+            // The TOML is the package's rendering of the dict, which the caller never saw: the
+            // key path says where, a line of it would not.
+            softbody::SceneError::Invalid(mut d) => {
+                (d.line, d.column) = (0, 0);
+                d.source_line.clear();
+                scene_error(softbody::SceneError::Invalid(d))
+            }
+            e => scene_error(e),
+        })
     }
 
     /// This scene with more settings applied.

@@ -1,6 +1,7 @@
 //! `softbody.Simulation`: a scene stepped on a backend, its state as NumPy arrays.
 
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 use numpy::ndarray::{Array1, Array2};
 use numpy::{IntoPyArray, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -8,9 +9,10 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use softbody::glam::DVec3;
-use softbody::{Backend, Solver};
+use softbody::{Backend, Solver, StepError};
 
 use crate::errors::{open_error, step_error};
+use crate::interrupt::{count, count_or_none};
 use crate::scene::{Scene, scene_of};
 
 pub(crate) fn backend_of(name: &str) -> PyResult<Backend> {
@@ -46,6 +48,12 @@ fn vectors_from(value: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<
         .collect())
 }
 
+/// Why `step` stopped early.
+enum Halt {
+    Step(StepError),
+    Signal(PyErr),
+}
+
 /// A scene being stepped on a backend.
 #[pyclass(module = "softbody")]
 pub(crate) struct Simulation {
@@ -77,13 +85,11 @@ impl Simulation {
         py: Python<'_>,
         scene: &Bound<'_, PyAny>,
         backend: &str,
-        threads: Option<usize>,
+        threads: Option<i64>,
     ) -> PyResult<Simulation> {
         let scene = scene_of(scene)?;
         let backend = backend_of(backend)?;
-        if threads == Some(0) {
-            return Err(PyValueError::new_err("threads must be at least 1"));
-        }
+        let threads = count_or_none("threads", threads, 1)?;
         let s = &scene.get().scene;
         let solver = py
             .detach(|| softbody::open(s, backend, threads))
@@ -99,11 +105,39 @@ impl Simulation {
     }
 
     /// Takes `n` steps (the GIL released meanwhile). Raises UnstableError where the state
-    /// stops being finite.
+    /// stops being finite, and KeyboardInterrupt on Ctrl-C after a whole number of steps
+    /// (`steps` says how many were taken).
     #[pyo3(signature = (n = 1))]
-    fn step(&self, py: Python<'_>, n: u64) -> PyResult<()> {
-        self.with(py, |s| s.advance(n).and_then(|()| s.sync()))
-            .map_err(|e| step_error(py, e, self.integrator))
+    fn step(&self, py: Python<'_>, n: i64) -> PyResult<()> {
+        // In chunks that grow to ~CHUNK of work, the signals checked between them: no thread
+        // of its own (as `interruptible` takes), since `step(1)` in a loop must stay cheap.
+        // Stepping in chunks is stepping: the solvers advance one step at a time.
+        const CHUNK: Duration = Duration::from_millis(20);
+        let mut left = count("n", n, 0)? as u64;
+        let halted = self.with(py, |s| -> Result<(), Halt> {
+            let mut chunk = 1u64;
+            while left > 0 {
+                let k = chunk.min(left);
+                let started = Instant::now();
+                s.advance(k).map_err(Halt::Step)?;
+                left -= k;
+                if left > 0 {
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        let _ = s.sync();
+                        return Err(Halt::Signal(e));
+                    }
+                    if started.elapsed() < CHUNK {
+                        chunk = chunk.saturating_mul(2);
+                    }
+                }
+            }
+            s.sync().map_err(Halt::Step)
+        });
+        match halted {
+            Ok(()) => Ok(()),
+            Err(Halt::Step(e)) => Err(step_error(py, e, self.integrator)),
+            Err(Halt::Signal(e)) => Err(e),
+        }
     }
 
     /// Positions, [N, 3] float64, m: a snapshot (later steps do not change it).
@@ -136,15 +170,40 @@ impl Simulation {
         let v = velocities
             .map(|v| vectors_from(v, self.particles, "velocities"))
             .transpose()?;
+        for (what, values) in [("positions", Some(&x)), ("velocities", v.as_ref())] {
+            if let Some(i) = values.and_then(|v| v.iter().position(|p| !p.is_finite())) {
+                return Err(PyValueError::new_err(format!(
+                    "{what}[{i}] is not finite: {}",
+                    values.expect("found in it")[i]
+                )));
+            }
+        }
+        // Finite values whose energy is not (|x| near 1e300 in a spring's square) would make
+        // the next step's instability look like dt's fault: refused here, the state kept.
         self.with(py, |s| {
-            let mut state = s.state()?.clone();
+            let old = s.state()?.clone();
+            let mut state = old.clone();
             state.x = x;
             if let Some(v) = v {
                 state.v = v;
             }
-            s.set_state(&state)
+            s.set_state(&state)?;
+            let e = s.energies()?;
+            if e.total().is_finite() {
+                return Ok(Ok(()));
+            }
+            s.set_state(&old)?;
+            Ok(Err(PyValueError::new_err(format!(
+                "the state's energy is not a finite number (kinetic {:e} J, gravitational {:e} \
+                 J, elastic {:e} J): positions or velocities too large",
+                e.kinetic, e.gravitational, e.elastic
+            ))))
         })
-        .map_err(|e| step_error(py, e, self.integrator))
+        .map_err(|e| match e {
+            // The GPU refuses values past f32's range: the caller's values, not the device.
+            StepError::Invalid(why) => PyValueError::new_err(why),
+            e => step_error(py, e, self.integrator),
+        })?
     }
 
     /// Energies now, J: {"kinetic", "gravitational", "elastic", "total"}.

@@ -3,13 +3,14 @@
 
 use std::path::PathBuf;
 
-use pyo3::exceptions::PyTypeError;
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use softbody::sweep::{Job, Manifest, Options, Record, Sweep};
 use softbody::toml;
 
 use crate::errors::{OutputError, SceneError, SoftbodyError, scene_error};
+use crate::interrupt::{count_or_none, interruptible};
 use crate::scene::to_toml;
 
 /// A sweep argument: a path to a sweep file, or a dict laid out as one (its paths relative to
@@ -31,6 +32,9 @@ fn sweep_of(sweep: &Bound<'_, PyAny>) -> PyResult<Sweep> {
 }
 
 fn sweep_error(e: softbody::sweep::SweepError) -> PyErr {
+    if let softbody::sweep::SweepError::Options(why) = e {
+        return PyValueError::new_err(why);
+    }
     if e.is_bad_input() {
         SceneError::new_err(e.to_string())
     } else {
@@ -52,16 +56,20 @@ pub(crate) fn sweep_local<'py>(
     py: Python<'py>,
     sweep: &Bound<'py, PyAny>,
     out: PathBuf,
-    workers: Option<usize>,
-    task_index: Option<usize>,
-    task_count: Option<usize>,
+    workers: Option<i64>,
+    task_index: Option<i64>,
+    task_count: Option<i64>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let sweep = sweep_of(sweep)?;
-    let options = Options {
-        workers,
-        task: task_index.map(|i| (i, task_count.unwrap_or(1))),
-    };
+    let (workers, task_index, task_count) = (
+        count_or_none("workers", workers, 1)?,
+        count_or_none("task_index", task_index, 0)?,
+        count_or_none("task_count", task_count, 1)?,
+    );
+    if task_count.is_some() && task_index.is_none() {
+        return Err(PyValueError::new_err("task_count takes a task_index"));
+    }
     let report = |done: usize, total: usize| {
         if let Some(cb) = &progress {
             Python::attach(|py| {
@@ -71,8 +79,15 @@ pub(crate) fn sweep_local<'py>(
             });
         }
     };
-    py.detach(|| softbody::sweep::run_local(&sweep, &out, &options, &report))
-        .map_err(sweep_error)?;
+    interruptible(py, |stop| {
+        let options = Options {
+            workers,
+            task: task_index.map(|i| (i, task_count.unwrap_or(1))),
+            stop: Some(stop),
+        };
+        softbody::sweep::run_local(&sweep, &out, &options, &report)
+    })?
+    .map_err(sweep_error)?;
     // The records of the manifest as written (one per run that has one).
     let records = py
         .detach(|| softbody::sweep::read_manifest(&sweep, &out))

@@ -11,6 +11,7 @@ use softbody::run::RunError;
 use softbody::service::{self, ExitClass, Hooks, RunFailure, RunRequest, SceneSource};
 
 use crate::errors::{DeviceError, SceneError, SoftbodyError, open_error, step_error};
+use crate::interrupt::{count_or_none, interruptible};
 use crate::scene::scene_of;
 use crate::simulation::{backend_of, pairs_array};
 
@@ -98,17 +99,19 @@ impl Collect {
 }
 
 /// Runs `scene` to its end and returns its frames as a dict (the GIL released meanwhile).
-/// An instability raises UnstableError with the frames before it as `.trajectory`.
+/// An instability raises UnstableError with the frames before it as `.trajectory`; Ctrl-C
+/// raises KeyboardInterrupt.
 #[pyfunction]
 #[pyo3(signature = (scene, backend = "cpu", threads = None))]
 pub(crate) fn run<'py>(
     py: Python<'py>,
     scene: &Bound<'py, PyAny>,
     backend: &str,
-    threads: Option<usize>,
+    threads: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let scene = scene_of(scene)?;
     let backend = backend_of(backend)?;
+    let threads = count_or_none("threads", threads, 1)?;
     let s = scene.get();
     let request = RunRequest {
         scene: SceneSource::Text {
@@ -119,14 +122,15 @@ pub(crate) fn run<'py>(
         threads,
         ..RunRequest::file(&s.origin)
     };
-    let (outcome, collect) = py.detach(|| {
+    let (outcome, collect) = interruptible(py, |stop| {
         let mut collect = Collect::default();
         let hooks = Hooks {
             observer: Some(&mut collect),
+            stop: Some(stop),
             ..Hooks::default()
         };
         (service::execute(&request, hooks), collect)
-    });
+    })?;
     match outcome.result {
         Ok(_) => collect.into_dict(py, &s.text),
         Err(RunFailure::Open(open)) => Err(open_error(open)),

@@ -155,7 +155,30 @@ pub fn from_toml(file: &Path, text: &str, err: &toml::de::Error) -> SceneError {
         .span()
         .map(|s| key_at(text, s.start))
         .unwrap_or_default();
-    diagnostic(file, text, err.span(), key, err.message().trim().to_owned())
+    diagnostic(file, text, err.span(), key, plain(err.message().trim()))
+}
+
+/// A serde message in the scene file's terms: `expected f64` is Rust's name for a number.
+fn plain(message: &str) -> String {
+    const TERMS: [(&str, &str); 12] = [
+        ("expected f64", "expected a number"),
+        ("expected f32", "expected a number"),
+        ("expected u8", "expected a whole number"),
+        ("expected u16", "expected a whole number"),
+        ("expected u32", "expected a whole number"),
+        ("expected u64", "expected a whole number"),
+        ("expected usize", "expected a whole number"),
+        ("expected i32", "expected a whole number"),
+        ("expected i64", "expected a whole number"),
+        ("expected a sequence", "expected a list"),
+        ("expected a map", "expected a table"),
+        ("expected a boolean", "expected true or false"),
+    ];
+    let mut out = message.to_owned();
+    for (rust, words) in TERMS {
+        out = out.replace(rust, words);
+    }
+    out
 }
 
 fn diagnostic(

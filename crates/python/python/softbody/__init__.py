@@ -53,6 +53,11 @@ __all__ = [
     "sweep",
 ]
 
+def __dir__() -> List[str]:
+    # The package's names, not the modules it imports (numpy, os, dataclasses…).
+    return sorted(__all__ + ["__version__"])
+
+
 SceneSource = Union[Scene, str, "os.PathLike[str]", Mapping[str, Any]]
 
 
@@ -70,7 +75,7 @@ def load_scene(source: SceneSource, *, set: Optional[Mapping[str, Any]] = None) 
     raise TypeError("a scene is a path to a scene file, a dict, or a softbody.Scene")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class Trajectory:
     """Every frame of a run, and what the run was (the NPZ output's arrays, same names)."""
 
@@ -100,6 +105,15 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.time)
 
+    def __repr__(self) -> str:
+        # The arrays' shapes, not their values (NumPy would print kilobytes of them).
+        frames, particles = self.positions.shape[:2]
+        span = f"t = {self.time[0]:g} to {self.time[-1]:g} s" if frames else "no frames"
+        return (
+            f"<softbody.Trajectory {frames} frames of {particles} particles, {span}, "
+            f"{self.integrator} at dt = {self.dt:g} s on {self.backend}>"
+        )
+
 
 def _trajectory(d: Dict[str, Any]) -> Trajectory:
     return Trajectory(**d)
@@ -111,12 +125,30 @@ def run(
     threads: Optional[int] = None,
     *,
     set: Optional[Mapping[str, Any]] = None,
+    integrator: Optional[str] = None,
+    dt: Optional[float] = None,
+    duration: Optional[float] = None,
+    frame_rate: Optional[float] = None,
 ) -> Trajectory:
     """Runs the scene to its end (its duration and frame rate) and returns every frame. The
     GIL is released while it runs. An instability raises UnstableError, whose `.trajectory`
-    holds the frames before it."""
-    if set:
-        scene = load_scene(scene, set=set)
+    holds the frames before it; Ctrl-C raises KeyboardInterrupt.
+
+    `integrator`, `dt`, `duration` and `frame_rate` are the command line's ``--integrator``,
+    ``--dt``, ``--duration`` and ``--fps``: the settings ``simulation.<name>``, applied after
+    `set`."""
+    options = {
+        f"simulation.{key}": value
+        for key, value in (
+            ("integrator", integrator),
+            ("dt", dt),
+            ("duration", duration),
+            ("frame_rate", frame_rate),
+        )
+        if value is not None
+    }
+    if set or options:
+        scene = load_scene(scene, set={**(set or {}), **options})
     try:
         return _trajectory(_native.run(scene, backend, threads))
     except UnstableError as e:
