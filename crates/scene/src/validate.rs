@@ -406,29 +406,7 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
             finite3(at.key("origin"), h.origin)?;
         }
         TerrainShape::Mesh(m) => {
-            if m.triangles.is_empty() {
-                return Err(Invalid::new(
-                    at.key("path"),
-                    format!("{} holds no triangles", m.path.display()),
-                ));
-            }
-            if let Some(v) = m.vertices.iter().position(|v| !v.is_finite()) {
-                return Err(Invalid::new(
-                    at.key("path"),
-                    format!("{}: vertex {v} is not finite", m.path.display()),
-                ));
-            }
-            let n = m.vertices.len();
-            if let Some(t) = m
-                .triangles
-                .iter()
-                .position(|t| t.iter().any(|&i| i as usize >= n))
-            {
-                return Err(Invalid::new(
-                    at.key("path"),
-                    format!("{}: triangle {t} names a missing vertex", m.path.display()),
-                ));
-            }
+            crate::voxel::check_mesh(m).map_err(|e| Invalid::new(at.key("path"), e))?;
         }
     }
     Ok(())
