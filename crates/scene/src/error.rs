@@ -59,6 +59,23 @@ impl fmt::Display for KeyPath {
     }
 }
 
+/// A number as messages write it: the shortest text that reads back to it, in exponent form
+/// when it is very large or very small (`1e300`, not 301 digits; `2.5e-7`), else plainly
+/// (`0.25`, `2000`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl fmt::Display for Num {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let x = self.0;
+        if x == 0.0 || !x.is_finite() || (1e-5..1e16).contains(&x.abs()) {
+            write!(f, "{x}")
+        } else {
+            write!(f, "{x:e}")
+        }
+    }
+}
+
 /// A located problem in a scene file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Diagnostic {

@@ -38,7 +38,7 @@ mod winding;
 use std::fmt;
 use std::str::FromStr;
 
-pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
+pub use error::{Diagnostic, Invalid, KeyPath, Num, SceneError};
 pub use format::FrictionModel;
 pub use format::SurfaceKind;
 pub use implicit::Preconditioner;

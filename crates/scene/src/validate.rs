@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 
-use crate::error::{Invalid, KeyPath};
+use crate::error::{Invalid, KeyPath, Num};
 use crate::model;
 use crate::scene::{BodyShape, MeshBody, MeshMass, Scene, SpringParams, TerrainShape};
 
@@ -18,7 +18,7 @@ fn finite(at: KeyPath, x: f64) -> Check {
     } else {
         Err(Invalid::new(
             at,
-            format!("must be a finite number, not {x}"),
+            format!("must be a finite number, not {}", Num(x)),
         ))
     }
 }
@@ -37,7 +37,29 @@ pub(crate) fn positive(at: KeyPath, x: f64) -> Check {
     } else {
         Err(Invalid::new(
             at,
-            format!("must be greater than zero, not {x}"),
+            format!("must be greater than zero, not {}", Num(x)),
+        ))
+    }
+}
+
+/// A size of terrain that its distance queries divide by and measure against coordinates
+/// near `center`: positive, with a finite reciprocal (not subnormal), and more than the
+/// rounding of those coordinates (four units in the last place of the largest), below which
+/// every point near it rounds onto or off the surface alike.
+fn resolvable(at: KeyPath, x: f64, center: DVec3) -> Check {
+    positive(at.clone(), x)?;
+    let least = f64::MIN_POSITIVE.max(4.0 * f64::EPSILON * center.abs().max_element());
+    if x >= least {
+        Ok(())
+    } else {
+        Err(Invalid::new(
+            at,
+            format!(
+                "{} m is below what f64 resolves here: at least {} m (a finite reciprocal, and \
+                 more than the rounding of the centre's coordinates)",
+                Num(x),
+                Num(least)
+            ),
         ))
     }
 }
@@ -51,9 +73,11 @@ fn enclosed_is_held(at: KeyPath, m: &MeshBody) -> Check {
         Some(v) if v > lattice * (1.0 + 1e-9) => Err(Invalid::new(
             at,
             format!(
-                "the mesh encloses {v} m³, more than the {lattice} m³ of the cells that hold \
-                 it: parts of it are wound more than once (nested or overlapping shells); give \
-                 `mass` instead"
+                "the mesh encloses {} m³, more than the {} m³ of the cells that hold it: parts \
+                 of it are wound more than once (nested or overlapping shells); give `mass` \
+                 instead",
+                Num(v),
+                Num(lattice)
             ),
         )),
         _ => Ok(()),
@@ -65,7 +89,10 @@ fn non_negative(at: KeyPath, x: f64) -> Check {
     if x >= 0.0 {
         Ok(())
     } else {
-        Err(Invalid::new(at, format!("must not be negative, not {x}")))
+        Err(Invalid::new(
+            at,
+            format!("must not be negative, not {}", Num(x)),
+        ))
     }
 }
 
@@ -74,7 +101,10 @@ fn unit_interval(at: KeyPath, x: f64) -> Check {
     if (0.0..=1.0).contains(&x) {
         Ok(())
     } else {
-        Err(Invalid::new(at, format!("must lie in [0, 1], not {x}")))
+        Err(Invalid::new(
+            at,
+            format!("must lie in [0, 1], not {}", Num(x)),
+        ))
     }
 }
 
@@ -99,7 +129,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             s.key("duration"),
             format!(
                 "{} / dt = {:e} steps is more than can be run",
-                sim.duration,
+                Num(sim.duration),
                 sim.duration / sim.dt
             ),
         ));
@@ -109,9 +139,9 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             s.key("frame_rate"),
             format!(
                 "{} frames/s asks for more than one frame per step of dt = {} s (at most {})",
-                sim.frame_rate,
-                sim.dt,
-                1.0 / sim.dt
+                Num(sim.frame_rate),
+                Num(sim.dt),
+                Num(1.0 / sim.dt)
             ),
         ));
     }
@@ -140,9 +170,10 @@ pub(crate) fn scene(scene: &Scene) -> Check {
                 return Err(Invalid::new(
                     at.key("contact_radius"),
                     format!(
-                        "{r} m is more than the mesh body's cell, {} m (the default is half of \
+                        "{} m is more than the mesh body's cell, {} m (the default is half of \
                          it)",
-                        m.voxels.cell()
+                        Num(r),
+                        Num(m.voxels.cell())
                     ),
                 ));
             }
@@ -152,9 +183,10 @@ pub(crate) fn scene(scene: &Scene) -> Check {
                 return Err(Invalid::new(
                     at.key("contact_radius"),
                     format!(
-                        "{r} m is more than the cuboid's smallest lattice spacing, {} m (the \
+                        "{} m is more than the cuboid's smallest lattice spacing, {} m (the \
                          default is half of it)",
-                        c.smallest_spacing()
+                        Num(r),
+                        Num(c.smallest_spacing())
                     ),
                 ));
             }
@@ -374,12 +406,16 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
             finite3(at.key("center"), *center)?;
             finite3(at.key("rotation"), *rotation)?;
             for axis in 0..3 {
-                positive(at.key("half_extents").index(axis), half_extents[axis])?;
+                resolvable(
+                    at.key("half_extents").index(axis),
+                    half_extents[axis],
+                    *center,
+                )?;
             }
         }
         TerrainShape::Sphere { center, radius } | TerrainShape::Bowl { center, radius } => {
             finite3(at.key("center"), *center)?;
-            positive(at.key("radius"), *radius)?;
+            resolvable(at.key("radius"), *radius, *center)?;
         }
         TerrainShape::Heightfield(h) => {
             let rows = h.heights.len();
@@ -401,13 +437,89 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
                     finite(at.key("heights").index(r).index(c), y)?;
                 }
             }
-            positive(at.key("cell_size").index(0), h.cell_size[0])?;
-            positive(at.key("cell_size").index(1), h.cell_size[1])?;
             finite3(at.key("origin"), h.origin)?;
+            resolvable(at.key("cell_size").index(0), h.cell_size[0], h.origin)?;
+            resolvable(at.key("cell_size").index(1), h.cell_size[1], h.origin)?;
         }
         TerrainShape::Mesh(m) => {
             crate::voxel::check_mesh(m).map_err(|e| Invalid::new(at.key("path"), e))?;
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::Scene;
+
+    /// The located error of the scene of `[simulation]` and `rest` (TOML), as `key: message`.
+    fn error(rest: &str) -> String {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("flat.obj"),
+            "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 0 0\nf 1 2 3\nf 1 4 2\n",
+        )
+        .unwrap();
+        let text = format!(
+            "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nkind = \"cuboid\"\n\
+             size = [1.0, 1.0, 1.0]\nresolution = [2, 2, 2]\nmass = 1.0\n{rest}"
+        );
+        let e = Scene::from_toml(&text, &dir.path().join("s.toml")).unwrap_err();
+        let d = e.diagnostic().unwrap();
+        format!("{}: {}", d.key, d.message)
+    }
+
+    /// A mesh whose every triangle is degenerate (corners on a line, or two coinciding) has no
+    /// surface to touch; a bowl of a subnormal radius has none f64 can resolve.
+    #[test]
+    fn terrain_without_a_resolvable_surface_is_refused() {
+        let e = error("[[terrain]]\nkind = \"mesh\"\npath = \"flat.obj\"\n");
+        assert!(e.starts_with("terrain[0].path: "), "{e}");
+        assert!(
+            e.ends_with(
+                "flat.obj: every triangle has zero area (its corners on one line), or one too \
+                 small or too large for f64: the mesh has no surface"
+            ),
+            "{e}"
+        );
+        let why = "(a finite reciprocal, and more than the rounding of the centre's coordinates)";
+        assert_eq!(
+            error("[[terrain]]\nkind = \"bowl\"\nradius = 5e-324\n"),
+            format!(
+                "terrain[0].radius: 5e-324 m is below what f64 resolves here: at least \
+                 2.2250738585072014e-308 m {why}"
+            )
+        );
+        // Coordinates near 1e12 m are rounded to 1.2e-4 m.
+        assert_eq!(
+            error("[[terrain]]\nkind = \"sphere\"\ncenter = [1e12, 0.0, 0.0]\nradius = 1e-4\n"),
+            format!(
+                "terrain[0].radius: 0.0001 m is below what f64 resolves here: at least \
+                 0.0008881784197001252 m {why}"
+            )
+        );
+        assert_eq!(
+            error("[[terrain]]\nkind = \"box\"\nhalf_extents = [1.0, 1e-310, 1.0]\n"),
+            format!(
+                "terrain[0].half_extents[1]: 1e-310 m is below what f64 resolves here: at least \
+                 2.2250738585072014e-308 m {why}"
+            )
+        );
+    }
+
+    /// Very large and very small values are written in exponent form, not as 300 digits.
+    #[test]
+    fn values_in_messages_are_short() {
+        assert_eq!(
+            error("contact_radius = 1e300\n"),
+            "body[0].contact_radius: 1e300 m is more than the cuboid's smallest lattice spacing, \
+             1 m (the default is half of it)"
+        );
+        assert_eq!(
+            error(
+                "[[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\nfriction = -2.5e-300\n"
+            ),
+            "terrain[0].friction: must not be negative, not -2.5e-300"
+        );
+    }
 }

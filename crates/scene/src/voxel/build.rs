@@ -9,6 +9,7 @@ use super::{
     BYTES_PER_LATTICE_POINT, CLEARLY_INSIDE, LatticeSize, UNDECIDED_SHARE, VoxelError, VoxelKey,
     Voxels, check_mesh, enclosed_volume, is_closed, triangle_meets_box, winding_number,
 };
+use crate::error::Num;
 use crate::scene::TriangleMesh;
 use crate::topology::{self, SpringKind};
 use crate::winding::WindingTree;
@@ -87,9 +88,9 @@ impl Grid {
                 format!(
                     "a lattice of {} × {} × {} cells ({points:.3e} points) is more than the {} \
                      particles supported",
-                    n[0],
-                    n[1],
-                    n[2],
+                    Num(n[0]),
+                    Num(n[1]),
+                    Num(n[2]),
                     model::MAX_PARTICLES
                 ),
             );
@@ -304,7 +305,7 @@ impl Grid {
                     n[0],
                     n[1],
                     n[2],
-                    self.h,
+                    Num(self.h),
                     mesh.path.display()
                 ),
             );

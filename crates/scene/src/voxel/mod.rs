@@ -188,7 +188,8 @@ fn is_closed(mesh: &TriangleMesh) -> bool {
     balance.values().all(|&b| b == 0)
 }
 
-/// Checks what the voxelisation assumes of a mesh: triangles, finite vertices, valid indices.
+/// Checks what the voxelisation and the terrain's queries assume of a mesh: triangles, finite
+/// vertices, valid indices, and a triangle with a normal.
 pub fn check_mesh(mesh: &TriangleMesh) -> Result<(), String> {
     let name = mesh.path.display();
     if mesh.triangles.is_empty() {
@@ -204,6 +205,19 @@ pub fn check_mesh(mesh: &TriangleMesh) -> Result<(), String> {
         .position(|t| t.iter().any(|&i| i as usize >= n))
     {
         return Err(format!("{name}: triangle {t} names a missing vertex"));
+    }
+    // A normal is the cross product over its length: a length that is zero, subnormal or
+    // infinite gives none.
+    let has_area = |t: &[u32; 3]| {
+        let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
+        let n = (b - a).cross(c - a).length();
+        n.is_finite() && n >= f64::MIN_POSITIVE
+    };
+    if !mesh.triangles.iter().any(has_area) {
+        return Err(format!(
+            "{name}: every triangle has zero area (its corners on one line), or one too small \
+             or too large for f64: the mesh has no surface"
+        ));
     }
     Ok(())
 }
