@@ -24,6 +24,7 @@
 pub mod error;
 pub mod format;
 pub mod implicit;
+mod initial_energy;
 pub mod memory;
 pub mod mesh;
 pub mod model;

@@ -262,6 +262,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         non_negative(at.key("friction"), t.friction)?;
         terrain_values(&at, &t.shape)?;
     }
+    crate::initial_energy::check(scene)?;
     // Last, so that the values of a scene under construction (terrain alone) are checked too.
     if scene.bodies.is_empty() {
         return Err(Invalid::new(
@@ -452,18 +453,24 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
 mod tests {
     use crate::Scene;
 
-    /// The located error of the scene of `[simulation]` and `rest` (TOML), as `key: message`.
+    /// A cuboid body's keys but its mass.
+    const CUBE: &str =
+        "[[body]]\nkind = \"cuboid\"\nsize = [1.0, 1.0, 1.0]\nresolution = [2, 2, 2]\n";
+
+    /// The located error of a cube of 1 kg with `rest` (TOML) after its keys, as `key: message`.
     fn error(rest: &str) -> String {
+        error_of("", &format!("{CUBE}mass = 1.0\n{rest}"))
+    }
+
+    /// The located error of the scene of `[simulation]` with `sim` and the tables of `rest`.
+    fn error_of(sim: &str, rest: &str) -> String {
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(
             dir.path().join("flat.obj"),
             "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 0 0\nf 1 2 3\nf 1 4 2\n",
         )
         .unwrap();
-        let text = format!(
-            "[simulation]\ndt = 0.001\nduration = 0.01\n\n[[body]]\nkind = \"cuboid\"\n\
-             size = [1.0, 1.0, 1.0]\nresolution = [2, 2, 2]\nmass = 1.0\n{rest}"
-        );
+        let text = format!("[simulation]\ndt = 0.001\nduration = 0.01\n{sim}\n{rest}");
         let e = Scene::from_toml(&text, &dir.path().join("s.toml")).unwrap_err();
         let d = e.diagnostic().unwrap();
         format!("{}: {}", d.key, d.message)
@@ -520,6 +527,68 @@ mod tests {
                 "[[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\nfriction = -2.5e-300\n"
             ),
             "terrain[0].friction: must not be negative, not -2.5e-300"
+        );
+    }
+
+    /// A body whose initial energy overflows f64 is refused naming the body and, where one
+    /// value alone overflows it, that value; bodies whose energies add up beyond f64's range
+    /// are refused naming them all.
+    #[test]
+    fn an_initial_energy_beyond_f64_names_the_body_and_the_value() {
+        assert_eq!(
+            error("velocity = [1e200, 0.0, 0.0]\n"),
+            "body[0].velocity: the initial kinetic energy is not a finite number: the speed \
+             1e200 m/s squared is beyond f64's range"
+        );
+        assert_eq!(
+            error_of(
+                "",
+                &format!("{CUBE}velocity = [1e150, 0.0, 0.0]\nmass = 1e300\n")
+            ),
+            "body[0]: the initial kinetic energy ½·m·|v|² is not a finite number: 1e300 kg at \
+             1e150 m/s is beyond f64's range"
+        );
+        assert_eq!(
+            error_of(
+                "",
+                &format!("{CUBE}center = [0.0, 10.0, 0.0]\nmass = 1e308\n")
+            ),
+            "body[0]: the initial gravitational energy −m·g·x is not a finite number: 1e308 kg \
+             at g·x = -98.10000000000001 J/kg is beyond f64's range"
+        );
+        assert_eq!(
+            error_of(
+                "gravity = [0.0, -1e300, 0.0]",
+                &format!("{CUBE}center = [0.0, 1e10, 0.0]\nmass = 1.0\n")
+            ),
+            "simulation.gravity: the initial gravitational energy of body[0] is not a finite \
+             number: |g| = 1e300 m/s² times its centre of mass, 10000000000 m from the origin, is \
+             beyond f64's range"
+        );
+        assert_eq!(
+            error("center = [0.0, 1e308, 0.0]\n"),
+            "body[0].center: the initial gravitational energy is not a finite number: its \
+             centre of mass, 1e308 m from the origin, times |g| = 9.81 m/s² is beyond f64's range"
+        );
+        let pair = "[[body]]\nkind = \"particles\"\npositions = [[0.0, 0.0, 0.0], [1e150, 0.0, 0.0]]\n\
+                    masses = [1.0, 1.0]\nsprings = [{ a = 0, b = 1, stiffness = 1e300, rest = 1.0 }]\n";
+        assert_eq!(
+            error_of("gravity = [0.0, 0.0, 0.0]", pair),
+            "body[0].springs[0]: the initial elastic energy is not a finite number: ½·k·(|d| − r)² \
+             of a spring of stiffness 1e300 N/m stretched by 1e150 m is beyond f64's range"
+        );
+        assert_eq!(
+            error_of("", &pair.replace("1e150", "1e200")),
+            "body[0].springs[0]: the initial elastic energy is not a finite number: the \
+             spring's length, 1e200 m, squared is beyond f64's range"
+        );
+        // Each 7.5e307 J: finite alone, not together.
+        let fast = format!("{CUBE}velocity = [1e154, 0.0, 0.0]\nmass = 1.5\n");
+        assert_eq!(
+            error_of("gravity = [0.0, 0.0, 0.0]", &format!("{fast}{fast}{fast}")),
+            "(document): the scene's initial energy is not a finite number: the bodies' \
+             energies, 7.5e307 J (body[0]), 7.5e307 J (body[1]), 7.5e307 J (body[2]), add up \
+             beyond f64's range"
         );
     }
 }
