@@ -50,12 +50,16 @@ fn body_energy(i: usize, body: &Body, g: DVec3) -> Result<f64, Invalid> {
     let (kinetic, gravitational, elastic) = match &body.shape {
         BodyShape::Particles(p) => {
             let (mut kinetic, mut gravitational, mut elastic) = (0.0, 0.0, 0.0);
+            // Validated: every pinned index names a particle.
+            let mut pinned = vec![false; p.positions.len()];
+            for &k in &body.pinned {
+                pinned[k as usize] = true;
+            }
             for (k, ((&x, &v), &m)) in (p.positions.iter().zip(&p.velocities))
                 .zip(&p.masses)
                 .enumerate()
             {
-                let moving = !body.pinned.contains(&(k as u32));
-                if moving {
+                if !pinned[k] {
                     kinetic += kinetic_of(&at.key("velocities").index(k), &at, m, v)?;
                 }
                 let particle = (at.key("positions").index(k), "its particle");
