@@ -220,6 +220,13 @@ impl FromStr for Setting {
                 "`{s}` is not KEY=VALUE (e.g. body[0].structural.stiffness=5000)"
             ));
         };
+        // Parsed as `v = VALUE`, a second line would be another key, dropped with the table.
+        if value.contains(['\n', '\r']) {
+            return Err(format!(
+                "the value of `{}` holds a line break: a value is one line of TOML",
+                key.trim()
+            ));
+        }
         let value = value.trim();
         let value = format!("v = {value}")
             .parse::<toml::Table>()
@@ -649,6 +656,24 @@ friction = 0.3
         ] {
             let e = bad.parse::<Setting>().unwrap_err();
             assert!(e.contains("is not"), "{bad}: {e}");
+        }
+    }
+
+    /// A value is one line: text after a line break would be dropped or taken for more keys.
+    #[test]
+    fn a_value_with_a_line_break_is_refused() {
+        for (bad, key) in [
+            ("body[0].mass=2\n3", "body[0].mass"),
+            ("body[0].mass=2\nsize = [1, 1, 1]", "body[0].mass"),
+            ("a=1\r\n", "a"),
+        ] {
+            assert_eq!(
+                bad.parse::<Setting>(),
+                Err(format!(
+                    "the value of `{key}` holds a line break: a value is one line of TOML"
+                )),
+                "{bad:?}"
+            );
         }
     }
 

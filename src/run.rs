@@ -9,7 +9,9 @@
 //! diverging integrator; and at the first frame whose energy is not a finite number (it
 //! overflowed f64), so that no frame records a non-number. Either way every frame before it has
 //! been written. A scene whose initial energy already overflows (velocities of 1e200 m/s,
-//! gravity of 1e308 m/s²) is refused before anything is written ([`RunError::Overflow`]).
+//! gravity of 1e308 m/s²) is refused before anything is written: by validation, which names the
+//! body, or, for a total within rounding of f64's largest value that the solver's order of
+//! summation overflows, here ([`RunError::Overflow`]).
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -38,7 +40,8 @@ pub enum RunError {
     #[error(
         "the initial energy is not a finite number (kinetic {} J, gravitational {} J, elastic \
          {} J): the scene's velocities, masses, gravity or positions are too large to simulate",
-        .0.kinetic, .0.gravitational, .0.elastic
+        softbody_scene::Num(.0.kinetic), softbody_scene::Num(.0.gravitational),
+        softbody_scene::Num(.0.elastic)
     )]
     Overflow(Energies),
     /// The output's header does not fit in the memory left: its spring arrays, for a sink

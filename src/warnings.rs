@@ -8,7 +8,7 @@ use std::fmt;
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_cpu::stable_step::stable_dt_estimate;
-use softbody_scene::{Integrator, Model};
+use softbody_scene::{Integrator, Model, TerrainShape};
 use softbody_terrain::Surface;
 
 /// Depth below which a particle counts as inside a terrain shape, metres: a body placed
@@ -31,6 +31,9 @@ pub enum Warning {
         of: u32,
         /// The deepest of them, metres below the surface.
         depth: f64,
+        /// Whether the shape is a mesh: one that holds nearly every particle is likely wound
+        /// the wrong way round.
+        mesh: bool,
     },
     /// An explicit integrator's dt is above the estimate of the largest stable step
     /// ([`stable_dt_estimate`], from the stiffest mode of the springs).
@@ -51,12 +54,26 @@ impl fmt::Display for Warning {
                 inside,
                 of,
                 depth,
-            } => write!(
-                f,
-                "body `{body}` starts with {inside} of its {of} particles inside terrain[{terrain}] \
-                 (up to {depth:.3e} m deep): contact pushes them out in the first steps, adding \
-                 energy the scene did not have"
-            ),
+                mesh,
+            } => {
+                write!(
+                    f,
+                    "body `{body}` starts with {inside} of its {of} particles inside \
+                     terrain[{terrain}] (up to {depth:.3e} m deep): contact pushes them out in \
+                     the first steps, adding energy the scene did not have"
+                )?;
+                if *mesh && nearly_all(*inside, *of) {
+                    write!(
+                        f,
+                        "; so many inside a mesh suggest it is wound the wrong way round (its \
+                         faces' normals pointing into the solid, so that the free side counts \
+                         as solid): reverse the corners of every face (in Blender, Mesh ▸ \
+                         Normals ▸ Flip) so that they run counter-clockwise seen from the free \
+                         side"
+                    )?;
+                }
+                Ok(())
+            }
             Warning::StepAboveStable { dt, stable } => write!(
                 f,
                 "dt = {dt} s is above the estimated stable step of {stable:.3e} s for the \
@@ -65,6 +82,11 @@ impl fmt::Display for Warning {
             ),
         }
     }
+}
+
+/// Whether `inside` of `of` particles is nearly all of them (nine in ten or more).
+fn nearly_all(inside: usize, of: u32) -> bool {
+    10 * inside as u64 >= 9 * u64::from(of)
 }
 
 /// The warnings about running `model` from the positions `x` (its initial state's), bodies
@@ -119,6 +141,7 @@ pub fn inside_terrain(model: &Model, x: &[DVec3]) -> Vec<Warning> {
                     inside,
                     of: body.count,
                     depth,
+                    mesh: matches!(terrain.shape, TerrainShape::Mesh(_)),
                 });
             }
         }
@@ -160,6 +183,7 @@ mod tests {
                 inside,
                 of,
                 depth,
+                mesh: false,
             },
         ] = &found[..]
         else {
@@ -170,6 +194,58 @@ mod tests {
         assert!(found[0].to_string().starts_with(
             "body `cube` starts with 9 of its 27 particles inside terrain[0] (up to 2.500e-1 m deep)"
         ));
+    }
+
+    /// A ground patch wound the wrong way (normals down) holds every particle of a cube resting
+    /// above it: the warning says the winding is the likely cause and how to fix it. The
+    /// same patch wound right holds none.
+    #[test]
+    fn a_body_inside_a_mesh_wound_the_wrong_way_is_told_the_winding() {
+        let mut scene = scene(0.6, 1e-3);
+        let corners = [
+            [-2.0, 0.0, -2.0],
+            [2.0, 0.0, -2.0],
+            [2.0, 0.0, 2.0],
+            [-2.0, 0.0, 2.0],
+        ];
+        let patch = |triangles| softbody_scene::TriangleMesh {
+            path: "ground.obj".into(),
+            vertices: corners.map(DVec3::from).to_vec(),
+            triangles,
+        };
+        // Counter-clockwise seen from above is [0, 3, 2], [0, 2, 1].
+        scene.terrain[0].shape = TerrainShape::Mesh(patch(vec![[0, 1, 2], [0, 2, 3]]));
+        let (model, state) = Model::build(&scene);
+        let found = inside_terrain(&model, &state.x);
+        assert!(
+            matches!(
+                found[..],
+                [Warning::InsideTerrain {
+                    inside: 27,
+                    of: 27,
+                    mesh: true,
+                    ..
+                }]
+            ),
+            "{found:?}"
+        );
+        let said = found[0].to_string();
+        assert!(
+            said.starts_with("body `cube` starts with 27 of its 27 particles inside terrain[0]"),
+            "{said}"
+        );
+        assert!(
+            said.ends_with(
+                "; so many inside a mesh suggest it is wound the wrong way round (its faces' \
+                 normals pointing into the solid, so that the free side counts as solid): \
+                 reverse the corners of every face (in Blender, Mesh ▸ Normals ▸ Flip) so that \
+                 they run counter-clockwise seen from the free side"
+            ),
+            "{said}"
+        );
+        scene.terrain[0].shape = TerrainShape::Mesh(patch(vec![[0, 3, 2], [0, 2, 1]]));
+        let (model, state) = Model::build(&scene);
+        assert_eq!(inside_terrain(&model, &state.x), []);
     }
 
     #[test]

@@ -668,7 +668,10 @@ fn overflowing_energies_are_refused_or_stop_the_run_never_written_as_null() {
     let o = sb.run(&["run", "fast.toml", "--out", "fast.jsonl"]);
     o.expect_status(EXIT_BAD_INPUT);
     assert!(
-        o.stderr.contains("initial energy is not a finite number"),
+        o.stderr.contains(
+            "body[0].velocity: the initial kinetic energy is not a finite number: the speed \
+             1e200 m/s squared"
+        ),
         "{}",
         o.stderr
     );

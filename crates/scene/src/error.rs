@@ -59,6 +59,23 @@ impl fmt::Display for KeyPath {
     }
 }
 
+/// A number as messages write it: the shortest text that reads back to it, in exponent form
+/// when it is very large or very small (`1e300`, not 301 digits; `2.5e-7`), else plainly
+/// (`0.25`, `2000`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl fmt::Display for Num {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let x = self.0;
+        if x == 0.0 || !x.is_finite() || (1e-5..1e16).contains(&x.abs()) {
+            write!(f, "{x}")
+        } else {
+            write!(f, "{x:e}")
+        }
+    }
+}
+
 /// A located problem in a scene file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Diagnostic {
@@ -149,8 +166,25 @@ impl Invalid {
     }
 }
 
-/// Turns a serde/TOML error into a located [`SceneError`].
+/// Turns a serde/TOML error into a located [`SceneError`]; a file that is plainly something
+/// else than TOML (a mesh, a run's frames) is named for what it is instead.
 pub fn from_toml(file: &Path, text: &str, err: &toml::de::Error) -> SceneError {
+    if let Some(what) = not_toml(file, text) {
+        let see = "a scene is a TOML file (see docs/guide/scene-format.md)";
+        return diagnostic(
+            file,
+            text,
+            None,
+            KeyPath::root(),
+            format!(
+                "{what}; {see}{}",
+                match what {
+                    OBJ => ", which takes a mesh as a `kind = \"mesh\"` body's or terrain's `file`",
+                    _ => "",
+                }
+            ),
+        );
+    }
     let key = err
         .span()
         .map(|s| key_at(text, s.start))
@@ -179,6 +213,32 @@ fn plain(message: &str) -> String {
         out = out.replace(rust, words);
     }
     out
+}
+
+const OBJ: &str = "this looks like an OBJ file (a mesh)";
+
+/// What the text that did not parse as TOML looks like, when it is plainly another format: an
+/// OBJ file (`.obj`, or its first statement an OBJ one) or JSON (a run's frames).
+fn not_toml(file: &Path, text: &str) -> Option<&'static str> {
+    let first = text
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))?;
+    let word = first.split_whitespace().next().unwrap_or_default();
+    // `v = 1` is a TOML key, broken further on.
+    let obj_statement = ["v", "vt", "vn", "f", "o", "g", "s", "mtllib", "usemtl"].contains(&word)
+        && !first.contains('=');
+    if file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj"))
+        || obj_statement
+    {
+        Some(OBJ)
+    } else if first.starts_with('{') {
+        Some("this looks like JSON (a run's frames, JSON Lines)")
+    } else {
+        None
+    }
 }
 
 fn diagnostic(
@@ -283,4 +343,37 @@ fn path_to(node: &toml::Spanned<DeValue<'_>>, offset: usize, path: &mut Vec<Seg>
         _ => {}
     }
     node.span().contains(&offset)
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::Scene;
+
+    fn message(text: &str, name: &str) -> String {
+        let e = Scene::from_toml(text, name.as_ref()).unwrap_err();
+        e.diagnostic().unwrap().message.clone()
+    }
+
+    /// A mesh or a run's frames given where a scene goes are named for what they are.
+    #[test]
+    fn an_obj_or_a_frames_file_given_as_a_scene_is_named() {
+        let obj = "# Blender 4.1\nmtllib torus.mtl\no Torus\nv 0.28 0.0 0.0\nv 0.27 0.03 0.0\n";
+        let said = "this looks like an OBJ file (a mesh); a scene is a TOML file (see \
+                    docs/guide/scene-format.md), which takes a mesh as a `kind = \"mesh\"` \
+                    body's or terrain's `file`";
+        assert_eq!(message(obj, "torus.obj"), said);
+        assert_eq!(
+            message("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "scene.toml"),
+            said
+        );
+        let jsonl = "{\"format\":\"softbody-frames\",\"version\":1}\n{\"frame\":0}\n";
+        assert_eq!(
+            message(jsonl, "out/jelly.jsonl"),
+            "this looks like JSON (a run's frames, JSON Lines); a scene is a TOML file (see \
+             docs/guide/scene-format.md)"
+        );
+        // A broken TOML file is reported as such.
+        let broken = message("[simulation\n", "s.toml");
+        assert!(!broken.contains("looks like"), "{broken}");
+    }
 }

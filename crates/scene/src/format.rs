@@ -210,8 +210,9 @@ pub struct BodyFile {
     pub velocities: Option<Vec<[f64; 3]>>,
     pub masses: Option<Vec<f64>>,
     pub springs: Option<Vec<ExplicitSpringFile>>,
-    // mesh
+    // mesh (`file` or `path`: a mesh terrain's key too)
     pub file: Option<String>,
+    pub path: Option<String>,
     pub cell: Option<f64>,
     pub scale: Option<OneOrThree<f64>>,
     pub density: Option<f64>,
@@ -265,8 +266,9 @@ pub struct TerrainFile {
     pub heights: Option<Vec<Vec<f64>>>,
     pub cell_size: Option<[f64; 2]>,
     pub origin: Option<[f64; 3]>,
-    // mesh
+    // mesh (`path` or `file`: a mesh body's key too)
     pub path: Option<String>,
+    pub file: Option<String>,
 }
 
 /// The whole file.

@@ -24,6 +24,7 @@
 pub mod error;
 pub mod format;
 pub mod implicit;
+mod initial_energy;
 pub mod memory;
 pub mod mesh;
 pub mod model;
@@ -38,7 +39,7 @@ mod winding;
 use std::fmt;
 use std::str::FromStr;
 
-pub use error::{Diagnostic, Invalid, KeyPath, SceneError};
+pub use error::{Diagnostic, Invalid, KeyPath, Num, SceneError};
 pub use format::FrictionModel;
 pub use format::SurfaceKind;
 pub use implicit::Preconditioner;
@@ -100,15 +101,51 @@ impl fmt::Display for Integrator {
 impl FromStr for Integrator {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Integrator::ALL
-            .into_iter()
-            .find(|i| i.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<_> = Integrator::ALL.iter().map(|i| i.name()).collect();
-                format!(
-                    "unknown integrator `{s}`; expected one of {}",
-                    names.join(", ")
-                )
-            })
+        if let Some(i) = Integrator::ALL.into_iter().find(|i| i.name() == s) {
+            return Ok(i);
+        }
+        // One spelling everywhere (files, flags, output names): a near miss is answered, not
+        // taken.
+        let near = s.to_ascii_lowercase().replace('_', "-");
+        if let Some(i) = Integrator::ALL.into_iter().find(|i| i.name() == near) {
+            return Err(format!("unknown integrator `{s}`; did you mean `{i}`?"));
+        }
+        let names: Vec<_> = Integrator::ALL.iter().map(|i| i.name()).collect();
+        Err(format!(
+            "unknown integrator `{s}`; expected one of {}",
+            names.join(", ")
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Integrator;
+
+    /// Names are the files' spellings; one that differs in case or in `_` for `-` is answered
+    /// with the name it means.
+    #[test]
+    fn integrator_names_parse_and_near_misses_are_answered() {
+        assert_eq!("rk4".parse(), Ok(Integrator::Rk4));
+        assert_eq!("implicit-euler".parse(), Ok(Integrator::ImplicitEuler));
+        assert_eq!(
+            "RK4".parse::<Integrator>(),
+            Err("unknown integrator `RK4`; did you mean `rk4`?".to_owned())
+        );
+        assert_eq!(
+            "Symplectic_Euler".parse::<Integrator>(),
+            Err(
+                "unknown integrator `Symplectic_Euler`; did you mean `symplectic-euler`?"
+                    .to_owned()
+            )
+        );
+        assert_eq!(
+            "verlet".parse::<Integrator>(),
+            Err(
+                "unknown integrator `verlet`; expected one of explicit-euler, symplectic-euler, \
+                 midpoint, rk4, implicit-euler"
+                    .to_owned()
+            )
+        );
     }
 }

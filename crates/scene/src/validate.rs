@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 
-use crate::error::{Invalid, KeyPath};
+use crate::error::{Invalid, KeyPath, Num};
 use crate::model;
 use crate::scene::{BodyShape, MeshBody, MeshMass, Scene, SpringParams, TerrainShape};
 
@@ -18,7 +18,7 @@ fn finite(at: KeyPath, x: f64) -> Check {
     } else {
         Err(Invalid::new(
             at,
-            format!("must be a finite number, not {x}"),
+            format!("must be a finite number, not {}", Num(x)),
         ))
     }
 }
@@ -37,7 +37,29 @@ pub(crate) fn positive(at: KeyPath, x: f64) -> Check {
     } else {
         Err(Invalid::new(
             at,
-            format!("must be greater than zero, not {x}"),
+            format!("must be greater than zero, not {}", Num(x)),
+        ))
+    }
+}
+
+/// A size of terrain that its distance queries divide by and measure against coordinates
+/// near `center`: positive, with a finite reciprocal (not subnormal), and more than the
+/// rounding of those coordinates (four units in the last place of the largest), below which
+/// every point near it rounds onto or off the surface alike.
+fn resolvable(at: KeyPath, x: f64, center: DVec3) -> Check {
+    positive(at.clone(), x)?;
+    let least = f64::MIN_POSITIVE.max(4.0 * f64::EPSILON * center.abs().max_element());
+    if x >= least {
+        Ok(())
+    } else {
+        Err(Invalid::new(
+            at,
+            format!(
+                "{} m is below what f64 resolves here: at least {} m (a finite reciprocal, and \
+                 more than the rounding of the centre's coordinates)",
+                Num(x),
+                Num(least)
+            ),
         ))
     }
 }
@@ -51,9 +73,11 @@ fn enclosed_is_held(at: KeyPath, m: &MeshBody) -> Check {
         Some(v) if v > lattice * (1.0 + 1e-9) => Err(Invalid::new(
             at,
             format!(
-                "the mesh encloses {v} m³, more than the {lattice} m³ of the cells that hold \
-                 it: parts of it are wound more than once (nested or overlapping shells); give \
-                 `mass` instead"
+                "the mesh encloses {} m³, more than the {} m³ of the cells that hold it: parts \
+                 of it are wound more than once (nested or overlapping shells); give `mass` \
+                 instead",
+                Num(v),
+                Num(lattice)
             ),
         )),
         _ => Ok(()),
@@ -65,7 +89,10 @@ fn non_negative(at: KeyPath, x: f64) -> Check {
     if x >= 0.0 {
         Ok(())
     } else {
-        Err(Invalid::new(at, format!("must not be negative, not {x}")))
+        Err(Invalid::new(
+            at,
+            format!("must not be negative, not {}", Num(x)),
+        ))
     }
 }
 
@@ -74,7 +101,10 @@ fn unit_interval(at: KeyPath, x: f64) -> Check {
     if (0.0..=1.0).contains(&x) {
         Ok(())
     } else {
-        Err(Invalid::new(at, format!("must lie in [0, 1], not {x}")))
+        Err(Invalid::new(
+            at,
+            format!("must lie in [0, 1], not {}", Num(x)),
+        ))
     }
 }
 
@@ -99,7 +129,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             s.key("duration"),
             format!(
                 "{} / dt = {:e} steps is more than can be run",
-                sim.duration,
+                Num(sim.duration),
                 sim.duration / sim.dt
             ),
         ));
@@ -109,9 +139,9 @@ pub(crate) fn scene(scene: &Scene) -> Check {
             s.key("frame_rate"),
             format!(
                 "{} frames/s asks for more than one frame per step of dt = {} s (at most {})",
-                sim.frame_rate,
-                sim.dt,
-                1.0 / sim.dt
+                Num(sim.frame_rate),
+                Num(sim.dt),
+                Num(1.0 / sim.dt)
             ),
         ));
     }
@@ -140,9 +170,10 @@ pub(crate) fn scene(scene: &Scene) -> Check {
                 return Err(Invalid::new(
                     at.key("contact_radius"),
                     format!(
-                        "{r} m is more than the mesh body's cell, {} m (the default is half of \
+                        "{} m is more than the mesh body's cell, {} m (the default is half of \
                          it)",
-                        m.voxels.cell()
+                        Num(r),
+                        Num(m.voxels.cell())
                     ),
                 ));
             }
@@ -152,9 +183,10 @@ pub(crate) fn scene(scene: &Scene) -> Check {
                 return Err(Invalid::new(
                     at.key("contact_radius"),
                     format!(
-                        "{r} m is more than the cuboid's smallest lattice spacing, {} m (the \
+                        "{} m is more than the cuboid's smallest lattice spacing, {} m (the \
                          default is half of it)",
-                        c.smallest_spacing()
+                        Num(r),
+                        Num(c.smallest_spacing())
                     ),
                 ));
             }
@@ -230,6 +262,7 @@ pub(crate) fn scene(scene: &Scene) -> Check {
         non_negative(at.key("friction"), t.friction)?;
         terrain_values(&at, &t.shape)?;
     }
+    crate::initial_energy::check(scene)?;
     // Last, so that the values of a scene under construction (terrain alone) are checked too.
     if scene.bodies.is_empty() {
         return Err(Invalid::new(
@@ -374,12 +407,16 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
             finite3(at.key("center"), *center)?;
             finite3(at.key("rotation"), *rotation)?;
             for axis in 0..3 {
-                positive(at.key("half_extents").index(axis), half_extents[axis])?;
+                resolvable(
+                    at.key("half_extents").index(axis),
+                    half_extents[axis],
+                    *center,
+                )?;
             }
         }
         TerrainShape::Sphere { center, radius } | TerrainShape::Bowl { center, radius } => {
             finite3(at.key("center"), *center)?;
-            positive(at.key("radius"), *radius)?;
+            resolvable(at.key("radius"), *radius, *center)?;
         }
         TerrainShape::Heightfield(h) => {
             let rows = h.heights.len();
@@ -401,35 +438,157 @@ fn terrain_values(at: &KeyPath, shape: &TerrainShape) -> Check {
                     finite(at.key("heights").index(r).index(c), y)?;
                 }
             }
-            positive(at.key("cell_size").index(0), h.cell_size[0])?;
-            positive(at.key("cell_size").index(1), h.cell_size[1])?;
             finite3(at.key("origin"), h.origin)?;
+            resolvable(at.key("cell_size").index(0), h.cell_size[0], h.origin)?;
+            resolvable(at.key("cell_size").index(1), h.cell_size[1], h.origin)?;
         }
         TerrainShape::Mesh(m) => {
-            if m.triangles.is_empty() {
-                return Err(Invalid::new(
-                    at.key("path"),
-                    format!("{} holds no triangles", m.path.display()),
-                ));
-            }
-            if let Some(v) = m.vertices.iter().position(|v| !v.is_finite()) {
-                return Err(Invalid::new(
-                    at.key("path"),
-                    format!("{}: vertex {v} is not finite", m.path.display()),
-                ));
-            }
-            let n = m.vertices.len();
-            if let Some(t) = m
-                .triangles
-                .iter()
-                .position(|t| t.iter().any(|&i| i as usize >= n))
-            {
-                return Err(Invalid::new(
-                    at.key("path"),
-                    format!("{}: triangle {t} names a missing vertex", m.path.display()),
-                ));
-            }
+            crate::voxel::check_mesh(m).map_err(|e| Invalid::new(at.key("path"), e))?;
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::Scene;
+
+    /// A cuboid body's keys but its mass.
+    const CUBE: &str =
+        "[[body]]\nkind = \"cuboid\"\nsize = [1.0, 1.0, 1.0]\nresolution = [2, 2, 2]\n";
+
+    /// The located error of a cube of 1 kg with `rest` (TOML) after its keys, as `key: message`.
+    fn error(rest: &str) -> String {
+        error_of("", &format!("{CUBE}mass = 1.0\n{rest}"))
+    }
+
+    /// The located error of the scene of `[simulation]` with `sim` and the tables of `rest`.
+    fn error_of(sim: &str, rest: &str) -> String {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("flat.obj"),
+            "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 0 0\nf 1 2 3\nf 1 4 2\n",
+        )
+        .unwrap();
+        let text = format!("[simulation]\ndt = 0.001\nduration = 0.01\n{sim}\n{rest}");
+        let e = Scene::from_toml(&text, &dir.path().join("s.toml")).unwrap_err();
+        let d = e.diagnostic().unwrap();
+        format!("{}: {}", d.key, d.message)
+    }
+
+    /// A mesh whose every triangle is degenerate (corners on a line, or two coinciding) has no
+    /// surface to touch; a bowl of a subnormal radius has none f64 can resolve.
+    #[test]
+    fn terrain_without_a_resolvable_surface_is_refused() {
+        let e = error("[[terrain]]\nkind = \"mesh\"\npath = \"flat.obj\"\n");
+        assert!(e.starts_with("terrain[0].path: "), "{e}");
+        assert!(
+            e.ends_with(
+                "flat.obj: every triangle has zero area (its corners on one line), or one too \
+                 small or too large for f64: the mesh has no surface"
+            ),
+            "{e}"
+        );
+        let why = "(a finite reciprocal, and more than the rounding of the centre's coordinates)";
+        assert_eq!(
+            error("[[terrain]]\nkind = \"bowl\"\nradius = 5e-324\n"),
+            format!(
+                "terrain[0].radius: 5e-324 m is below what f64 resolves here: at least \
+                 2.2250738585072014e-308 m {why}"
+            )
+        );
+        // Coordinates near 1e12 m are rounded to 1.2e-4 m.
+        assert_eq!(
+            error("[[terrain]]\nkind = \"sphere\"\ncenter = [1e12, 0.0, 0.0]\nradius = 1e-4\n"),
+            format!(
+                "terrain[0].radius: 0.0001 m is below what f64 resolves here: at least \
+                 0.0008881784197001252 m {why}"
+            )
+        );
+        assert_eq!(
+            error("[[terrain]]\nkind = \"box\"\nhalf_extents = [1.0, 1e-310, 1.0]\n"),
+            format!(
+                "terrain[0].half_extents[1]: 1e-310 m is below what f64 resolves here: at least \
+                 2.2250738585072014e-308 m {why}"
+            )
+        );
+    }
+
+    /// Very large and very small values are written in exponent form, not as 300 digits.
+    #[test]
+    fn values_in_messages_are_short() {
+        assert_eq!(
+            error("contact_radius = 1e300\n"),
+            "body[0].contact_radius: 1e300 m is more than the cuboid's smallest lattice spacing, \
+             1 m (the default is half of it)"
+        );
+        assert_eq!(
+            error(
+                "[[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\nfriction = -2.5e-300\n"
+            ),
+            "terrain[0].friction: must not be negative, not -2.5e-300"
+        );
+    }
+
+    /// A body whose initial energy overflows f64 is refused naming the body and, where one
+    /// value alone overflows it, that value; bodies whose energies add up beyond f64's range
+    /// are refused naming them all.
+    #[test]
+    fn an_initial_energy_beyond_f64_names_the_body_and_the_value() {
+        assert_eq!(
+            error("velocity = [1e200, 0.0, 0.0]\n"),
+            "body[0].velocity: the initial kinetic energy is not a finite number: the speed \
+             1e200 m/s squared is beyond f64's range"
+        );
+        assert_eq!(
+            error_of(
+                "",
+                &format!("{CUBE}velocity = [1e150, 0.0, 0.0]\nmass = 1e300\n")
+            ),
+            "body[0]: the initial kinetic energy ½·m·|v|² is not a finite number: 1e300 kg at \
+             1e150 m/s is beyond f64's range"
+        );
+        assert_eq!(
+            error_of(
+                "",
+                &format!("{CUBE}center = [0.0, 10.0, 0.0]\nmass = 1e308\n")
+            ),
+            "body[0]: the initial gravitational energy −m·g·x is not a finite number: 1e308 kg \
+             at g·x = -98.10000000000001 J/kg is beyond f64's range"
+        );
+        assert_eq!(
+            error_of(
+                "gravity = [0.0, -1e300, 0.0]",
+                &format!("{CUBE}center = [0.0, 1e10, 0.0]\nmass = 1.0\n")
+            ),
+            "simulation.gravity: the initial gravitational energy of body[0] is not a finite \
+             number: |g| = 1e300 m/s² times its centre of mass, 10000000000 m from the origin, is \
+             beyond f64's range"
+        );
+        assert_eq!(
+            error("center = [0.0, 1e308, 0.0]\n"),
+            "body[0].center: the initial gravitational energy is not a finite number: its \
+             centre of mass, 1e308 m from the origin, times |g| = 9.81 m/s² is beyond f64's range"
+        );
+        let pair = "[[body]]\nkind = \"particles\"\npositions = [[0.0, 0.0, 0.0], [1e150, 0.0, 0.0]]\n\
+                    masses = [1.0, 1.0]\nsprings = [{ a = 0, b = 1, stiffness = 1e300, rest = 1.0 }]\n";
+        assert_eq!(
+            error_of("gravity = [0.0, 0.0, 0.0]", pair),
+            "body[0].springs[0]: the initial elastic energy is not a finite number: ½·k·(|d| − r)² \
+             of a spring of stiffness 1e300 N/m stretched by 1e150 m is beyond f64's range"
+        );
+        assert_eq!(
+            error_of("", &pair.replace("1e150", "1e200")),
+            "body[0].springs[0]: the initial elastic energy is not a finite number: the \
+             spring's length, 1e200 m, squared is beyond f64's range"
+        );
+        // Each 7.5e307 J: finite alone, not together.
+        let fast = format!("{CUBE}velocity = [1e154, 0.0, 0.0]\nmass = 1.5\n");
+        assert_eq!(
+            error_of("gravity = [0.0, 0.0, 0.0]", &format!("{fast}{fast}{fast}")),
+            "(document): the scene's initial energy is not a finite number: the bodies' \
+             energies, 7.5e307 J (body[0]), 7.5e307 J (body[1]), 7.5e307 J (body[2]), add up \
+             beyond f64's range"
+        );
+    }
 }

@@ -84,6 +84,139 @@ fn embedded_surface_is_the_input_mesh_at_frame_0() {
     assert!(worst <= 1e-12, "{worst:e}");
 }
 
+/// A Blender-style cube (`tests/data/blender-cube.obj`: 8 corners listed out of the faces'
+/// order, `vt`/`vn` corners, and a ninth vertex 1 m above the top that no face uses) exports
+/// its nine vertices in the file's order: at frame 0 vertex i is the file's vertex i placed,
+/// to 1e-12 m. The unused vertex shapes nothing: the lattice is the cube's alone (125
+/// particles at h = ¼, the same positions as the unit cube's), and the vertex rides on the
+/// kept cell nearest it (the first of four equally near in lattice order, x, y ∈ [¼, ½],
+/// z ∈ [¾, 1]), its trilinear weights extended beyond the cell: −4 on the corner (½, ½, ¾)
+/// below it and 5 on (½, ½, 1), the line through those two particles.
+#[test]
+fn mesh_vertices_come_back_in_the_files_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let blender = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/blender-cube.obj");
+    std::fs::copy(&blender, dir.path().join("blender.obj")).unwrap();
+    write_obj(
+        dir.path(),
+        "cube.obj",
+        &TriangleMesh::cube(DVec3::ZERO, 1.0),
+    );
+    let keys = "cell = 0.25\nmass = 1.0\ncenter = [0.5, 0.5, 0.5]\n\
+                structural = { stiffness = 100.0 }\n";
+    let scene = load(
+        dir.path(),
+        &scene_text(&format!("file = \"blender.obj\"\n{keys}")),
+    )
+    .unwrap();
+    let cube = load(
+        dir.path(),
+        &scene_text(&format!("file = \"cube.obj\"\n{keys}")),
+    )
+    .unwrap();
+    let (model, state) = Model::build(&scene);
+    let (cube_model, cube_state) = Model::build(&cube);
+    assert_eq!(model.len(), 125);
+    assert_eq!(
+        state.x, cube_state.x,
+        "the unused vertex leaves the lattice as it is"
+    );
+    assert_eq!(model.springs().len(), cube_model.springs().len());
+
+    let file: Vec<DVec3> = [
+        [1., 1., 0.],
+        [1., 0., 0.],
+        [1., 1., 1.],
+        [1., 0., 1.],
+        [0., 1., 0.],
+        [0., 0., 0.],
+        [0., 1., 1.],
+        [0., 0., 1.],
+        [0.5, 0.5, 2.],
+    ]
+    .map(DVec3::from)
+    .to_vec();
+    let surface = model.embedded.apply(&state.x);
+    assert_eq!(surface.len(), 9);
+    for (i, (x, p)) in surface.iter().zip(&file).enumerate() {
+        assert!(
+            (*x - *p).length() <= 1e-12,
+            "vertex {i}: {x} is not the file's {p}"
+        );
+    }
+    assert_eq!(model.embedded.triangles.len(), 12);
+    assert_eq!(model.embedded.triangles[0], [4, 6, 2]);
+
+    let at = |p: [f64; 3]| {
+        (state.x.iter().position(|x| *x == DVec3::from(p))).expect("a particle there") as u32
+    };
+    let (corners, weights) = (model.embedded.corners[8], model.embedded.weights[8]);
+    let used: Vec<(u32, f64)> = (0..8)
+        .filter(|&c| weights[c] != 0.0)
+        .map(|c| (corners[c], weights[c]))
+        .collect();
+    assert_eq!(
+        used,
+        [(at([0.5, 0.5, 0.75]), -4.0), (at([0.5, 0.5, 1.0]), 5.0)]
+    );
+}
+
+/// A mesh body and a mesh terrain name their OBJ file by the same keys: `file` or `path`,
+/// either on either (the scenes use `file` on bodies and `path` on terrain), and not both.
+#[test]
+fn file_and_path_name_the_obj_file_of_bodies_and_terrain() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_obj(d, "cube.obj", &TriangleMesh::cube(DVec3::ZERO, 1.0));
+    let with = |body: &str, terrain: &str| {
+        load(
+            d,
+            &scene_text(&format!(
+                "{body} = \"cube.obj\"\nmass = 1.0\ncell = 0.5\n\n\
+                 [[terrain]]\nkind = \"mesh\"\n{terrain} = \"cube.obj\"\n"
+            )),
+        )
+    };
+    let scene = with("file", "path").unwrap();
+    assert_eq!(scene.bodies[0].particle_count(), 27);
+    assert_eq!(with("path", "file").unwrap(), scene);
+    let e = load(
+        d,
+        &scene_text("file = \"cube.obj\"\npath = \"cube.obj\"\nmass = 1.0\ncell = 0.5\n"),
+    )
+    .unwrap_err();
+    let e = e.diagnostic().unwrap();
+    assert_eq!(
+        (e.line, e.key.to_string(), e.message.as_str()),
+        (
+            9,
+            "body[0].path".into(),
+            "give either `file` or `path`, not both"
+        )
+    );
+    let e = with("path", "file = \"cube.obj\"\npath").unwrap_err();
+    let e = e.diagnostic().unwrap();
+    assert_eq!(
+        (e.key.to_string(), e.message.as_str()),
+        (
+            "terrain[0].path".into(),
+            "give either `file` or `path`, not both"
+        )
+    );
+    let e = load(
+        d,
+        &scene_text("path = \"missing.obj\"\nmass = 1.0\ncell = 0.5\n"),
+    )
+    .unwrap_err();
+    let e = e.diagnostic().unwrap();
+    assert_eq!((e.line, e.key.to_string()), (8, "body[0].path".into()));
+    assert!(
+        e.message.ends_with("missing.obj does not exist"),
+        "{}",
+        e.message
+    );
+}
+
 /// The lattice keeps every cell a triangle meets and every cell whose centre is inside, so its
 /// volume V_h is at least the mesh's V and exceeds it by a band of cells along the surface:
 /// V_h − V = O(A h), first order in the cell. Measured on a torus (R = 1 m, r = 0.4 m, 96 × 48

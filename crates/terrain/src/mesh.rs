@@ -28,7 +28,7 @@ impl MeshGeometry {
         {
             return None;
         }
-        // OBJ loading duplicates a vertex per (position, normal, uv) triple; pseudo-normals need
+        // Exporters of flat-shaded faces write a position once per face; pseudo-normals need
         // the triangles around a vertex to share it, hence the merge. ORIENTED computes the
         // pseudo-normals and makes parry's projection fill `is_inside` from them. No topology
         // flags: they only add failure modes (a non-manifold ground patch is still a usable

@@ -8,7 +8,7 @@ use glam::DVec3;
 
 use super::{
     Body, BodyContact, BodyShape, Cuboid, ExplicitSpring, Heightfield, MeshBody, MeshMass,
-    ParticleSet, Scene, Simulation, SpringParams, Terrain, TerrainShape,
+    ParticleSet, Scene, Simulation, SpringParams, Terrain, TerrainShape, TriangleMesh,
 };
 use crate::error::{Invalid, KeyPath};
 use crate::format::{BodyFile, BodyKind, OneOrThree, SceneFile, TerrainFile, TerrainKind};
@@ -21,7 +21,7 @@ type KindKey<F, K> = (&'static str, &'static [K], fn(&F) -> bool);
 /// The `[[body]]` keys and the body kinds that take them, in the order a body's first key of
 /// another kind is reported. `name`, `kind`, `pinned`, `contact_radius` and `self_contact`
 /// are every kind's.
-const BODY_KEYS: [KindKey<BodyFile, BodyKind>; 18] = {
+const BODY_KEYS: [KindKey<BodyFile, BodyKind>; 19] = {
     use BodyKind::{Cuboid as C, Mesh as M, Particles as P};
     [
         ("size", &[C], |b| b.size.is_some()),
@@ -38,6 +38,7 @@ const BODY_KEYS: [KindKey<BodyFile, BodyKind>; 18] = {
         ("masses", &[P], |b| b.masses.is_some()),
         ("springs", &[P], |b| b.springs.is_some()),
         ("file", &[M], |b| b.file.is_some()),
+        ("path", &[M], |b| b.path.is_some()),
         ("cell", &[M], |b| b.cell.is_some()),
         ("scale", &[M], |b| b.scale.is_some()),
         ("density", &[M], |b| b.density.is_some()),
@@ -48,7 +49,7 @@ const BODY_KEYS: [KindKey<BodyFile, BodyKind>; 18] = {
 /// The `[[terrain]]` keys and the terrain kinds that take them, in the order a shape's first
 /// key of another kind is reported. `kind`, `restitution`, `friction` and `friction_model` are
 /// every kind's.
-const TERRAIN_KEYS: [KindKey<TerrainFile, TerrainKind>; 10] = {
+const TERRAIN_KEYS: [KindKey<TerrainFile, TerrainKind>; 11] = {
     use TerrainKind::{Bowl, Box, Heightfield as H, Mesh, Plane, Sphere};
     [
         ("point", &[Plane], |t| t.point.is_some()),
@@ -61,6 +62,7 @@ const TERRAIN_KEYS: [KindKey<TerrainFile, TerrainKind>; 10] = {
         ("cell_size", &[H], |t| t.cell_size.is_some()),
         ("origin", &[H], |t| t.origin.is_some()),
         ("path", &[Mesh], |t| t.path.is_some()),
+        ("file", &[Mesh], |t| t.file.is_some()),
     ]
 };
 
@@ -325,12 +327,10 @@ fn mesh_body(b: &BodyFile, k: &str, base: &Path, at: &KeyPath) -> Result<MeshBod
         };
         crate::validate::positive(key, scale[axis])?;
     }
-    let rel = require(at, k, "file", b.file.clone())?;
-    let mesh =
-        crate::mesh::load_obj(&base.join(&rel)).map_err(|m| Invalid::new(at.key("file"), m))?;
+    let (file_key, mesh) = obj_file(at, k, b.file.clone(), b.path.clone(), base)?;
     let voxels = Voxels::new(mesh, scale, size).map_err(|e| {
         let key = match (e.key, size) {
-            (VoxelKey::File, _) => "file",
+            (VoxelKey::File, _) => file_key,
             (VoxelKey::Size, LatticeSize::Cell(_)) => "cell",
             (VoxelKey::Size, LatticeSize::Resolution(_)) => "resolution",
         };
@@ -348,6 +348,27 @@ fn mesh_body(b: &BodyFile, k: &str, base: &Path, at: &KeyPath) -> Result<MeshBod
         bending: l.bending,
         surface: b.surface.unwrap_or_default(),
     })
+}
+
+/// The mesh of the OBJ file that `file` or `path` names (the two are one key, under the name
+/// each of a mesh body and a mesh terrain had first), checked as `validate` checks it but
+/// blaming the name it was given by, and that name, for the errors about it.
+fn obj_file(
+    at: &KeyPath,
+    kind: &str,
+    file: Option<String>,
+    path: Option<String>,
+    base: &Path,
+) -> Result<(&'static str, TriangleMesh), Invalid> {
+    let needs = format!("a `{kind}` needs the key `file` (or `path`): its OBJ file");
+    let (key, rel) = match one_of(at, ("file", file), ("path", path), &needs)? {
+        Either::First(rel) => ("file", rel),
+        Either::Second(rel) => ("path", rel),
+    };
+    let mesh = crate::mesh::load_obj(&base.join(&rel))
+        .and_then(|mesh| crate::voxel::check_mesh(&mesh).map(|()| mesh))
+        .map_err(|m| Invalid::new(at.key(key), m))?;
+    Ok((key, mesh))
 }
 
 fn terrain(t: TerrainFile, base: &Path, at: &KeyPath) -> Result<Terrain, Invalid> {
@@ -384,13 +405,7 @@ fn terrain(t: TerrainFile, base: &Path, at: &KeyPath) -> Result<Terrain, Invalid
             cell_size: require(at, k, "cell_size", t.cell_size)?,
             origin: t.origin.unwrap_or_default().into(),
         }),
-        TerrainKind::Mesh => {
-            let rel = require(at, k, "path", t.path)?;
-            TerrainShape::Mesh(
-                crate::mesh::load_obj(&base.join(&rel))
-                    .map_err(|m| Invalid::new(at.key("path"), m))?,
-            )
-        }
+        TerrainKind::Mesh => TerrainShape::Mesh(obj_file(at, k, t.file, t.path, base)?.1),
     };
     Ok(Terrain {
         shape,

@@ -344,15 +344,16 @@ pub struct Heightfield {
 pub struct TriangleMesh {
     /// The file it came from.
     pub path: PathBuf,
-    /// Vertices, metres.
+    /// Vertices, metres: an OBJ file's `v` positions in the file's order, used by a triangle
+    /// or not.
     pub vertices: Vec<DVec3>,
     /// Triangles, counter-clockwise seen from outside (free space).
     pub triangles: Vec<[u32; 3]>,
 }
 
 impl TriangleMesh {
-    /// The closed box `[lo, lo + size]³`, four vertices per face as an OBJ loader delivers
-    /// them, wound counter-clockwise seen from outside (the box is solid). For tests and for
+    /// The closed box `[lo, lo + size]³`, four vertices per face (as an exporter of
+    /// flat-shaded faces writes them), wound counter-clockwise seen from outside (the box is solid). For tests and for
     /// building terrain in code.
     pub fn cube(lo: DVec3, size: f64) -> TriangleMesh {
         // Each face's corners counter-clockwise seen from outside: +x, −x, +y, −y, +z, −z.

@@ -9,6 +9,7 @@ use super::{
     BYTES_PER_LATTICE_POINT, CLEARLY_INSIDE, LatticeSize, UNDECIDED_SHARE, VoxelError, VoxelKey,
     Voxels, check_mesh, enclosed_volume, is_closed, triangle_meets_box, winding_number,
 };
+use crate::error::Num;
 use crate::scene::TriangleMesh;
 use crate::topology::{self, SpringKind};
 use crate::winding::WindingTree;
@@ -32,11 +33,16 @@ fn cells_along(extent: f64, h: f64) -> f64 {
     n.max(1.0)
 }
 
-/// The centre and the extent of the bounding box of `scaled`, the mesh's scaled vertices
-/// (every vertex, used by a triangle or not: each is embedded); refused without extent.
-fn bounding_box(scaled: &[DVec3], mesh: &TriangleMesh) -> Result<(DVec3, DVec3), VoxelError> {
+/// The centre and the extent of the bounding box of the `used` vertices of `scaled`, the
+/// mesh's scaled vertices (a vertex no triangle uses is carried along, but shapes nothing);
+/// refused without extent.
+fn bounding_box(
+    scaled: &[DVec3],
+    used: &[bool],
+    mesh: &TriangleMesh,
+) -> Result<(DVec3, DVec3), VoxelError> {
     let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-    for &v in scaled {
+    for (&v, _) in scaled.iter().zip(used).filter(|(_, used)| **used) {
         lo = lo.min(v);
         hi = hi.max(v);
     }
@@ -82,9 +88,9 @@ impl Grid {
                 format!(
                     "a lattice of {} × {} × {} cells ({points:.3e} points) is more than the {} \
                      particles supported",
-                    n[0],
-                    n[1],
-                    n[2],
+                    Num(n[0]),
+                    Num(n[1]),
+                    Num(n[2]),
                     model::MAX_PARTICLES
                 ),
             );
@@ -299,7 +305,7 @@ impl Grid {
                     n[0],
                     n[1],
                     n[2],
-                    self.h,
+                    Num(self.h),
                     mesh.path.display()
                 ),
             );
@@ -307,46 +313,99 @@ impl Grid {
         Ok(inside_cells)
     }
 
-    /// Each vertex's cell (`unit`: the vertices in lattice units) and its coordinates in it:
-    /// the cell holding it, or, for a vertex on a lattice plane, the first kept one of those
-    /// whose boundary holds it; a vertex no kept cell holds keeps its cell (a stray vertex no
-    /// triangle uses, or one on a triangle lying in a lattice plane outside everything), which
-    /// is kept in `present` from then on.
-    fn embed(&self, unit: &[DVec3], present: &mut [bool]) -> Vec<([u32; 3], DVec3)> {
-        let top = self.top();
-        unit.iter()
-            .map(|&u| {
-                let choices = |a: usize| -> [Option<f64>; 2] {
-                    let r = u[a].round();
-                    let f = u[a].floor().clamp(0.0, top[a]);
-                    if (u[a] - r).abs() <= 1e-9 && r >= 1.0 && r <= top[a] {
-                        [Some(r - 1.0), Some(r)]
-                    } else {
-                        [Some(f), None]
+    /// Each vertex's cell (`unit`: the vertices in lattice units) and its coordinates in it.
+    ///
+    /// A vertex a triangle uses (`used`) is in the cell holding it, or, on a lattice plane, the
+    /// first kept one of those whose boundary holds it; one no kept cell holds keeps its cell
+    /// (a vertex of a triangle lying in a lattice plane outside everything), which is kept in
+    /// `present` from then on. A vertex no triangle uses adds no cell: it is in the kept cell
+    /// holding it, or else in the kept cell whose centre is nearest it (the first in lattice
+    /// order of those equally near), its coordinates there outside [0, 1].
+    fn embed(&self, unit: &[DVec3], used: &[bool], present: &mut [bool]) -> Vec<([u32; 3], DVec3)> {
+        let mut cells = vec![None; unit.len()];
+        // The used vertices first: the cells they keep are there for the others.
+        for pass_used in [true, false] {
+            for (v, &u) in unit
+                .iter()
+                .enumerate()
+                .filter(|(v, _)| used[*v] == pass_used)
+            {
+                let holding = self.cells_holding(u, pass_used);
+                let kept = holding.iter().copied().find(|&c| present[self.at(c)]);
+                cells[v] = Some(match (kept, pass_used) {
+                    (Some(cell), _) => (cell, true),
+                    (None, true) => {
+                        present[self.at(holding[0])] = true;
+                        (holding[0], true)
                     }
-                };
-                let (cx, cy, cz) = (choices(0), choices(1), choices(2));
-                let mut all = Vec::with_capacity(8);
-                for &k in cz.iter().flatten() {
-                    for &j in cy.iter().flatten() {
-                        for &i in cx.iter().flatten() {
-                            all.push(DVec3::new(i, j, k));
-                        }
-                    }
-                }
-                let at = |c: DVec3| self.index(c.x as usize, c.y as usize, c.z as usize);
-                let cell = all
-                    .iter()
-                    .copied()
-                    .find(|&c| present[at(c)])
-                    .unwrap_or(all[0]);
-                present[at(cell)] = true;
+                    (None, false) => (self.nearest_kept(u, present), false),
+                });
+            }
+        }
+        (cells.into_iter().zip(unit))
+            .map(|(cell, &u)| {
+                let (cell, holds) = cell.expect("every vertex is used or not");
+                let t = u - cell;
                 (
                     [cell.x as u32, cell.y as u32, cell.z as u32],
-                    (u - cell).clamp(DVec3::ZERO, DVec3::ONE),
+                    if holds {
+                        t.clamp(DVec3::ZERO, DVec3::ONE)
+                    } else {
+                        t
+                    },
                 )
             })
             .collect()
+    }
+
+    fn at(&self, c: DVec3) -> usize {
+        self.index(c.x as usize, c.y as usize, c.z as usize)
+    }
+
+    /// The cells (lattice coordinates of their lowest corner) whose closed box holds `u`, in
+    /// lattice order: one, or up to eight on lattice planes. Outside the lattice, the cell it
+    /// clamps to when `clamp` (a vertex of the triangles, inside but for rounding), else none.
+    fn cells_holding(&self, u: DVec3, clamp: bool) -> Vec<DVec3> {
+        let top = self.top();
+        let outside = (0..3).any(|a| !(-1e-9..=top[a] + 1.0 + 1e-9).contains(&u[a]));
+        if outside && !clamp {
+            return Vec::new();
+        }
+        let choices = |a: usize| -> [Option<f64>; 2] {
+            let r = u[a].round();
+            let f = u[a].floor().clamp(0.0, top[a]);
+            if (u[a] - r).abs() <= 1e-9 && r >= 1.0 && r <= top[a] {
+                [Some(r - 1.0), Some(r)]
+            } else {
+                [Some(f), None]
+            }
+        };
+        let (cx, cy, cz) = (choices(0), choices(1), choices(2));
+        let mut all = Vec::with_capacity(8);
+        for &k in cz.iter().flatten() {
+            for &j in cy.iter().flatten() {
+                for &i in cx.iter().flatten() {
+                    all.push(DVec3::new(i, j, k));
+                }
+            }
+        }
+        all
+    }
+
+    /// The kept cell whose centre is nearest `u` (lattice units), the first in lattice order
+    /// of those equally near. Cells are the Voronoi regions of their centres, so a point in a
+    /// kept cell gets that cell.
+    fn nearest_kept(&self, u: DVec3, present: &[bool]) -> DVec3 {
+        let mut best = (f64::INFINITY, DVec3::ZERO);
+        for at in (0..present.len()).filter(|&at| present[at]) {
+            let (i, j, k) = self.coords(at);
+            let corner = DVec3::new(i as f64, j as f64, k as f64);
+            let d = (corner + 0.5).distance_squared(u);
+            if d < best.0 {
+                best = (d, corner);
+            }
+        }
+        best.1
     }
 
     /// The particles: the corners of the `present` cells, in lattice order. Returns the
@@ -403,7 +462,11 @@ impl Voxels {
             message: m,
         })?;
         let scaled: Vec<DVec3> = mesh.vertices.iter().map(|&v| v * scale).collect();
-        let (offset, extent) = bounding_box(&scaled, &mesh)?;
+        let mut used = vec![false; scaled.len()];
+        for &i in mesh.triangles.iter().flatten() {
+            used[i as usize] = true;
+        }
+        let (offset, extent) = bounding_box(&scaled, &used, &mesh)?;
         let grid = Grid::new(extent, size)?;
         let (origin, h) = (grid.origin, grid.h);
         let unit: Vec<DVec3> = scaled.iter().map(|&v| (v - offset - origin) / h).collect();
@@ -421,7 +484,7 @@ impl Voxels {
         };
         let mut present: Vec<bool> = (0..w.len()).map(|at| crossed[at] || w[at] >= 0.5).collect();
         let inside_cells = grid.inside_cells(&crossed, &w, closed, &winding, &mesh)?;
-        let embedding = grid.embed(&unit, &mut present);
+        let embedding = grid.embed(&unit, &used, &mut present);
         let (particle_of, points) = grid.particles(&present);
         let springs = grid.spring_counts(&present);
         Ok(Voxels {

@@ -11,8 +11,13 @@
 //!   of the triangles, Van Oosterom–Strackee, summed over 4π) has |w| ≥ ½ (either orientation
 //!   of the whole mesh works; an inside-out mesh has w = −1 inside).
 //!
-//! Every mesh vertex is embedded in a kept cell holding it (on a cell boundary, the first kept
-//! one of the cells that share it); if none holds it, its own cell is kept too.
+//! Every vertex a triangle uses is embedded in a kept cell holding it (on a cell boundary, the
+//! first kept one of the cells that share it); if none holds it, its own cell is kept too. A
+//! vertex no triangle uses is the file's too and is carried (the exports give every vertex of
+//! the file at its index), but shapes nothing: it is not in the bounding box and keeps no cell.
+//! It is embedded in the kept cell holding it, or else in the kept cell whose centre is
+//! nearest, its trilinear weights extended beyond that cell (they still sum to 1 and give the
+//! vertex back at rest; the further out, the more they magnify the cell's deformation).
 //!
 //! On a closed mesh (every edge, after welding vertices at identical positions, used as often in
 //! each direction) w is an integer constant on each connected piece of space off the surface,
@@ -93,7 +98,8 @@ pub struct Voxels {
     points: Vec<[u32; 3]>,
     /// Springs of each family on the present cells (every family, whatever the body enables).
     springs: SpringCounts,
-    /// Per mesh vertex: its cell and its coordinates in it, each in [0, 1].
+    /// Per mesh vertex: its cell and its coordinates in it, each in [0, 1] but for a vertex
+    /// no triangle uses outside every kept cell.
     embedding: Vec<([u32; 3], DVec3)>,
     /// Present cells whose centre is clearly inside (|w| ≥ ¾).
     inside_cells: u64,
@@ -182,7 +188,8 @@ fn is_closed(mesh: &TriangleMesh) -> bool {
     balance.values().all(|&b| b == 0)
 }
 
-/// Checks what the voxelisation assumes of a mesh: triangles, finite vertices, valid indices.
+/// Checks what the voxelisation and the terrain's queries assume of a mesh: triangles, finite
+/// vertices, valid indices, and a triangle with a normal.
 pub fn check_mesh(mesh: &TriangleMesh) -> Result<(), String> {
     let name = mesh.path.display();
     if mesh.triangles.is_empty() {
@@ -198,6 +205,19 @@ pub fn check_mesh(mesh: &TriangleMesh) -> Result<(), String> {
         .position(|t| t.iter().any(|&i| i as usize >= n))
     {
         return Err(format!("{name}: triangle {t} names a missing vertex"));
+    }
+    // A normal is the cross product over its length: a length that is zero, subnormal or
+    // infinite gives none.
+    let has_area = |t: &[u32; 3]| {
+        let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
+        let n = (b - a).cross(c - a).length();
+        n.is_finite() && n >= f64::MIN_POSITIVE
+    };
+    if !mesh.triangles.iter().any(has_area) {
+        return Err(format!(
+            "{name}: every triangle has zero area (its corners on one line), or one too small \
+             or too large for f64: the mesh has no surface"
+        ));
     }
     Ok(())
 }
