@@ -137,7 +137,7 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
         )));
     }
     let outs = if args.out.is_empty() {
-        // Not out/<stem>/, where `run --format ply|obj` and VTK's frames go.
+        // Not out/<stem>/, where VTK's frames go, nor out/<stem>-ply/ or -obj/.
         let stem = match input {
             Input::Scene => {
                 output_stem(&args.input, args.overrides.sets(), &overrides, args.backend)

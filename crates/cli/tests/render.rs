@@ -370,7 +370,7 @@ fn frames_whose_scene_moved_render_with_scene() {
 }
 
 /// The default destinations of `render` and `run --format ply` differ (out/NAME-pictures/ and
-/// out/NAME/), and overrides name their own: no command replaces another's output.
+/// out/NAME-ply/), and overrides name their own: no command replaces another's output.
 #[test]
 fn default_destinations_do_not_collide() {
     let sb = Sandbox::new();
@@ -384,7 +384,7 @@ fn default_destinations_do_not_collide() {
     let out = sb.path().join("out");
     assert_eq!(
         entries(&out),
-        ["cube", "cube-50fps-pictures", "cube-pictures"]
+        ["cube-50fps-pictures", "cube-pictures", "cube-ply"]
     );
     assert_eq!(pngs(&out.join("cube-pictures")).len(), 6);
     assert_eq!(pngs(&out.join("cube-50fps-pictures")).len(), 3);
