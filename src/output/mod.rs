@@ -138,10 +138,12 @@ impl Format {
     }
 
     /// The default output path of a scene whose file stem is `stem`:
-    /// `out/<stem>.<extension>`, or the directory `out/<stem>` for PLY and OBJ.
+    /// `out/<stem>.<extension>`, or the directory `out/<stem>-<extension>` for PLY and OBJ:
+    /// not `out/<stem>`, where VTK's `out/<stem>.pvd` keeps its frames, so that every format
+    /// of one scene has a default of its own.
     pub fn default_path(self, stem: &str) -> std::path::PathBuf {
         if matches!(self, Format::Ply | Format::Obj) {
-            Path::new("out").join(stem)
+            Path::new("out").join(format!("{stem}-{}", self.extension()))
         } else {
             Path::new("out").join(format!("{stem}.{}", self.extension()))
         }
@@ -412,7 +414,8 @@ mod tests {
         assert_eq!(Format::from_path(Path::new("b.vtu")), None);
         assert_eq!(Format::from_path(Path::new("b")), None);
         assert_eq!(Format::Vtk.default_path("s"), Path::new("out/s.pvd"));
-        assert_eq!(Format::Obj.default_path("s"), Path::new("out/s"));
+        assert_eq!(Format::Obj.default_path("s"), Path::new("out/s-obj"));
+        assert_eq!(Format::Ply.default_path("s"), Path::new("out/s-ply"));
         assert!(Format::Ply.is_series() && !Format::Csv.is_series());
     }
 

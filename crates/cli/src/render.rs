@@ -33,10 +33,16 @@ pub struct RenderArgs {
     /// --scene).
     input: PathBuf,
     /// Where to draw: a directory of PNG files (DIR/frame_000000.png, …) or an animated GIF
-    /// (a name ending in .gif); give it twice for both. Default: out/{input file stem}-pictures/
-    /// (with the overrides and a GPU backend named after the stem, as `run` names its output).
+    /// (a name ending in .gif); give it twice for both. A name with another extension of a file
+    /// type (.mp4, .png) is refused, unless it is an existing directory. Default:
+    /// out/{input file stem}-pictures/ (with the overrides and a GPU backend named after the
+    /// stem, as `run` names its output).
     #[arg(long)]
     out: Vec<PathBuf>,
+    /// Draw only the frames whose number is a multiple of K (frame 0, K, 2K, …); a GIF shows
+    /// each for K frame intervals, keeping the simulated time.
+    #[arg(long, value_name = "K", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    every: u64,
     /// Picture width, pixels (1 to 8192).
     #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(1..=8192))]
     width: u32,
@@ -136,8 +142,16 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
             args.input.display()
         )));
     }
+    if let Some(out) = args.out.iter().find(|p| names_another_file_type(p)) {
+        return Err(bad_input(anyhow!(
+            "{}: render writes an animated GIF (a name ending in .gif) or a directory of PNG \
+             files (a name without an extension, or an existing directory), not .{}",
+            out.display(),
+            out.extension().unwrap_or_default().to_string_lossy()
+        )));
+    }
     let outs = if args.out.is_empty() {
-        // Not out/<stem>/, where `run --format ply|obj` and VTK's frames go.
+        // Not out/<stem>/, where VTK's frames go, nor out/<stem>-ply/ or -obj/.
         let stem = match input {
             Input::Scene => {
                 output_stem(&args.input, args.overrides.sets(), &overrides, args.backend)
@@ -242,6 +256,20 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
     }
 }
 
+/// Whether `out` ends in an extension of a file type other than GIF (1 to 4 ASCII letters and
+/// digits after a letter: `.mp4`, `.png`, `.webm`), so that `render` would write a directory
+/// of PNG files under a name that promises something else. An existing directory is taken as
+/// one, and so is a name whose "extension" is not one (`run-dt0.001`, `take.final-cut`).
+fn names_another_file_type(out: &Path) -> bool {
+    let Some(ext) = out.extension().and_then(|e| e.to_str()) else {
+        return false;
+    };
+    let looks_like_a_type = (1..=4).contains(&ext.len())
+        && ext.starts_with(|c: char| c.is_ascii_alphabetic())
+        && ext.chars().all(|c| c.is_ascii_alphanumeric());
+    looks_like_a_type && !ext.eq_ignore_ascii_case("gif") && !out.is_dir()
+}
+
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Input {
     Scene,
@@ -324,6 +352,8 @@ struct Drawer<'m> {
     options: RenderOptions,
     pictures: Pictures,
     bar: ProgressBar,
+    /// Draw frames whose number is a multiple of this.
+    every: u64,
 }
 
 impl<'m> Drawer<'m> {
@@ -352,17 +382,21 @@ impl<'m> Drawer<'m> {
             .map_err(|e| bad_input(anyhow!("--camera-from/--camera-to: {e}")))?;
         let outputs = outs
             .iter()
-            .map(|p| Destination::create(p, &options, frame_rate))
+            .map(|p| Destination::create(p, &options, frame_rate / args.every as f64))
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Drawer {
             animator,
             options,
             pictures: Pictures { outputs, drawn: 0 },
-            bar: progress::bar(frames, "frames", args.quiet),
+            bar: progress::bar(frames.div_ceil(args.every), "frames", args.quiet),
+            every: args.every,
         })
     }
 
     fn frame(&mut self, index: u64, positions: Vec<DVec3>) -> anyhow::Result<()> {
+        if index % self.every != 0 {
+            return Ok(());
+        }
         if let Some(image) = self.animator.frame(index, positions)? {
             self.pictures.write(index, &image)?;
         }
@@ -378,6 +412,7 @@ impl<'m> Drawer<'m> {
             options,
             mut pictures,
             bar,
+            every: _,
         } = self;
         let kept = animator.finish().map_err(|e| {
             bad_input(anyhow!(

@@ -21,7 +21,7 @@ pub struct RunArgs {
     /// Output file (the .pvd for vtk, a directory for ply and obj: NAME.ply and NAME.obj name
     /// the directory NAME); `-` writes to standard output (single-file formats). An existing
     /// file is replaced (a link is followed, a device or FIFO written in place). Default:
-    /// out/{name}.{extension}, or the directory out/{name} for ply and obj, where {name} is the
+    /// out/{name}.{extension}, or the directory out/{name}-ply or -obj, where {name} is the
     /// scene file's stem followed by the overrides and a GPU backend (jelly-rk4-dt0.0001-gpu).
     #[arg(long)]
     out: Option<PathBuf>,

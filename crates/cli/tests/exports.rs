@@ -841,22 +841,38 @@ fn default_paths_and_replacing_an_earlier_series() {
     assert_eq!(read_pvd(&out.join("jelly.pvd")).len(), shorter);
     assert!(leftovers(&out).is_empty());
 
-    // PLY and OBJ default to the same directory: they do not delete the .vtu files the .pvd
-    // names, but say so.
-    let o = run(&sb, &path, &["--format", "ply"]);
+    // PLY and OBJ default to directories of their own, beside VTK's frames: each format of
+    // the same scene runs without an --out, and the .vtu files the .pvd names stay.
+    run(&sb, &path, &["--format", "ply"]).expect_status(EXIT_OK);
+    run(&sb, &path, &["--format", "obj"]).expect_status(EXIT_OK);
+    assert_eq!(
+        entries(&out),
+        [
+            "jelly",
+            "jelly-0.02s",
+            "jelly-0.02s.pvd",
+            "jelly-obj",
+            "jelly-ply",
+            "jelly.pvd"
+        ]
+    );
+    assert_eq!(entries(&out.join("jelly")).len(), shorter);
+    for ext in ["ply", "obj"] {
+        let names: Vec<String> = (0..frames)
+            .map(|k| format!("jelly-{ext}_{k:06}.{ext}"))
+            .collect();
+        assert_eq!(entries(&out.join(format!("jelly-{ext}"))), names);
+    }
+    // Run again: the directory of OBJ frames is replaced.
+    run(&sb, &path, &["--format", "obj"]).expect_status(EXIT_OK);
+    assert_eq!(entries(&out.join("jelly-obj")).len(), frames);
+    assert!(leftovers(&out).is_empty());
+
+    // An --out that names another series' directory is still refused.
+    let o = run(&sb, &path, &["--format", "ply", "--out", "out/jelly"]);
     o.expect_status(EXIT_OUTPUT);
     assert!(o.stderr.contains("jelly_000000.vtu"), "{}", o.stderr);
     assert_eq!(entries(&out.join("jelly")).len(), shorter);
-
-    let sb = Sandbox::new();
-    let path = sb.write("jelly.toml", &cube.toml());
-    run(&sb, &path, &["--format", "obj"]).expect_status(EXIT_OK);
-    let names: Vec<String> = (0..frames).map(|k| format!("jelly_{k:06}.obj")).collect();
-    assert_eq!(entries(&sb.path().join("out/jelly")), names);
-    // Run again: the directory of OBJ frames is replaced.
-    run(&sb, &path, &["--format", "obj"]).expect_status(EXIT_OK);
-    assert_eq!(entries(&sb.path().join("out/jelly")), names);
-    assert_eq!(entries(&sb.path().join("out")), ["jelly"]);
 }
 
 #[cfg(unix)]

@@ -370,7 +370,7 @@ fn frames_whose_scene_moved_render_with_scene() {
 }
 
 /// The default destinations of `render` and `run --format ply` differ (out/NAME-pictures/ and
-/// out/NAME/), and overrides name their own: no command replaces another's output.
+/// out/NAME-ply/), and overrides name their own: no command replaces another's output.
 #[test]
 fn default_destinations_do_not_collide() {
     let sb = Sandbox::new();
@@ -384,7 +384,7 @@ fn default_destinations_do_not_collide() {
     let out = sb.path().join("out");
     assert_eq!(
         entries(&out),
-        ["cube", "cube-50fps-pictures", "cube-pictures"]
+        ["cube-50fps-pictures", "cube-pictures", "cube-ply"]
     );
     assert_eq!(pngs(&out.join("cube-pictures")).len(), 6);
     assert_eq!(pngs(&out.join("cube-50fps-pictures")).len(), 3);
@@ -434,4 +434,86 @@ fn follow_keeps_the_body_in_the_middle() {
         let at = 3 * (24 * w + 32) as usize;
         assert!(rgb[at] > rgb[at + 2] + 60, "{name}: {:?}", &rgb[at..at + 3]);
     }
+}
+
+/// `--out` with an extension `render` does not write (a video, a single picture) is refused
+/// before anything runs, naming what it writes; a name without one is a directory of PNGs.
+#[test]
+fn an_extension_render_does_not_write_is_refused() {
+    let sb = Sandbox::new();
+    sb.write("cube.toml", &cube().toml());
+    for out in ["x.mp4", "x.png", "movie.WEBM"] {
+        let o = sb.run(&[&["render", "cube.toml", "--out", out][..], &SMALL].concat());
+        o.expect_status(EXIT_BAD_INPUT);
+        assert!(
+            o.stderr.contains(out) && o.stderr.contains(".gif") && o.stderr.contains("PNG"),
+            "{out}: {}",
+            o.stderr
+        );
+    }
+    assert_eq!(entries(sb.path()), ["cube.toml"]);
+    // An existing directory is one whatever its name.
+    sb.mkdir("take.v2");
+    sb.run(&[&["render", "cube.toml", "--out", "take.v2"][..], &SMALL].concat())
+        .expect_status(EXIT_OK);
+    assert_eq!(pngs(&sb.path().join("take.v2")).len(), 6);
+}
+
+/// `--every K` draws the frames whose number is a multiple of K, from a scene and from saved
+/// frames alike, and the GIF keeps the simulated time (K frame intervals a picture).
+#[test]
+fn every_kth_frame_is_drawn() {
+    let sb = Sandbox::new();
+    sb.write("cube.toml", &cube().toml());
+    sb.run(&["run", "cube.toml", "--out", "all.jsonl", "-q"])
+        .expect_status(EXIT_OK);
+    // Frames 0 to 5 at 100 frames/s.
+    assert_eq!(frame_schedule(0.001, 0.05, 100.0).len(), 6);
+    for input in ["all.jsonl", "cube.toml"] {
+        let dir = format!("every-{}", input.replace('.', "-"));
+        let o = sb.run(
+            &[
+                &[
+                    "render", input, "--every", "2", "--out", &dir, "--out", "e.gif",
+                ][..],
+                &SMALL,
+            ]
+            .concat(),
+        );
+        o.expect_status(EXIT_OK);
+        assert_eq!(
+            pngs(&sb.path().join(&dir)),
+            ["frame_000000.png", "frame_000002.png", "frame_000004.png"],
+            "{input}"
+        );
+        let mut options = gif::DecodeOptions::new();
+        options.set_color_output(gif::ColorOutput::RGBA);
+        let mut decoder = options
+            .read_info(std::fs::File::open(sb.path().join("e.gif")).unwrap())
+            .unwrap();
+        let mut delays = Vec::new();
+        while let Some(frame) = decoder.read_next_frame().unwrap() {
+            delays.push(frame.delay);
+        }
+        // Two hundredths of a second a picture: the first k end at round(100·2k/100).
+        assert_eq!(delays, [2, 2, 2], "{input}");
+    }
+    // From frame 3 on (a trimmed file), every third: 3 only, of 3, 4, 5.
+    let text = std::fs::read_to_string(sb.path().join("all.jsonl")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let trimmed: Vec<&str> = std::iter::once(lines[0])
+        .chain(lines[4..].iter().copied())
+        .collect();
+    sb.write("trimmed.jsonl", &(trimmed.join("\n") + "\n"));
+    sb.run(
+        &[
+            &["render", "trimmed.jsonl", "--every", "3", "--out", "t"][..],
+            &SMALL,
+        ]
+        .concat(),
+    )
+    .expect_status(EXIT_OK);
+    assert_eq!(pngs(&sb.path().join("t")), ["frame_000003.png"]);
+    let o = sb.run(&["render", "cube.toml", "--every", "0"]);
+    o.expect_status(EXIT_BAD_INPUT);
 }
