@@ -14,7 +14,7 @@
 //! Every N frames the journal is flushed and synced, and then `checkpoint` is replaced by a
 //! rename (through `checkpoint.new`), so that after a kill at any instant the directory holds a
 //! checkpoint and at least the frames it counts. A resumed run checks the fingerprint, streams
-//! the counted frames from the journal to its output a record at a time ([`Replay`]: the output
+//! the counted frames from the journal to its output a record at a time (`Replay`: the output
 //! is made from scratch, whatever its format, in the memory of one frame), restores the solver
 //! to the last of them ([`Solver::restore`]) and goes on: its frames are those of an
 //! uninterrupted run, byte for byte (same scene, backend, thread count and format).

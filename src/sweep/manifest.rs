@@ -18,7 +18,7 @@ use crate::lock::OutputLock;
 /// The manifest's file name in the out directory.
 pub const MANIFEST: &str = "manifest.jsonl";
 
-/// Version of the manifest's header line (`softbody_sweep`): 2 carries the job's [`Identity`].
+/// Version of the manifest's header line (`softbody_sweep`): 2 carries the job's `Identity`.
 pub const MANIFEST_VERSION: u32 = 2;
 
 /// The manifest's first line.
@@ -100,7 +100,7 @@ impl Manifest {
     /// Opens the manifest of `sweep` in `out` (made if missing): locks `out` (shared with the
     /// other Slurm tasks for a task, else alone), reads the records of `manifest.jsonl` and of
     /// every `manifest-task-*.jsonl` there, checks that they belong to this sweep (the same
-    /// [`Identity`] in each header, the same parameters for the same run number), keeps one per
+    /// `Identity` in each header, the same parameters for the same run number), keeps one per
     /// run (a finished one over a failed one, else the last), and opens for appending
     /// `manifest.jsonl`, rewritten with the finished records kept, or with `task` Some(i) the
     /// task's own `manifest-task-i.jsonl`, which no other task writes, cut after its last whole
