@@ -1,7 +1,6 @@
-//! What a valid scene may still get wrong, said before it runs: bodies that start inside the
-//! terrain (`softbody check` lists them, `softbody run` prints them), and a time step above the
-//! explicit integrators' stable estimate (`check` only: a run that becomes unstable says so
-//! itself, with the step).
+//! What a valid scene may still get wrong, said before it runs (`softbody check` lists them,
+//! `softbody run` prints them before its first step): bodies that start inside the terrain, and
+//! a time step above the explicit integrators' stable estimate.
 
 use std::fmt;
 
@@ -82,6 +81,14 @@ pub fn warnings_given(
     estimate: impl FnOnce() -> Option<f64>,
 ) -> Vec<Warning> {
     let mut found = inside_terrain(model, x);
+    found.extend(step_above_stable(model, estimate));
+    found
+}
+
+/// [`Warning::StepAboveStable`] when `model`'s integrator is explicit and its dt is above the
+/// stable step's estimate, given by `estimate` ([`stable_dt_estimate`] at the initial
+/// positions), which is called only where the step is above the guaranteed bound.
+pub fn step_above_stable(model: &Model, estimate: impl FnOnce() -> Option<f64>) -> Option<Warning> {
     let sim = &model.simulation;
     // Below the guaranteed bound (never above the estimate: λ and c bounded from above, where
     // the power iteration approaches them from below) the estimate's products are skipped: on
@@ -91,14 +98,13 @@ pub fn warnings_given(
         && let Some(stable) = estimate()
         && sim.dt > stable
     {
-        found.push(Warning::StepAboveStable { dt: sim.dt, stable });
+        return Some(Warning::StepAboveStable { dt: sim.dt, stable });
     }
-    found
+    None
 }
 
 /// The bodies of `model` that start inside a terrain shape at the positions `x`
-/// ([`Warning::InsideTerrain`]), bodies before shapes; what `softbody run` warns of (it leaves
-/// the step's estimate to `check`: a run that becomes unstable says so itself, with the step).
+/// ([`Warning::InsideTerrain`]), bodies before shapes.
 pub fn inside_terrain(model: &Model, x: &[DVec3]) -> Vec<Warning> {
     let mut found = Vec::new();
     for (t, terrain) in model.terrain.iter().enumerate() {
