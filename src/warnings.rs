@@ -7,7 +7,7 @@ use std::fmt;
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_cpu::stable_step::stable_dt_estimate;
-use softbody_scene::{Integrator, Model};
+use softbody_scene::{Integrator, Model, Terrain};
 use softbody_terrain::Surface;
 
 /// Depth below which a particle counts as inside a terrain shape, metres: a body placed
@@ -106,27 +106,38 @@ pub fn step_above_stable(model: &Model, estimate: impl FnOnce() -> Option<f64>) 
 /// The bodies of `model` that start inside a terrain shape at the positions `x`
 /// ([`Warning::InsideTerrain`]), bodies before shapes.
 pub fn inside_terrain(model: &Model, x: &[DVec3]) -> Vec<Warning> {
-    let mut found = Vec::new();
-    for (t, terrain) in model.terrain.iter().enumerate() {
-        let surface = Surface::new(terrain);
-        for body in &model.bodies {
+    model
+        .bodies
+        .iter()
+        .flat_map(|body| {
             let range = body.first as usize..(body.first + body.count) as usize;
-            // Each particle's depth, and the deepest: order-free (max of values), so the
-            // parallel sweep gives what the serial one would.
-            let (inside, depth) = x[range]
-                .par_iter()
-                .filter_map(|&x| surface.query(x, -INSIDE))
-                .map(|c| (1usize, -c.phi))
-                .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
-            if inside > 0 {
-                found.push(Warning::InsideTerrain {
-                    body: body.name.clone(),
-                    terrain: t,
-                    inside,
-                    of: body.count,
-                    depth,
-                });
-            }
+            body_inside_terrain(&model.terrain, &body.name, &x[range])
+        })
+        .collect()
+}
+
+/// The shapes of `terrain` that the body `name` starts inside of at its particles' positions
+/// `x` ([`Warning::InsideTerrain`]), in the terrain's order: for a caller that has one body's
+/// positions without a model of the scene (`softbody check` on large cuboids).
+pub fn body_inside_terrain(terrain: &[Terrain], name: &str, x: &[DVec3]) -> Vec<Warning> {
+    let mut found = Vec::new();
+    for (t, shape) in terrain.iter().enumerate() {
+        let surface = Surface::new(shape);
+        // Each particle's depth, and the deepest: order-free (max of values), so the parallel
+        // sweep gives what the serial one would.
+        let (inside, depth) = x
+            .par_iter()
+            .filter_map(|&x| surface.query(x, -INSIDE))
+            .map(|c| (1usize, -c.phi))
+            .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
+        if inside > 0 {
+            found.push(Warning::InsideTerrain {
+                body: name.to_owned(),
+                terrain: t,
+                inside,
+                of: x.len() as u32,
+                depth,
+            });
         }
     }
     found
