@@ -343,6 +343,7 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
         stop,
         mut notice,
     } = hooks;
+    let listening = notice.is_some();
     let mut notice = |n: Notice| {
         if let Some(hear) = notice.as_deref_mut() {
             hear(n);
@@ -398,10 +399,23 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
         device: device.clone(),
         ..Outcome::failed(e, scene)
     };
+    // Said before the first step, so that a run about to diverge is warned of before it is
+    // waited for. The step's estimate only to a listener: it takes seconds on large bodies.
     match solver.state() {
         Ok(state) => {
             let x = state.x.clone();
-            for w in crate::warnings::inside_terrain(solver.model(), &x) {
+            let model = solver.model();
+            let step = listening
+                .then(|| {
+                    crate::warnings::step_above_stable(model, || {
+                        softbody_cpu::stable_step::stable_dt_estimate(model, &x)
+                    })
+                })
+                .flatten();
+            for w in crate::warnings::inside_terrain(model, &x)
+                .into_iter()
+                .chain(step)
+            {
                 notice(Notice::Warning(w.to_string()));
             }
         }

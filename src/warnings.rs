@@ -1,14 +1,13 @@
-//! What a valid scene may still get wrong, said before it runs: bodies that start inside the
-//! terrain (`softbody check` lists them, `softbody run` prints them), and a time step above the
-//! explicit integrators' stable estimate (`check` only: a run that becomes unstable says so
-//! itself, with the step).
+//! What a valid scene may still get wrong, said before it runs (`softbody check` lists them,
+//! `softbody run` prints them before its first step): bodies that start inside the terrain, and
+//! a time step above the explicit integrators' stable estimate.
 
 use std::fmt;
 
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_cpu::stable_step::stable_dt_estimate;
-use softbody_scene::{Integrator, Model, TerrainShape};
+use softbody_scene::{Integrator, Model, Terrain, TerrainShape};
 use softbody_terrain::Surface;
 
 /// Depth below which a particle counts as inside a terrain shape, metres: a body placed
@@ -104,6 +103,14 @@ pub fn warnings_given(
     estimate: impl FnOnce() -> Option<f64>,
 ) -> Vec<Warning> {
     let mut found = inside_terrain(model, x);
+    found.extend(step_above_stable(model, estimate));
+    found
+}
+
+/// [`Warning::StepAboveStable`] when `model`'s integrator is explicit and its dt is above the
+/// stable step's estimate, given by `estimate` ([`stable_dt_estimate`] at the initial
+/// positions), which is called only where the step is above the guaranteed bound.
+pub fn step_above_stable(model: &Model, estimate: impl FnOnce() -> Option<f64>) -> Option<Warning> {
     let sim = &model.simulation;
     // Below the guaranteed bound (never above the estimate: λ and c bounded from above, where
     // the power iteration approaches them from below) the estimate's products are skipped: on
@@ -113,37 +120,47 @@ pub fn warnings_given(
         && let Some(stable) = estimate()
         && sim.dt > stable
     {
-        found.push(Warning::StepAboveStable { dt: sim.dt, stable });
+        return Some(Warning::StepAboveStable { dt: sim.dt, stable });
     }
-    found
+    None
 }
 
 /// The bodies of `model` that start inside a terrain shape at the positions `x`
-/// ([`Warning::InsideTerrain`]), bodies before shapes; what `softbody run` warns of (it leaves
-/// the step's estimate to `check`: a run that becomes unstable says so itself, with the step).
+/// ([`Warning::InsideTerrain`]), bodies before shapes.
 pub fn inside_terrain(model: &Model, x: &[DVec3]) -> Vec<Warning> {
-    let mut found = Vec::new();
-    for (t, terrain) in model.terrain.iter().enumerate() {
-        let surface = Surface::new(terrain);
-        for body in &model.bodies {
+    model
+        .bodies
+        .iter()
+        .flat_map(|body| {
             let range = body.first as usize..(body.first + body.count) as usize;
-            // Each particle's depth, and the deepest: order-free (max of values), so the
-            // parallel sweep gives what the serial one would.
-            let (inside, depth) = x[range]
-                .par_iter()
-                .filter_map(|&x| surface.query(x, -INSIDE))
-                .map(|c| (1usize, -c.phi))
-                .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
-            if inside > 0 {
-                found.push(Warning::InsideTerrain {
-                    body: body.name.clone(),
-                    terrain: t,
-                    inside,
-                    of: body.count,
-                    depth,
-                    mesh: matches!(terrain.shape, TerrainShape::Mesh(_)),
-                });
-            }
+            body_inside_terrain(&model.terrain, &body.name, &x[range])
+        })
+        .collect()
+}
+
+/// The shapes of `terrain` that the body `name` starts inside of at its particles' positions
+/// `x` ([`Warning::InsideTerrain`]), in the terrain's order: for a caller that has one body's
+/// positions without a model of the scene (`softbody check` on large cuboids).
+pub fn body_inside_terrain(terrain: &[Terrain], name: &str, x: &[DVec3]) -> Vec<Warning> {
+    let mut found = Vec::new();
+    for (t, shape) in terrain.iter().enumerate() {
+        let surface = Surface::new(shape);
+        // Each particle's depth, and the deepest: order-free (max of values), so the parallel
+        // sweep gives what the serial one would.
+        let (inside, depth) = x
+            .par_iter()
+            .filter_map(|&x| surface.query(x, -INSIDE))
+            .map(|c| (1usize, -c.phi))
+            .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
+        if inside > 0 {
+            found.push(Warning::InsideTerrain {
+                body: name.to_owned(),
+                terrain: t,
+                inside,
+                of: x.len() as u32,
+                depth,
+                mesh: matches!(shape.shape, TerrainShape::Mesh(_)),
+            });
         }
     }
     found

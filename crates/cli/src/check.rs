@@ -3,11 +3,13 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use softbody::Model;
+use glam::DVec3;
 use softbody::cpu::stable_step::stable_dt_estimate;
+use softbody::warnings::Warning;
+use softbody::{Model, Scene};
 
 use crate::args::StepOverrides;
-use crate::{Failure, emit, load_with};
+use crate::{Failure, emit, estimate, load_with};
 
 #[derive(Args)]
 pub struct CheckArgs {
@@ -32,11 +34,24 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
             out.push('\n');
         }};
     }
-    let (model, state) = Model::build(&scene);
+    // A model of the scene is what a run holds: large cuboids are described from their counts
+    // and their stable step found on a piece of their lattice (`estimate::pieces`).
+    let pieces = estimate::pieces(&scene);
+    let (model, state) = Model::build(pieces.as_ref().unwrap_or(&scene));
     let stable_dt = model.stable_dt();
     let stable_dt_estimate = stable_dt_estimate(&model, &state.x);
-    let warnings = softbody::warnings::warnings_given(&model, &state.x, || stable_dt_estimate);
-    let counts = model.spring_counts;
+    let warnings = if pieces.is_some() {
+        let mut found = whole_inside_terrain(&scene, &model, &state.x);
+        found.extend(softbody::warnings::step_above_stable(&model, || {
+            stable_dt_estimate
+        }));
+        found
+    } else {
+        softbody::warnings::warnings_given(&model, &state.x, || stable_dt_estimate)
+    };
+    let cost = estimate::cost(&scene);
+    let counts = scene.spring_counts();
+    let bodies = body_ranges(&scene);
     let sim = &scene.simulation;
     let terrain: Vec<&str> = scene
         .terrain
@@ -45,7 +60,7 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
         .collect();
     if args.json {
         let value = serde_json::json!({
-            "particles": model.len(),
+            "particles": scene.particle_count(),
             "springs": {
                 "structural": counts.structural,
                 "shear": counts.shear,
@@ -55,8 +70,8 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
             "total_mass": scene.total_mass(),
             "stable_dt": stable_dt,
             "stable_dt_estimate": stable_dt_estimate,
-            "bodies": model.bodies.iter().zip(&scene.bodies).map(|(b, body)| {
-                let mut v = serde_json::json!({"name": b.name, "first": b.first, "count": b.count, "mass": body.mass()});
+            "bodies": bodies.iter().zip(&scene.bodies).map(|((first, count), body)| {
+                let mut v = serde_json::json!({"name": body.name, "first": first, "count": count, "mass": body.mass()});
                 if let Some(weighed) = weighed(body) {
                     v["density"] = weighed.density.into();
                     v["volume"] = weighed.volume.into();
@@ -70,13 +85,19 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
             "steps": sim.steps(),
             "frames": sim.frame_count(),
             "warnings": warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
+            "estimates": {
+                "memory_bytes": cost.memory,
+                "memory_available_bytes": cost.available.map(|(bytes, _)| bytes),
+                "output_bytes": cost.output,
+                "seconds": cost.seconds,
+            },
         });
         line!("{value}");
         return emit(&out);
     }
     line!("{}: valid", args.scene.display());
-    line!("  particles   {}", model.len());
-    for (b, body) in model.bodies.iter().zip(&scene.bodies) {
+    line!("  particles   {}", scene.particle_count());
+    for ((first, count), body) in bodies.iter().zip(&scene.bodies) {
         let how = weighed(body).map_or(String::new(), |w| {
             let of = if w.enclosed {
                 "the mesh encloses"
@@ -90,10 +111,8 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
             )
         });
         line!(
-            "    {:<10} {} particles from {}, {} kg{how}",
-            b.name,
-            b.count,
-            b.first,
+            "    {:<10} {count} particles from {first}, {} kg{how}",
+            body.name,
             twelve_digits(body.mass())
         );
     }
@@ -127,10 +146,69 @@ pub fn check(args: CheckArgs) -> Result<(), Failure> {
         ),
         _ => line!("  stable dt   unlimited (no springs)"),
     }
+    let available = cost.available.map_or(String::new(), |(bytes, what)| {
+        format!(" ({} {what})", estimate::human_bytes(bytes))
+    });
+    line!(
+        "  memory      about {} for the CPU solver{available}",
+        estimate::human_bytes(cost.memory)
+    );
+    line!(
+        "  output      about {} as JSON Lines ({} frames of {} particles, {} B each)",
+        estimate::human_bytes(cost.output),
+        sim.frame_count(),
+        scene.particle_count(),
+        estimate::JSONL_BYTES_PER_PARTICLE
+    );
+    line!(
+        "  run time    about {} of stepping on two CPU cores (an estimate at {:.1e} \
+         particle-steps/s, the slow end of BENCHMARKS.md for {}; contacts and small bodies run \
+         slower, more cores faster)",
+        estimate::human_seconds(cost.seconds),
+        estimate::particle_steps_per_second(sim.integrator),
+        sim.integrator
+    );
     for w in &warnings {
         line!("  warning     {w}");
     }
     emit(&out)
+}
+
+/// Each body's first particle and count, in file order (particles are numbered body by body).
+fn body_ranges(scene: &Scene) -> Vec<(u64, u64)> {
+    let mut first = 0;
+    scene
+        .bodies
+        .iter()
+        .map(|body| {
+            let range = (first, body.particle_count());
+            first += range.1;
+            range
+        })
+        .collect()
+}
+
+/// The bodies of `scene` that start inside its terrain, where `model` (at positions `x`) is a
+/// model of its pieces: the cuboids cut to a piece are placed whole, one at a time, and the
+/// other bodies are the model's own.
+fn whole_inside_terrain(scene: &Scene, model: &Model, x: &[DVec3]) -> Vec<Warning> {
+    use softbody::scene::BodyShape;
+    let mut found = Vec::new();
+    for (body, range) in scene.bodies.iter().zip(&model.bodies) {
+        let own = &x[range.first as usize..(range.first + range.count) as usize];
+        let placed = match &body.shape {
+            BodyShape::Cuboid(c) if u64::from(range.count) != body.particle_count() => {
+                std::borrow::Cow::Owned(softbody::scene::topology::cuboid_positions(c))
+            }
+            _ => std::borrow::Cow::Borrowed(own),
+        };
+        found.extend(softbody::warnings::body_inside_terrain(
+            &scene.terrain,
+            &body.name,
+            &placed,
+        ));
+    }
+    found
 }
 
 /// A mesh body's mass given as a density: the density and the volume it weighed, the one the

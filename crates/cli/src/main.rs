@@ -22,6 +22,7 @@ mod args;
 mod bench;
 mod check;
 mod compare;
+mod estimate;
 mod progress;
 mod render;
 mod run;

@@ -67,6 +67,9 @@ pub struct RenderArgs {
     /// S, the strain drawn in full blue or red with --springs.
     #[arg(long, default_value_t = softbody_render::DEFAULT_STRAIN_RANGE, value_parser = positive, value_name = "S")]
     strain_range: f64,
+    /// Draw the frame's time (`t = 1.23 s`) in the top-left corner.
+    #[arg(long)]
+    label: bool,
     /// Do not draw the bodies' shadows on the terrain.
     #[arg(long)]
     no_shadows: bool,
@@ -248,7 +251,7 @@ pub fn render(args: RenderArgs) -> Result<(), Failure> {
             for frame in frames {
                 let frame = frame.map_err(bad_input)?;
                 drawer
-                    .frame(frame.index, frame.positions)
+                    .frame(frame.index, frame.time, frame.positions)
                     .context("cannot write the pictures")?;
             }
             drawer.finish(&args, "drawn", started)
@@ -354,6 +357,9 @@ struct Drawer<'m> {
     bar: ProgressBar,
     /// Draw frames whose number is a multiple of this.
     every: u64,
+    /// With --label, the time of each frame drawn, by frame number: the automatic camera's
+    /// pictures come at the end, with their numbers alone.
+    times: Option<std::collections::HashMap<u64, f64>>,
 }
 
 impl<'m> Drawer<'m> {
@@ -390,14 +396,19 @@ impl<'m> Drawer<'m> {
             pictures: Pictures { outputs, drawn: 0 },
             bar: progress::bar(frames.div_ceil(args.every), "frames", args.quiet),
             every: args.every,
+            times: args.label.then(Default::default),
         })
     }
 
-    fn frame(&mut self, index: u64, positions: Vec<DVec3>) -> anyhow::Result<()> {
-        if index % self.every != 0 {
+    fn frame(&mut self, index: u64, time: f64, positions: Vec<DVec3>) -> anyhow::Result<()> {
+        if !index.is_multiple_of(self.every) {
             return Ok(());
         }
-        if let Some(image) = self.animator.frame(index, positions)? {
+        if let Some(times) = &mut self.times {
+            times.insert(index, time);
+        }
+        if let Some(mut image) = self.animator.frame(index, positions)? {
+            label(&mut image, index, self.times.as_ref());
             self.pictures.write(index, &image)?;
         }
         self.bar.inc(1);
@@ -413,6 +424,7 @@ impl<'m> Drawer<'m> {
             mut pictures,
             bar,
             every: _,
+            times,
         } = self;
         let kept = animator.finish().map_err(|e| {
             bad_input(anyhow!(
@@ -424,7 +436,8 @@ impl<'m> Drawer<'m> {
             bar.set_message("drawing");
         }
         for picture in kept {
-            let (index, image) = picture.map_err(anyhow::Error::new)?;
+            let (index, mut image) = picture.map_err(anyhow::Error::new)?;
+            label(&mut image, index, times.as_ref());
             pictures.write(index, &image)?;
             bar.inc(1);
         }
@@ -444,6 +457,13 @@ impl<'m> Drawer<'m> {
     }
 }
 
+/// Draws frame `index`'s time on its picture, when `times` (--label) holds it.
+fn label(image: &mut Image, index: u64, times: Option<&std::collections::HashMap<u64, f64>>) {
+    if let Some(time) = times.and_then(|t| t.get(&index)) {
+        softbody_render::label(image, &format!("t = {time:.2} s"));
+    }
+}
+
 /// Feeds the simulation's frames to the drawer.
 struct Sink<'a, 'm>(&'a mut Drawer<'m>);
 
@@ -454,7 +474,7 @@ impl FrameSink for Sink<'_, '_> {
 
     fn frame(&mut self, frame: &Frame<'_>) -> std::io::Result<()> {
         self.0
-            .frame(frame.index, frame.positions.to_vec())
+            .frame(frame.index, frame.time, frame.positions.to_vec())
             .map_err(std::io::Error::other)
     }
 

@@ -100,8 +100,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             }),
             stop: Some(&signals.stop),
             // Warnings are said even with --quiet: they are about the results, not the
-            // progress. The step's estimate is left to `check`: a run that becomes unstable
-            // says so itself, with the step.
+            // progress.
             notice: Some(&mut |notice| match notice {
                 Notice::Warning(w) => say!("warning: {w}"),
                 Notice::Resuming { after_frame, dir } if !quiet => {

@@ -577,7 +577,11 @@ fn one_and_two_threads_give_identical_frames_implicit() {
 /// The step, time and particle an instability message names ("... at step S (t = T s):
 /// particle P ...").
 #[track_caller]
-fn instability_in(msg: &str) -> (f64, f64, f64) {
+fn instability_in(stderr: &str) -> (f64, f64, f64) {
+    // The error, after the warning of a step above the stable estimate that comes before it.
+    let msg = &stderr[stderr
+        .find("error: ")
+        .unwrap_or_else(|| panic!("no error in:\n{stderr}"))..];
     let number_after = |label: &str| -> f64 {
         let at = msg
             .find(label)

@@ -517,3 +517,53 @@ fn every_kth_frame_is_drawn() {
     let o = sb.run(&["render", "cube.toml", "--every", "0"]);
     o.expect_status(EXIT_BAD_INPUT);
 }
+
+/// `--label` writes the frame's time in the top-left corner: the pixels it changes are all of
+/// the label's colour, inside the box of its ten glyphs (5 × 7, one column apart, two pixels
+/// from the edges at 120 rows), and they change from `t = 0.00 s` to `t = 0.05 s`.
+#[test]
+fn label_draws_the_time_in_the_corner() {
+    let sb = Sandbox::new();
+    sb.write("cube.toml", &cube().toml());
+    let size = ["--width", "160", "--height", "120", "-q"];
+    for (out, label) in [("plain", false), ("labelled", true)] {
+        let mut args = vec!["render", "cube.toml", "--out", out];
+        args.extend(size);
+        if label {
+            args.push("--label");
+        }
+        sb.run(&args).expect_status(EXIT_OK);
+    }
+    let changed = |frame: &str| -> Vec<(u32, u32)> {
+        let (w, h, plain) = read_png(&sb.path().join("plain").join(frame));
+        let (_, _, labelled) = read_png(&sb.path().join("labelled").join(frame));
+        let mut at = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let i = 3 * (y * w + x) as usize;
+                if plain[i..i + 3] != labelled[i..i + 3] {
+                    assert_eq!(labelled[i..i + 3], [20, 20, 20], "{frame} ({x}, {y})");
+                    at.push((x, y));
+                }
+            }
+        }
+        at
+    };
+    let (first, last) = (changed("frame_000000.png"), changed("frame_000005.png"));
+    // "t = 0.00 s": ten glyphs of 6 columns less the last space, from (2, 2).
+    let (right, bottom) = (2 + 10 * 6 - 1, 2 + 7);
+    for (x, y) in first.iter().chain(&last) {
+        assert!(
+            (2..right).contains(x) && (2..bottom).contains(y),
+            "({x}, {y})"
+        );
+    }
+    // At least the "t" and "=" (6 + 10 font pixels) and four digits are drawn.
+    assert!(
+        first.len() > 16 && last.len() > 16,
+        "{} {}",
+        first.len(),
+        last.len()
+    );
+    assert_ne!(first, last, "the time changes");
+}

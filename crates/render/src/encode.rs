@@ -57,6 +57,14 @@ impl Image {
         [self.pixels[at], self.pixels[at + 1], self.pixels[at + 2]]
     }
 
+    /// Sets pixel (x, y) to `color`; a pixel outside the image is left out.
+    pub fn set_pixel(&mut self, x: u32, y: u32, color: [u8; 3]) {
+        if x < self.width && y < self.height {
+            let at = 3 * (y as usize * self.width as usize + x as usize);
+            self.pixels[at..at + 3].copy_from_slice(&color);
+        }
+    }
+
     /// Writes the image as a PNG file (8-bit RGB).
     pub fn write_png<W: Write>(&self, out: W) -> io::Result<()> {
         let mut encoder = png::Encoder::new(out, self.width, self.height);

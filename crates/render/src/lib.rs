@@ -55,6 +55,7 @@ pub mod colormap;
 mod encode;
 pub mod raster;
 pub mod terrain;
+pub mod text;
 
 use glam::DVec3;
 use softbody_scene::Model;
@@ -94,6 +95,18 @@ pub const SHADOW_MAP: usize = 256;
 pub const SHADOW: f64 = 0.6;
 /// The default strain range ±s of the colormap: ±10 %.
 pub const DEFAULT_STRAIN_RANGE: f64 = 0.1;
+/// The colour of labels ([`label`], the colour bar's numbers): dark on the light sky.
+pub const LABEL_COLOR: [u8; 3] = [20, 20, 20];
+
+/// Draws `text` ([`text`]'s glyphs) in the top-left corner of `image`, a font pixel's margin
+/// from its edges: the time stamp of `softbody render --label`.
+pub fn label(image: &mut Image, text: &str) {
+    let scale = text::scale_for(image.height());
+    let margin = 2 * scale;
+    text::draw(text, margin, margin, scale, |x, y| {
+        image.set_pixel(x as u32, y as u32, LABEL_COLOR)
+    });
+}
 
 /// What to draw and how big.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -529,6 +542,20 @@ impl Renderer {
                 buf.color[(y0 + j) * w + x0 + i] = [40, 40, 40];
             }
         }
+        // The strains of its ends above them: −s over the left end, +s ending over the right.
+        let scale = text::scale_for(h as u32);
+        let top = y0.checked_sub((text::GLYPH_HEIGHT + 2) * scale);
+        let (low, high) = (text::percent(-s), text::percent(s));
+        let mut put = |x: usize, y: usize| {
+            if x < w && y < h {
+                buf.color[y * w + x] = LABEL_COLOR;
+            }
+        };
+        if let Some(top) = top {
+            text::draw(&low, x0, top, scale, &mut put);
+            let right = (x0 + bar_w).saturating_sub(text::width(&high, scale));
+            text::draw(&high, right, top, scale, &mut put);
+        }
     }
 }
 
@@ -684,6 +711,49 @@ mod tests {
         assert_eq!(shaded.pixel(32, 32), expect);
         assert_eq!(shaded.pixel(0, 0), lit.pixel(0, 0));
         assert_ne!(lit, shaded);
+    }
+
+    /// The colour bar's ends are labelled with their strains: the labels' pixels sit above
+    /// the bar's ends, and another strain range draws other numbers there.
+    #[test]
+    fn the_colour_bar_shows_its_range() {
+        let (model, x) = model(true);
+        let draw = |strain_range| {
+            let options = RenderOptions {
+                width: 200,
+                height: 150,
+                springs: true,
+                strain_range,
+                ..RenderOptions::default()
+            };
+            Renderer::new(&model, Bounds::of(&x), options)
+                .unwrap()
+                .render_frame(&x)
+                .unwrap()
+        };
+        let labelled = |image: &Image| -> Vec<(u32, u32)> {
+            let mut at = Vec::new();
+            for y in 0..image.height() {
+                for x in 0..image.width() {
+                    if image.pixel(x, y) == LABEL_COLOR {
+                        at.push((x, y));
+                    }
+                }
+            }
+            at
+        };
+        let (wide, narrow) = (draw(0.1), draw(0.05));
+        // The bar: 50 × 4 pixels from (3, 143); its labels, 7 rows, end a glyph's row above.
+        let (bar_left, bar_right, bar_top) = (3, 3 + 200 / 4, 150 - 4 - 150 / 60);
+        let (a, b) = (labelled(&wide), labelled(&narrow));
+        for &(x, y) in a.iter().chain(&b) {
+            assert!((bar_left..bar_right).contains(&x), "({x}, {y})");
+            assert!((bar_top - 9..bar_top - 2).contains(&y), "({x}, {y})");
+        }
+        // "-10%" and "+10%" each have pixels over their ends of the bar.
+        let half = (bar_left + bar_right) / 2;
+        assert!(a.iter().any(|p| p.0 < half) && a.iter().any(|p| p.0 >= half));
+        assert_ne!(a, b, "-5% and +5% are other numbers");
     }
 
     #[test]
