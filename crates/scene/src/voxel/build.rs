@@ -485,6 +485,24 @@ impl Voxels {
         let mut present: Vec<bool> = (0..w.len()).map(|at| crossed[at] || w[at] >= 0.5).collect();
         let inside_cells = grid.inside_cells(&crossed, &w, closed, &winding, &mesh)?;
         let embedding = grid.embed(&unit, &used, &mut present);
+        // Extended weights grow as the cube of the distance: beyond one lattice length they
+        // would magnify the particles' rounding more than a vertex can carry.
+        let longest = grid.cells.iter().copied().max().unwrap_or(1);
+        let reach = f64::from(longest) + 1.0;
+        if let Some(v) =
+            (0..embedding.len()).find(|&v| !used[v] && embedding[v].1.abs().max_element() > reach)
+        {
+            return fail(
+                VoxelKey::File,
+                format!(
+                    "{}: vertex {}, which no face uses, is farther from the lattice than the \
+                     lattice is long ({longest} cells): it cannot ride on it; remove it or bring \
+                     it nearer",
+                    mesh.path.display(),
+                    v
+                ),
+            );
+        }
         let (particle_of, points) = grid.particles(&present);
         let springs = grid.spring_counts(&present);
         Ok(Voxels {

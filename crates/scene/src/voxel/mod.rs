@@ -532,6 +532,21 @@ mod tests {
             e.message
         );
 
+        // A vertex no face uses, farther out than the lattice is long: its extended weights
+        // would magnify the lattice's rounding beyond use.
+        let mut m = unit_cube();
+        m.vertices.push(DVec3::new(0.5, 0.5, 1e6));
+        let e = Voxels::new(m, DVec3::ONE, LatticeSize::Cell(0.25)).unwrap_err();
+        assert_eq!(e.key, VoxelKey::File);
+        assert_eq!(
+            e.message,
+            "cube.obj: vertex 24, which no face uses, is farther from the lattice than the \
+             lattice is long (4 cells): it cannot ride on it; remove it or bring it nearer"
+        );
+        let mut m = unit_cube();
+        m.vertices.push(DVec3::new(0.5, 0.5, 2.0));
+        assert!(Voxels::new(m, DVec3::ONE, LatticeSize::Cell(0.25)).is_ok());
+
         let e = Voxels::new(unit_cube(), DVec3::ONE, LatticeSize::Cell(1e-7)).unwrap_err();
         assert_eq!(e.key, VoxelKey::Size);
         assert!(e.message.contains("particles supported"), "{}", e.message);
