@@ -18,7 +18,7 @@ use softbody::output::{Frame, FrameSink, Header, Staged, jsonl};
 use softbody::run::RunError;
 use softbody::service::{self, Hooks, RunFailure, RunRequest, SceneSource};
 use softbody::{Backend, Model, Overrides, Scene};
-use softbody_render::animation::{self, Animation, Animator, CameraPlan};
+use softbody_render::animation::{self, Animation, Animator, CameraPlan, Follow};
 use softbody_render::{GifWriter, Image, RenderOptions};
 
 use crate::args::{StepOverrides, positive};
@@ -75,8 +75,13 @@ pub struct RenderArgs {
     no_shadows: bool,
     /// Move the camera with the bodies: it keeps its offset from their centroid (the mean
     /// particle position), and by default frames about three times the bodies' first-frame size.
-    #[arg(long)]
+    /// Without --follow, --no-follow or a camera point, the camera follows bodies that travel
+    /// more than 3√3 times their size.
+    #[arg(long, overrides_with = "no_follow")]
     follow: bool,
+    /// Keep the automatic camera still, framing the bodies' whole path.
+    #[arg(long, overrides_with = "follow")]
+    no_follow: bool,
     /// The scene of a .jsonl input, when it is no longer where the frames' header says (moved,
     /// or the frames come from another machine): it gives the terrain and the surface.
     #[arg(long)]
@@ -382,7 +387,11 @@ impl<'m> Drawer<'m> {
             from: args.camera_from,
             to: args.camera_to,
             fov_y_degrees: args.fov,
-            follow: args.follow,
+            follow: match (args.follow, args.no_follow) {
+                (true, _) => Follow::Always,
+                (_, true) => Follow::Never,
+                _ => Follow::Automatic,
+            },
         };
         let animator = Animator::new(model, options, plan)
             .map_err(|e| bad_input(anyhow!("--camera-from/--camera-to: {e}")))?;

@@ -47,7 +47,7 @@ use std::path::PathBuf;
 use glam::DVec3;
 use softbody_scene::Model;
 
-use crate::{Bounds, Camera, GifWriter, Image, RenderError, RenderOptions, Renderer};
+use crate::{Bounds, Camera, GifWriter, Image, RenderError, RenderOptions, Renderer, framing};
 
 /// The stem of the PNG files' names: `frame_000000.png`, `frame_000001.png`, …
 pub const PNG_STEM: &str = "frame";
@@ -100,10 +100,23 @@ pub struct CameraPlan {
     pub to: Option<DVec3>,
     /// Vertical field of view, degrees, in (0, 180).
     pub fov_y_degrees: f64,
-    /// Move the camera with the bodies' centroid (the mean finite particle position), keeping
-    /// the offset it has at the first frame; the points not given frame a box three times the
-    /// bodies' first-frame size around it.
-    pub follow: bool,
+    /// Whether the camera moves with the bodies.
+    pub follow: Follow,
+}
+
+/// Whether an [`Animator`]'s camera moves with the bodies' centroid (the mean finite particle
+/// position), keeping the offset it has at the first frame; the points not given then frame a
+/// box three times the bodies' first-frame size around it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Follow {
+    /// Follow when neither point is given and the bodies travel far
+    /// ([`framing::travels_far`](crate::framing::travels_far)); else stay.
+    #[default]
+    Automatic,
+    /// Always follow.
+    Always,
+    /// Never follow.
+    Never,
 }
 
 impl Default for CameraPlan {
@@ -112,7 +125,7 @@ impl Default for CameraPlan {
             from: None,
             to: None,
             fov_y_degrees: crate::camera::DEFAULT_FOV_Y_DEGREES,
-            follow: false,
+            follow: Follow::Automatic,
         }
     }
 }
@@ -129,6 +142,8 @@ pub struct Animator<'m> {
     follow: Option<(DVec3, DVec3)>,
     /// Frames waiting for the automatic camera (index, positions).
     pending: Vec<(u64, Vec<DVec3>)>,
+    /// The bodies' box at the first frame and over every frame so far.
+    first: Bounds,
     bodies: Bounds,
 }
 
@@ -154,6 +169,7 @@ impl<'m> Animator<'m> {
             renderer: None,
             follow: None,
             pending: Vec::new(),
+            first: Bounds::default(),
             bodies: Bounds::default(),
         })
     }
@@ -166,13 +182,16 @@ impl<'m> Animator<'m> {
         index: u64,
         positions: Vec<DVec3>,
     ) -> Result<Option<Image>, RenderError> {
-        if self.plan.follow {
+        if self.plan.follow == Follow::Always {
             return self.follow_frame(&positions).map(Some);
+        }
+        if self.first.is_empty() {
+            self.first = Bounds::of(&positions);
         }
         if self.renderer.is_none() && self.plan.from.is_some() && self.plan.to.is_some() {
             // The camera is known: the first frame sizes the ground planes.
             self.bodies.add(&positions);
-            self.renderer = Some(self.placed()?);
+            self.renderer = Some(self.placed(crate::camera::DEFAULT_VIEW_DIRECTION)?);
         }
         match &self.renderer {
             Some(renderer) => renderer.render_frame(&positions).map(Some),
@@ -184,27 +203,42 @@ impl<'m> Animator<'m> {
         }
     }
 
-    /// Places the automatic camera now that every frame is known, and returns the pictures of
-    /// the frames kept for it, drawn one by one as the iterator is advanced (empty when every
-    /// frame was drawn as it came).
+    /// Places the automatic camera now that every frame is known ([`crate::framing`]: it
+    /// follows bodies that travel far, and looks down past terrain that hides them), and
+    /// returns the pictures of the frames kept for it, drawn one by one as the iterator is
+    /// advanced (empty when every frame was drawn as it came).
     pub fn finish(
         mut self,
     ) -> Result<impl ExactSizeIterator<Item = Result<(u64, Image), RenderError>>, RenderError> {
-        let renderer = match self.renderer.take() {
-            Some(renderer) => renderer,
-            None => self.placed()?,
+        let pending = std::mem::take(&mut self.pending);
+        let follow = self.renderer.is_none()
+            && self.plan.follow == Follow::Automatic
+            && self.plan.from.is_none()
+            && self.plan.to.is_none()
+            && framing::travels_far(self.first, self.bodies);
+        let fixed = match self.renderer.take() {
+            _ if follow => None,
+            Some(renderer) => Some(renderer),
+            None => {
+                let frames: Vec<&[DVec3]> = pending.iter().map(|(_, x)| x.as_slice()).collect();
+                Some(framing::look_down(&frames, |d| self.placed(d))?)
+            }
         };
-        Ok(self
-            .pending
-            .into_iter()
-            .map(move |(index, positions)| Ok((index, renderer.render_frame(&positions)?))))
+        Ok(pending.into_iter().map(move |(index, positions)| {
+            let image = match &fixed {
+                Some(renderer) => renderer.render_frame(&positions)?,
+                None => self.follow_frame(&positions)?,
+            };
+            Ok((index, image))
+        }))
     }
 
-    /// The renderer for the plan's camera: the automatic one for the bodies' box so far, with
-    /// the given points in place of its own.
-    fn placed(&self) -> Result<Renderer, RenderError> {
+    /// The renderer for the plan's camera: the automatic one for the bodies' box so far, seen
+    /// from `direction`, with the given points in place of its own.
+    fn placed(&self, direction: DVec3) -> Result<Renderer, RenderError> {
         let content = crate::content_bounds(self.model, self.bodies);
-        let auto = Camera::framing(
+        let auto = Camera::framing_along(
+            direction,
             content.lo,
             content.hi,
             self.options.width,
@@ -345,7 +379,7 @@ mod tests {
     fn following_keeps_the_picture_as_the_bodies_move() {
         let (model, x) = cube();
         let plan = CameraPlan {
-            follow: true,
+            follow: Follow::Always,
             ..CameraPlan::default()
         };
         let mut animator = Animator::new(&model, OPTIONS, plan).unwrap();
@@ -359,6 +393,120 @@ mod tests {
             assert!(r > b + 60, "frame {k}: {:?}", image.pixel(24, 16));
         }
         assert_eq!(animator.finish().unwrap().len(), 0);
+    }
+
+    /// The pixels of body 0's colour (orange: red well above blue) and, of those, the ones on
+    /// the outline (a 4-neighbour of another colour or the picture's edge).
+    fn body_pixels(image: &Image) -> (usize, usize) {
+        let (w, h) = (image.width() as i64, image.height() as i64);
+        let body = |i: i64, j: i64| {
+            (0..w).contains(&i) && (0..h).contains(&j) && {
+                let [r, _, b] = image.pixel(i as u32, j as u32);
+                i32::from(r) > i32::from(b) + 60
+            }
+        };
+        let (mut inside, mut outline) = (0, 0);
+        for j in 0..h {
+            for i in 0..w {
+                if body(i, j) {
+                    inside += 1;
+                    if [(1, 0), (-1, 0), (0, 1), (0, -1)]
+                        .iter()
+                        .any(|(di, dj)| !body(i + di, j + dj))
+                    {
+                        outline += 1;
+                    }
+                }
+            }
+        }
+        (inside, outline)
+    }
+
+    /// A body sliding 10 m (19 times its diagonal) is followed: translating the camera with
+    /// it draws it the same at the last frame as at the first, up to the pixels on its
+    /// outline. A still camera on the whole path draws it smaller.
+    #[test]
+    fn the_automatic_camera_follows_a_body_that_travels_far() {
+        let (model, x) = cube();
+        let options = RenderOptions {
+            width: 96,
+            height: 64,
+            ..OPTIONS
+        };
+        let frames: Vec<Vec<DVec3>> = (0..=4)
+            .map(|k| moved(&x, DVec3::X * (2.5 * k as f64)))
+            .collect();
+        let draw = |follow| {
+            let plan = CameraPlan {
+                follow,
+                ..CameraPlan::default()
+            };
+            let mut animator = Animator::new(&model, options, plan).unwrap();
+            for (k, f) in frames.iter().enumerate() {
+                assert!(animator.frame(k as u64, f.clone()).unwrap().is_none());
+            }
+            let pictures: Vec<Image> = animator.finish().unwrap().map(|p| p.unwrap().1).collect();
+            pictures
+        };
+        let pictures = draw(Follow::Automatic);
+        let (first, outline) = body_pixels(&pictures[0]);
+        let (last, _) = body_pixels(&pictures[4]);
+        assert!(
+            first.abs_diff(last) <= outline,
+            "{first} → {last} (outline {outline})"
+        );
+
+        // Told not to follow, it frames the whole path, as one renderer on every frame's box.
+        let still = draw(Follow::Never);
+        let mut bodies = Bounds::default();
+        frames.iter().for_each(|f| bodies.add(f));
+        let renderer = Renderer::new(&model, bodies, options).unwrap();
+        assert_eq!(still[4], renderer.render_frame(&frames[4]).unwrap());
+        // …which draws it smaller: the reason to follow.
+        assert!(body_pixels(&still[4]).0 < first);
+    }
+
+    /// A cube resting at the bottom of a bowl is hidden by the rim from the default view; the
+    /// automatic camera looks down steeply enough to see all of it.
+    #[test]
+    fn the_automatic_camera_looks_down_into_a_bowl() {
+        let scene = Scene::from_toml(
+            "[simulation]\ndt = 0.001\nduration = 1.0\n\
+             [[body]]\nkind = \"cuboid\"\nsize = [0.3, 0.3, 0.3]\nresolution = [3, 3, 3]\n\
+             center = [0.0, 0.18, 0.0]\nmass = 1.0\nstructural = { stiffness = 100.0 }\n\
+             [[terrain]]\nkind = \"bowl\"\ncenter = [0.0, 1.0, 0.0]\nradius = 1.0\n",
+            "inline.toml".as_ref(),
+        )
+        .unwrap();
+        let (model, state) = Model::build(&scene);
+        let options = RenderOptions {
+            width: 96,
+            height: 64,
+            ..OPTIONS
+        };
+        let bodies = Bounds::of(&state.x);
+        let content = crate::content_bounds(&model, bodies);
+        let place = |direction| {
+            let camera = Camera::framing_along(direction, content.lo, content.hi, 96, 64);
+            Renderer::new(
+                &model,
+                bodies,
+                RenderOptions {
+                    camera: Some(camera),
+                    ..options
+                },
+            )
+        };
+        let default = place(crate::camera::DEFAULT_VIEW_DIRECTION).unwrap();
+        assert!(default.hidden_by_terrain(&state.x) > 0.5);
+        let chosen = framing::look_down(&[&state.x], place).unwrap();
+        assert_eq!(chosen.hidden_by_terrain(&state.x), 0.0);
+        assert!(chosen.camera().from.y > default.camera().from.y);
+
+        let mut animator = Animator::new(&model, options, CameraPlan::default()).unwrap();
+        assert!(animator.frame(0, state.x.clone()).unwrap().is_none());
+        let picture = animator.finish().unwrap().next().unwrap().unwrap().1;
+        assert_eq!(picture, chosen.render_frame(&state.x).unwrap());
     }
 
     #[test]

@@ -51,6 +51,17 @@ impl Camera {
     /// [`DEFAULT_VIEW_DIRECTION`], from just far enough that all eight corners of the box
     /// (each side widened to at least 0.5 m) are in view, plus 8 %.
     pub fn framing(lo: DVec3, hi: DVec3, width: u32, height: u32) -> Camera {
+        Camera::framing_along(DEFAULT_VIEW_DIRECTION, lo, hi, width, height)
+    }
+
+    /// [`Camera::framing`] from `direction` (from the content towards the eye; not along +y).
+    pub fn framing_along(
+        direction: DVec3,
+        lo: DVec3,
+        hi: DVec3,
+        width: u32,
+        height: u32,
+    ) -> Camera {
         let (lo, hi) = if lo.is_finite() && hi.is_finite() && lo.cmple(hi).all() {
             (lo, hi)
         } else {
@@ -62,7 +73,7 @@ impl Camera {
         let half_y = (0.5 * DEFAULT_FOV_Y_DEGREES).to_radians();
         let aspect = f64::from(width.max(1)) / f64::from(height.max(1));
         let (tan_y, tan_x) = (half_y.tan(), half_y.tan() * aspect);
-        let back = DEFAULT_VIEW_DIRECTION.normalize();
+        let back = direction.normalize();
         let view = View::new(&Camera::look_at(centre + back, centre), width, height);
         // Corner o (from the centre) at eye distance d: camera coordinates (o·r, o·u, d + o·f);
         // it is in view when |o·r| ≤ (d + o·f) tan(fov_x/2) and |o·u| ≤ (d + o·f) tan(fov_y/2).

@@ -19,7 +19,8 @@
 //! inputs give the same bytes, every run, on every machine with IEEE-754 doubles.
 //!
 //! [`animation`] draws a whole run: the camera placed once for every frame (automatically, or
-//! as given) or following the bodies, the pictures written as numbered PNG files or as one GIF.
+//! as given) or following the bodies, the pictures written as numbered PNG files or as one GIF;
+//! [`framing`] decides whether the automatic camera follows and how steeply it looks down.
 //!
 //! ```
 //! use softbody_render::{Renderer, RenderOptions, Bounds};
@@ -53,6 +54,7 @@ pub mod animation;
 pub mod camera;
 pub mod colormap;
 mod encode;
+pub mod framing;
 pub mod raster;
 pub mod terrain;
 pub mod text;
