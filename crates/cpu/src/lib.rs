@@ -29,6 +29,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod adjoint;
 pub mod body_contact;
 pub mod broad_phase;
 pub mod collision_response;

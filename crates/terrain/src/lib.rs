@@ -190,6 +190,23 @@ impl Surface {
         }
     }
 
+    /// The Jacobian ∂N/∂x of the outward normal [`Surface::query`] answers at `x` (the Hessian
+    /// of φ), where the gradients of a run are built: zero for a plane (and for a ball at its
+    /// centre, where the normal is fixed), ±(I − N Nᵀ)/|x − c| for a sphere (+) or a bowl (−).
+    /// `None` for the shapes whose normal turns at edges and corners (box, heightfield, mesh).
+    pub fn normal_jacobian(&self, x: DVec3) -> Option<glam::DMat3> {
+        match &self.geometry {
+            Geometry::Plane(_) | Geometry::Empty => Some(glam::DMat3::ZERO),
+            Geometry::Ball(ball) => Some(ball.normal_jacobian(x)),
+            Geometry::Box(_) | Geometry::Heightfield(_) | Geometry::Mesh(_) => None,
+        }
+    }
+
+    /// Whether [`Surface::normal_jacobian`] answers for this shape.
+    pub fn is_differentiable(&self) -> bool {
+        self.normal_jacobian(DVec3::ZERO).is_some()
+    }
+
     /// [`Surface::query`] for every kind of shape.
     #[inline(never)]
     fn query_shape(&self, x: DVec3, reach: f64) -> Option<Contact> {

@@ -1,0 +1,412 @@
+//! The adjoint against central finite differences of the forward solver, for every explicit
+//! integrator: free flight, a cube sliding down a slope (contact and kinetic Coulomb friction
+//! throughout), a cube in a bowl (viscous friction on a curved surface) and bouncing particles
+//! (fresh impacts and restitution).
+//!
+//! Each group of values θ (initial positions, initial velocities, masses, stiffnesses,
+//! dampings, gravity, drag, friction, restitution) is moved along a fixed pseudo-random
+//! direction d, and ⟨∇L, d⟩ is compared with (L(θ + δd) − L(θ − δd))/2δ. With δ = 1e-6 of the
+//! values' scale the central difference's truncation error, δ²/6·|L'''|, is ~1e-13 of L's scale
+//! and its rounding error ~1e-16/δ = 1e-10; the tolerance, 1e-6 of the larger of |⟨∇L, d⟩| and
+//! the difference's own size, leaves room for both while a wrong term (a missing factor, a
+//! sign) is off by O(1).
+
+use std::path::Path;
+
+use glam::DVec3;
+use softbody_cpu::CpuSolver;
+use softbody_cpu::adjoint::run::{Backward, Loss, gradient};
+use softbody_scene::{Integrator, Model, Scene, Solver, State};
+
+/// L = Σ_frames Σ_i (c_i·x_i + ½ w |v_i|²): linear in the positions with fixed pseudo-random
+/// weights, quadratic in the velocities.
+struct Probe {
+    weights: Vec<DVec3>,
+    w: f64,
+    /// The states the loss saw, by frame.
+    seen: Vec<(u64, State)>,
+}
+
+impl Probe {
+    fn new(n: usize) -> Probe {
+        Probe {
+            weights: (0..n).map(|i| direction(i, 7.0)).collect(),
+            w: 0.3,
+            seen: Vec::new(),
+        }
+    }
+
+    fn term(&self, state: &State) -> f64 {
+        let mut l = 0.0;
+        for (i, (x, v)) in state.x.iter().zip(&state.v).enumerate() {
+            l += self.weights[i].dot(*x) + 0.5 * self.w * v.length_squared();
+        }
+        l
+    }
+}
+
+impl Loss for Probe {
+    fn frame(
+        &mut self,
+        frame: u64,
+        state: &State,
+        x_bar: &mut [DVec3],
+        v_bar: &mut [DVec3],
+    ) -> f64 {
+        for i in 0..x_bar.len() {
+            x_bar[i] += self.weights[i];
+            v_bar[i] += self.w * state.v[i];
+        }
+        self.seen.push((frame, state.clone()));
+        self.term(state)
+    }
+}
+
+/// A fixed pseudo-random unit-ish vector for index i.
+fn direction(i: usize, salt: f64) -> DVec3 {
+    let t = i as f64 + salt;
+    DVec3::new(
+        (1.3 * t).sin(),
+        (0.7 * t + 1.0).cos(),
+        (2.1 * t + 0.5).sin(),
+    )
+}
+
+/// The forward loss: the solver's run, the probe's terms at every frame.
+fn forward_loss(model: &Model, start: &State) -> f64 {
+    let sim = &model.simulation;
+    let probe = Probe::new(model.len());
+    let mut solver = CpuSolver::new(model.clone(), start.clone(), Some(1)).unwrap();
+    let mut at = 0;
+    let mut total = 0.0;
+    for f in 0..sim.frame_count() {
+        let step = sim.frame_step(f);
+        solver.advance(step - at).unwrap();
+        at = step;
+        total += probe.term(solver.state().unwrap());
+    }
+    total
+}
+
+struct Case {
+    name: &'static str,
+    toml: String,
+    /// Every particle's initial velocity gains this spin about the centre (rad/s).
+    spin: f64,
+    /// Every particle's initial position moves by up to this (m).
+    strain: f64,
+    /// The direction the initial positions are moved along, by particle and position: at a
+    /// resting contact (v·N rounding to zero at every step, the contact force cancelling the
+    /// push) the response sits on its kink, and a pseudo-random move of the particles has
+    /// one-sided derivatives there that central differences average; the cases in contact
+    /// move the body along a symmetry of its terrain instead, which keeps every branch.
+    x0: fn(usize, DVec3) -> DVec3,
+}
+
+fn scattered(i: usize, _: DVec3) -> DVec3 {
+    direction(i, 1.0)
+}
+
+fn cube(center: [f64; 3], velocity: [f64; 3]) -> String {
+    format!(
+        "[[body]]\nkind = \"cuboid\"\nsize = [0.3, 0.3, 0.3]\nresolution = [3, 3, 3]\n\
+         center = [{}, {}, {}]\nrotation = [0.0, 0.0, -20.0]\nmass = 2.7\nvelocity = {velocity:?}\n\
+         structural = {{ stiffness = 900.0, damping = 2.0 }}\n\
+         shear = {{ stiffness = 700.0, damping = 1.5 }}\n\
+         bending = {{ stiffness = 400.0, damping = 1.0 }}\n",
+        center[0], center[1], center[2]
+    )
+}
+
+fn cases(integrator: Integrator) -> Vec<Case> {
+    // The contact band ε is wide enough that particles pressed onto the terrain stay inside it
+    // (the contact force starts at φ = ε: a jump that differences cannot straddle).
+    let sim = |duration: f64, band: f64| {
+        format!(
+            "[simulation]\nintegrator = \"{}\"\ndt = 1e-3\nduration = {duration}\nframe_rate = 100.0\n\
+             drag = 0.2\ncontact_distance = {band}\n",
+            integrator.name()
+        )
+    };
+    vec![
+        Case {
+            name: "free flight",
+            // Hanging from a pinned corner.
+            toml: sim(0.12, 0.01) + &cube([0.0, 1.0, 0.0], [0.4, -0.2, 0.1]) + "pinned = [0]\n",
+            spin: 2.0,
+            strain: 0.01,
+            x0: scattered,
+        },
+        Case {
+            name: "sliding on a slope",
+            // The cube's bottom face 5 mm above the 20° plane, in the contact band, sliding
+            // down the slope and across it.
+            toml: sim(0.12, 0.03)
+                + &cube([0.0530, 0.1457, 0.0], [0.3759, -0.1368, 0.1])
+                + "[[terrain]]\nkind = \"plane\"\npoint = [0.0, -0.0, 0.0]\n\
+                   normal = [0.36397023426620234, 1.0, 0.0]\nfriction = 0.1\nfriction_model = \"coulomb\"\nrestitution = 0.3\n",
+            spin: 0.0,
+            strain: 0.001,
+            // Down the slope, within the plane.
+            x0: |_, _| DVec3::new(0.9397, -0.3420, 0.0),
+        },
+        Case {
+            name: "in a bowl",
+            toml: sim(0.12, 0.03)
+                + &cube([0.35, 0.24, 0.0], [0.4, -0.2, 0.1])
+                + "[[terrain]]\nkind = \"bowl\"\ncenter = [0.0, 1.0, 0.0]\nradius = 1.0\n\
+                   friction = 0.4\nfriction_model = \"viscous\"\nrestitution = 0.2\n",
+            spin: 0.0,
+            strain: 0.001,
+            // A turn about the bowl's vertical axis.
+            x0: |_, x| DVec3::Y.cross(x - DVec3::Y),
+        },
+        Case {
+            name: "bouncing",
+            toml: sim(0.15, 0.01)
+                + "[[body]]\nkind = \"particles\"\npositions = [[0.0, 0.052, 0.0], [0.1, 0.063, 0.02]]\n\
+                   masses = [0.5, 0.7]\nvelocities = [[0.3, -1.0, 0.0], [0.2, -1.2, 0.1]]\n\
+                   springs = [{ a = 0, b = 1, stiffness = 50.0, damping = 0.1 }]\n\
+                   [[terrain]]\nkind = \"plane\"\nnormal = [0.0, 1.0, 0.0]\nrestitution = 0.6\n\
+                   friction = 0.0\n",
+            spin: 0.0,
+            strain: 0.0,
+            x0: scattered,
+        },
+    ]
+}
+
+fn build(case: &Case) -> (Model, State) {
+    let scene = Scene::from_toml(&case.toml, Path::new("adjoint.toml")).unwrap();
+    let (model, mut state) = Model::build(&scene);
+    let c = state.x.iter().sum::<DVec3>() / state.x.len() as f64;
+    // Strained (by up to 7 % of the lattice's spacing) and spinning: the springs work.
+    for (i, (x, v)) in state.x.iter_mut().zip(&mut state.v).enumerate() {
+        *v += case.spin * DVec3::Y.cross(*x - c);
+        *x += case.strain * direction(i, 3.0);
+    }
+    (model, state)
+}
+
+/// The directional derivative of the forward loss along a change of the model and state,
+/// `apply(model, state, s)` moving them by s·d, by central differences.
+fn central(
+    model: &Model,
+    state: &State,
+    scale: f64,
+    apply: &dyn Fn(&mut Model, &mut State, f64),
+) -> f64 {
+    let delta = 1e-6 * scale;
+    let at = |s: f64| {
+        let (mut m, mut x) = (model.clone(), state.clone());
+        apply(&mut m, &mut x, s);
+        forward_loss(&m, &x)
+    };
+    (at(delta) - at(-delta)) / (2.0 * delta)
+}
+
+fn check(what: &str, adjoint: f64, fd: f64, failures: &mut Vec<String>) {
+    let scale = adjoint.abs().max(fd.abs()).max(1e-12);
+    let rel = (adjoint - fd).abs() / scale;
+    if rel > 1e-6 {
+        failures.push(format!(
+            "{what}: adjoint {adjoint:e}, differences {fd:e} (relative {rel:.1e})"
+        ));
+    }
+}
+
+fn dot(a: &[DVec3], i: &dyn Fn(usize) -> DVec3) -> f64 {
+    a.iter().enumerate().map(|(k, a)| a.dot(i(k))).sum()
+}
+
+fn dot1(a: &[f64], i: &dyn Fn(usize) -> f64) -> f64 {
+    a.iter().enumerate().map(|(k, a)| a * i(k)).sum()
+}
+
+fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String>) {
+    let (model, state) = build(case);
+    let mut probe = Probe::new(model.len());
+    let back: Backward = gradient(&model, &state, Some(1), &mut probe).unwrap();
+    let name = format!("{integrator:?}, {}", case.name);
+    let l = forward_loss(&model, &state);
+    check(&format!("{name}: loss"), back.loss, l, failures);
+    let g = &back.gradient;
+    let dx = |i: usize| (case.x0)(i, state.x[i]);
+    let dv = |i: usize| direction(i, 2.0);
+    let dm = |i: usize| 1.0 + (0.37 * i as f64).sin();
+    let dk = |s: usize| 1.0 + (0.53 * s as f64).cos();
+    let dc = |s: usize| 1.0 + (0.91 * s as f64).sin();
+    let dg = DVec3::new(0.3, -1.0, 0.2);
+
+    let fd = central(&model, &state, 1.0, &|_, x, s| {
+        x.x.iter_mut()
+            .enumerate()
+            .for_each(|(i, p)| *p += s * dx(i))
+    });
+    check(&format!("{name}: x0"), dot(&back.x0, &dx), fd, failures);
+    let fd = central(&model, &state, 1.0, &|_, x, s| {
+        x.v.iter_mut()
+            .enumerate()
+            .for_each(|(i, p)| *p += s * dv(i))
+    });
+    check(&format!("{name}: v0"), dot(&back.v0, &dv), fd, failures);
+    // A mass m_i moves with 1/m_i: ∂/∂m_i = m̄_i − w̄_i/m_i².
+    let fd = central(&model, &state, 1.0, &|m, _, s| {
+        for i in 0..m.len() {
+            m.mass[i] += s * dm(i);
+            if m.inv_mass[i] != 0.0 {
+                m.inv_mass[i] = 1.0 / m.mass[i];
+            }
+        }
+    });
+    let mass = |i: usize| {
+        let w = model.inv_mass[i];
+        g.mass[i] - if w == 0.0 { 0.0 } else { g.inv_mass[i] * w * w }
+    };
+    let adj: f64 = (0..model.len()).map(|i| mass(i) * dm(i)).sum();
+    check(&format!("{name}: mass"), adj, fd, failures);
+    let fd = central(&model, &state, 1000.0, &|m, _, s| {
+        let springs = m.springs_mut();
+        for k in 0..springs.len() {
+            springs.stiffness[k] += s * dk(k);
+        }
+    });
+    check(
+        &format!("{name}: stiffness"),
+        dot1(&g.stiffness, &dk),
+        fd,
+        failures,
+    );
+    let fd = central(&model, &state, 1.0, &|m, _, s| {
+        let springs = m.springs_mut();
+        for k in 0..springs.len() {
+            springs.damping[k] += s * dc(k);
+        }
+    });
+    check(
+        &format!("{name}: damping"),
+        dot1(&g.damping, &dc),
+        fd,
+        failures,
+    );
+    let fd = central(&model, &state, 10.0, &|m, _, s| {
+        m.simulation.gravity += s * dg
+    });
+    check(
+        &format!("{name}: gravity"),
+        g.gravity_total().dot(dg),
+        fd,
+        failures,
+    );
+    let fd = central(&model, &state, 1.0, &|m, _, s| m.simulation.drag += s);
+    check(&format!("{name}: drag"), g.drag_total(), fd, failures);
+    for k in 0..model.terrain.len() {
+        let fd = central(&model, &state, 1.0, &|m, _, s| m.terrain[k].friction += s);
+        check(
+            &format!("{name}: terrain[{k}].friction"),
+            g.friction_of(k),
+            fd,
+            failures,
+        );
+        let fd = central(&model, &state, 1.0, &|m, _, s| {
+            m.terrain[k].restitution += s
+        });
+        check(
+            &format!("{name}: terrain[{k}].restitution"),
+            g.restitution_of(k),
+            fd,
+            failures,
+        );
+    }
+}
+
+const EXPLICIT: [Integrator; 4] = [
+    Integrator::ExplicitEuler,
+    Integrator::SymplecticEuler,
+    Integrator::Midpoint,
+    Integrator::Rk4,
+];
+
+#[test]
+fn the_adjoint_is_the_derivative_of_the_computed_run() {
+    let mut failures = Vec::new();
+    for integrator in EXPLICIT {
+        for case in cases(integrator) {
+            check_case(integrator, &case, &mut failures);
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// The cases touch what they are meant to: the slope's and the bowl's particles press on the
+/// terrain, the bouncing ones make fresh impacts (their restitution's gradient is not zero).
+#[test]
+fn the_cases_reach_their_laws() {
+    for case in cases(Integrator::SymplecticEuler) {
+        let (model, state) = build(&case);
+        let back = gradient(&model, &state, Some(1), &mut Probe::new(model.len())).unwrap();
+        let g = &back.gradient;
+        match case.name {
+            "sliding on a slope" | "in a bowl" => assert!(g.friction_of(0) != 0.0, "{}", case.name),
+            "bouncing" => assert!(g.restitution_of(0) != 0.0),
+            _ => assert!(model.terrain.is_empty()),
+        }
+    }
+}
+
+/// The gradient's bits do not depend on the thread count; the states the backward pass
+/// recomputes are the forward run's (the loss sees the bits a plain run has at each frame).
+#[test]
+fn the_same_bits_on_any_thread_count_and_recomputed_states_are_the_forward_ones() {
+    let case = &cases(Integrator::Rk4)[1];
+    let (model, state) = build(case);
+    let bits = |b: &Backward| {
+        let mut out: Vec<u64> =
+            b.x0.iter()
+                .chain(&b.v0)
+                .flat_map(|p| p.to_array())
+                .map(f64::to_bits)
+                .collect();
+        out.extend(
+            b.gradient
+                .stiffness
+                .iter()
+                .chain(&b.gradient.mass)
+                .map(|x| x.to_bits()),
+        );
+        out.push(b.gradient.friction_of(0).to_bits());
+        out.push(b.loss.to_bits());
+        out
+    };
+    let mut probe = Probe::new(model.len());
+    let one = gradient(&model, &state, Some(1), &mut probe).unwrap();
+    for threads in [2, 3] {
+        let other = gradient(&model, &state, Some(threads), &mut Probe::new(model.len())).unwrap();
+        assert_eq!(bits(&one), bits(&other), "{threads} threads");
+    }
+    let sim = &model.simulation;
+    let mut solver = CpuSolver::new(model.clone(), state.clone(), Some(1)).unwrap();
+    let mut at = 0;
+    probe.seen.sort_by_key(|(f, _)| *f);
+    assert_eq!(probe.seen.len() as u64, sim.frame_count());
+    for (f, seen) in &probe.seen {
+        let step = sim.frame_step(*f);
+        solver.advance(step - at).unwrap();
+        at = step;
+        assert_eq!(solver.state().unwrap(), seen, "frame {f}");
+    }
+}
+
+/// Checkpoints every ⌈√T⌉ steps: over T = 10⁴ steps at most 2√T + 2 states are held.
+#[test]
+fn memory_grows_as_the_square_root_of_the_steps() {
+    let toml = "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-4\nduration = 1.0\nframe_rate = 10.0\n\
+                [[body]]\nkind = \"particles\"\npositions = [[0.0, 1.0, 0.0], [0.1, 1.0, 0.0]]\n\
+                masses = [1.0, 1.0]\nsprings = [{ a = 0, b = 1, stiffness = 10.0 }]\n";
+    let scene = Scene::from_toml(toml, Path::new("long.toml")).unwrap();
+    let (model, state) = Model::build(&scene);
+    let back = gradient(&model, &state, Some(1), &mut Probe::new(2)).unwrap();
+    assert_eq!(back.steps, 10_000);
+    assert_eq!(back.interval, 100);
+    assert!(back.peak_states <= 2 * 100 + 2, "{}", back.peak_states);
+}
