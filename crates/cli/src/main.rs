@@ -23,6 +23,7 @@ mod bench;
 mod check;
 mod compare;
 mod estimate;
+mod grad;
 mod progress;
 mod render;
 mod run;
@@ -83,6 +84,8 @@ enum Command {
     /// Run a scene many times with values changed (a grid, a list or random draws), in
     /// parallel, one output per run and a manifest; resumable.
     Sweep(sweep::SweepArgs),
+    /// The gradient of a loss over a whole run (CPU, f64) with respect to scene keys.
+    Grad(grad::GradArgs),
 }
 
 /// A failure with its exit status.
@@ -121,6 +124,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render::render(args),
         Command::Compare(args) => compare::compare(args),
         Command::Sweep(args) => sweep::sweep(args),
+        Command::Grad(args) => grad::grad(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

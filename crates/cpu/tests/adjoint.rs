@@ -15,7 +15,7 @@ use std::path::Path;
 
 use glam::DVec3;
 use softbody_cpu::CpuSolver;
-use softbody_cpu::adjoint::run::{Backward, Loss, gradient};
+use softbody_cpu::adjoint::run::{Backward, FrameBar, Loss, gradient};
 use softbody_scene::{Integrator, Model, Scene, Solver, State};
 
 /// L = Σ_frames Σ_i (c_i·x_i + ½ w |v_i|²): linear in the positions with fixed pseudo-random
@@ -46,16 +46,10 @@ impl Probe {
 }
 
 impl Loss for Probe {
-    fn frame(
-        &mut self,
-        frame: u64,
-        state: &State,
-        x_bar: &mut [DVec3],
-        v_bar: &mut [DVec3],
-    ) -> f64 {
-        for i in 0..x_bar.len() {
-            x_bar[i] += self.weights[i];
-            v_bar[i] += self.w * state.v[i];
+    fn frame(&mut self, frame: u64, state: &State, bar: FrameBar<'_>) -> f64 {
+        for i in 0..bar.x.len() {
+            bar.x[i] += self.weights[i];
+            bar.v[i] += self.w * state.v[i];
         }
         self.seen.push((frame, state.clone()));
         self.term(state)

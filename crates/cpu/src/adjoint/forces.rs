@@ -23,13 +23,61 @@ use softbody_terrain::Surface;
 
 use super::Gradient;
 use crate::contact::contact_force;
-use crate::forces::PARTICLE_CHUNK;
+use crate::forces::{PARTICLE_CHUNK, acceleration_with};
 use crate::spring_forces;
+
+/// One evaluation of the accelerations a(x, v), kept for its transpose: each spring's force
+/// and each particle's sum of them.
+#[derive(Debug, Clone)]
+pub struct Stage {
+    per_spring: Vec<DVec3>,
+    sums: Vec<DVec3>,
+}
+
+impl Stage {
+    /// Sized for `model`.
+    pub fn new(model: &Model) -> Stage {
+        Stage {
+            per_spring: vec![DVec3::ZERO; model.springs().len()],
+            sums: vec![DVec3::ZERO; model.len()],
+        }
+    }
+
+    /// Writes a(x, v) of every particle into `a`, as [`crate::forces::accelerations`] does
+    /// (the same functions), keeping the springs' forces and sums.
+    pub fn evaluate(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        (x, v): (&[DVec3], &[DVec3]),
+        a: &mut [DVec3],
+    ) {
+        spring_forces::compute(model.springs(), x, v, &mut self.per_spring);
+        let (adjacency, per_spring) = (model.adjacency(), &self.per_spring);
+        self.sums
+            .par_iter_mut()
+            .zip(a.par_iter_mut())
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, (sum, a))| {
+                *sum = spring_forces::gather(adjacency, per_spring, i);
+                *a = if model.inv_mass[i] == 0.0 {
+                    DVec3::ZERO
+                } else {
+                    acceleration_with(model, surfaces, i, x[i], v[i], *sum)
+                };
+            });
+    }
+
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        crate::vec_bytes(&self.per_spring) + crate::vec_bytes(&self.sums)
+    }
+}
 
 /// Scratch of [`accelerations_vjp`], sized for one model.
 #[derive(Debug, Clone)]
 pub struct Scratch {
-    per_spring: Vec<DVec3>,
     /// S̄_i, the cotangent of each particle's spring sum.
     sum_bar: Vec<DVec3>,
     d_bar: Vec<DVec3>,
@@ -41,7 +89,6 @@ impl Scratch {
     pub fn new(model: &Model) -> Scratch {
         let (n, s) = (model.len(), model.springs().len());
         Scratch {
-            per_spring: vec![DVec3::ZERO; s],
             sum_bar: vec![DVec3::ZERO; n],
             d_bar: vec![DVec3::ZERO; s],
             w_bar: vec![DVec3::ZERO; s],
@@ -50,7 +97,7 @@ impl Scratch {
 
     /// Bytes held on the heap.
     pub fn memory_bytes(&self) -> u64 {
-        [&self.per_spring, &self.sum_bar, &self.d_bar, &self.w_bar]
+        [&self.sum_bar, &self.d_bar, &self.w_bar]
             .into_iter()
             .map(crate::vec_bytes)
             .sum()
@@ -58,12 +105,13 @@ impl Scratch {
 }
 
 /// Adds āᵀ ∂a/∂x to `x_bar`, āᵀ ∂a/∂v to `v_bar` and āᵀ ∂a/∂θ to `grad`, for the
-/// accelerations of [`crate::forces::accelerations`] at (x, v).
+/// accelerations `stage` evaluated at (x, v).
 #[allow(clippy::too_many_arguments)]
 pub fn accelerations_vjp(
     model: &Model,
     surfaces: &[Surface],
     (x, v): (&[DVec3], &[DVec3]),
+    stage: &Stage,
     a_bar: &[DVec3],
     scratch: &mut Scratch,
     (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
@@ -74,8 +122,7 @@ pub fn accelerations_vjp(
     let sim = &model.simulation;
     let (eps, h) = (sim.contact_distance, sim.dt);
     let ns = surfaces.len();
-    spring_forces::compute(springs, x, v, &mut scratch.per_spring);
-    let per_spring = &scratch.per_spring;
+    let sums = &stage.sums;
 
     // Per particle: everything but the springs' own parameters and ends.
     let per_particle = scratch
@@ -94,12 +141,20 @@ pub fn accelerations_vjp(
                 *sum_bar = DVec3::ZERO;
                 return;
             }
-            let springs = spring_forces::gather(adjacency, per_spring, i);
-            let f = m * sim.gravity - sim.drag * m * v[i] + springs;
-            let fc = contact_force(surfaces, eps, h, m, x[i], v[i], f);
+            let f = m * sim.gravity - sim.drag * m * v[i] + sums[i];
+            let touching = !surfaces.iter().all(|s| s.clear_of(x[i], eps));
+            let fc = if touching {
+                contact_force(surfaces, eps, h, m, x[i], v[i], f)
+            } else {
+                DVec3::ZERO
+            };
             let big_f = w * a_bar[i];
             *wb += a_bar[i].dot(f + fc);
-            let c = contact_vjp(surfaces, eps, h, m, x[i], v[i], f, big_f, mu_bar);
+            let c = if touching {
+                contact_vjp(surfaces, eps, h, m, x[i], v[i], f, big_f, mu_bar)
+            } else {
+                ContactBar::default()
+            };
             let f_bar = big_f + c.f;
             *xb += c.x;
             *vb += c.v - sim.drag * m * f_bar;
@@ -110,33 +165,38 @@ pub fn accelerations_vjp(
         },
     );
 
-    // Per spring: its parameters and the cotangents of its ends' difference.
+    // Per spring: its parameters and the cotangents of its ends' difference, a chunk of
+    // springs per task over slices of one length (no bounds checks inside).
+    const CHUNK: usize = 4096;
     let sum_bar = &scratch.sum_bar;
     scratch
         .d_bar
-        .par_iter_mut()
-        .zip(scratch.w_bar.par_iter_mut())
-        .zip(
-            grad.stiffness
-                .par_iter_mut()
-                .zip(grad.damping.par_iter_mut()),
-        )
+        .par_chunks_mut(CHUNK)
+        .zip(scratch.w_bar.par_chunks_mut(CHUNK))
+        .zip(grad.stiffness.par_chunks_mut(CHUNK))
+        .zip(grad.damping.par_chunks_mut(CHUNK))
         .enumerate()
-        .with_min_len(4096)
-        .for_each(|(s, ((d_bar, w_bar), (kb, cb)))| {
-            let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
-            let g = sum_bar[a] - sum_bar[b];
-            let bar = spring_vjp(
-                (x[a], x[b]),
-                (v[a], v[b]),
-                springs.rest[s],
-                springs.stiffness[s],
-                springs.damping[s],
-                g,
-            );
-            (*d_bar, *w_bar) = (bar.d, bar.w);
-            *kb += bar.stiffness;
-            *cb += bar.damping;
+        .for_each(|(c, (((d_bar, w_bar), kb), cb))| {
+            let range = c * CHUNK..c * CHUNK + d_bar.len();
+            let (ea, eb) = (&springs.a[range.clone()], &springs.b[range.clone()]);
+            let rest = &springs.rest[range.clone()];
+            let (ks, kd) = (&springs.stiffness[range.clone()], &springs.damping[range]);
+            let n = d_bar.len();
+            let (w_bar, kb, cb) = (&mut w_bar[..n], &mut kb[..n], &mut cb[..n]);
+            for j in 0..n {
+                let (a, b) = (ea[j] as usize, eb[j] as usize);
+                let bar = spring_vjp(
+                    (x[a], x[b]),
+                    (v[a], v[b]),
+                    rest[j],
+                    ks[j],
+                    kd[j],
+                    sum_bar[a] - sum_bar[b],
+                );
+                (d_bar[j], w_bar[j]) = (bar.d, bar.w);
+                kb[j] += bar.stiffness;
+                cb[j] += bar.damping;
+            }
         });
 
     // Per particle: the springs' ends, gathered with the forward's signs.

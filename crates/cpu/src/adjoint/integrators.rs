@@ -1,6 +1,6 @@
 //! The transpose of one step of each explicit integrator, twin of [`crate::integrators`].
 //!
-//! Each step is recomputed from its start (x, v) with [`crate::forces::accelerations`] (the
+//! Each step is recomputed from its start (x, v) with [`Stage::evaluate`] (the
 //! stage states and the state before the collision response R), and swept back, with ā the
 //! cotangent handed to [`super::forces::accelerations_vjp`] at the stage state named:
 //!
@@ -21,8 +21,8 @@ use softbody_terrain::Surface;
 
 use super::Gradient;
 use super::collision_response::respond_one_vjp;
-use super::forces::{Scratch, accelerations_vjp};
-use crate::forces::{PARTICLE_CHUNK, accelerations};
+use super::forces::{Scratch, Stage, accelerations_vjp};
+use crate::forces::PARTICLE_CHUNK;
 use crate::vec_bytes;
 
 /// The transpose of one explicit step and its scratch, sized for one model.
@@ -30,7 +30,8 @@ use crate::vec_bytes;
 pub struct StepAdjoint {
     integrator: Integrator,
     scratch: Scratch,
-    per_spring: Vec<DVec3>,
+    /// Each stage's evaluation of the forces.
+    stages: Vec<Stage>,
     /// Stage states (x_j, v_j) and accelerations a_j, j = 1…4 (RK4; fewer for the others).
     xs: Vec<Vec<DVec3>>,
     vs: Vec<Vec<DVec3>>,
@@ -56,7 +57,7 @@ impl StepAdjoint {
         StepAdjoint {
             integrator: model.simulation.integrator,
             scratch: Scratch::new(model),
-            per_spring: vec![DVec3::ZERO; model.springs().len()],
+            stages: (0..stages).map(|_| Stage::new(model)).collect(),
             xs: (0..stages).map(|_| zeros()).collect(),
             vs: (0..stages).map(|_| zeros()).collect(),
             accs: (0..stages).map(|_| zeros()).collect(),
@@ -71,7 +72,7 @@ impl StepAdjoint {
     pub fn memory_bytes(&self) -> u64 {
         let all = |v: &[Vec<DVec3>]| v.iter().map(vec_bytes).sum::<u64>();
         self.scratch.memory_bytes()
-            + vec_bytes(&self.per_spring)
+            + self.stages.iter().map(Stage::memory_bytes).sum::<u64>()
             + all(&self.xs)
             + all(&self.vs)
             + all(&self.accs)
@@ -113,6 +114,7 @@ impl StepAdjoint {
                 model,
                 surfaces,
                 (&s.xs[j], &s.vs[j]),
+                &s.stages[j],
                 a_bar,
                 &mut s.scratch,
                 out,
@@ -191,14 +193,7 @@ impl StepAdjoint {
         self.xs[0].copy_from_slice(x);
         self.vs[0].copy_from_slice(v);
         let accel = |s: &mut Self, j: usize| {
-            accelerations(
-                model,
-                surfaces,
-                &s.xs[j],
-                &s.vs[j],
-                &mut s.per_spring,
-                &mut s.accs[j],
-            );
+            s.stages[j].evaluate(model, surfaces, (&s.xs[j], &s.vs[j]), &mut s.accs[j]);
         };
         accel(self, 0);
         let stages = self.xs.len();

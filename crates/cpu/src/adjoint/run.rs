@@ -18,12 +18,22 @@ use super::Gradient;
 use super::integrators::StepAdjoint;
 use crate::CpuSolver;
 
-/// A loss made of one term per frame, ℓ_f(x_f, v_f).
+/// A loss made of one term per frame, ℓ_f(x_f, v_f; m).
 pub trait Loss {
-    /// The term of frame `frame` (its state `state`), its cotangents added to `x_bar` and
-    /// `v_bar`. Frames come from the last to the first.
-    fn frame(&mut self, frame: u64, state: &State, x_bar: &mut [DVec3], v_bar: &mut [DVec3])
-    -> f64;
+    /// The term of frame `frame` (its state `state`), its cotangents added to `bar`. Frames
+    /// come from the last to the first.
+    fn frame(&mut self, frame: u64, state: &State, bar: FrameBar<'_>) -> f64;
+}
+
+/// Where a frame's loss term adds its cotangents.
+#[derive(Debug)]
+pub struct FrameBar<'a> {
+    /// ∂ℓ/∂x per particle.
+    pub x: &'a mut [DVec3],
+    /// ∂ℓ/∂v per particle.
+    pub v: &'a mut [DVec3],
+    /// ∂ℓ/∂m per particle (a loss weighted by the masses).
+    pub mass: &'a mut [f64],
 }
 
 /// Why a gradient could not be computed.
@@ -117,7 +127,7 @@ pub fn gradient(
     model: &Model,
     start: &State,
     threads: Option<usize>,
-    loss: &mut dyn Loss,
+    loss: &mut (dyn Loss + Send),
 ) -> Result<Backward, AdjointError> {
     check_differentiable(model)?;
     let sim = &model.simulation;
@@ -153,37 +163,50 @@ pub fn gradient(
     let (mut x_bar, mut v_bar) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
     let mut total = 0.0;
     if let Some(&f) = frame_at.get(&steps) {
-        total += loss.frame(f, &last, &mut x_bar, &mut v_bar);
+        let bar = FrameBar {
+            x: &mut x_bar,
+            v: &mut v_bar,
+            mass: &mut grad.mass,
+        };
+        total += loss.frame(f, &last, bar);
     }
     let mut segment: Vec<State> = Vec::with_capacity(interval as usize + 1);
     let mut peak_states = 0;
+    // In the solver's pool throughout: its steps and the transposes run there without a
+    // hand-over between threads at every step.
     let pool = solver.pool().clone();
-    for (j, checkpoint) in checkpoints.iter().enumerate().rev() {
-        let from = j as u64 * interval;
-        let to = (from + interval).min(steps);
-        solver.set_state(checkpoint)?;
-        segment.truncate(0);
-        segment.push(checkpoint.clone());
-        for _ in from..to {
-            solver.advance(1)?;
-            segment.push(solver.state()?.clone());
-        }
-        let expected = checkpoints.get(j + 1).unwrap_or(&last);
-        if !same_bits(segment.last().expect("the segment's start"), expected) {
-            return Err(AdjointError::Recompute { from, to });
-        }
-        // Checkpoints (the last state among them) and the segment.
-        peak_states = peak_states.max(checkpoints.len() as u64 + 1 + segment.len() as u64);
-        for k in (from..to).rev() {
-            let state = &segment[(k - from) as usize];
-            pool.install(|| {
+    pool.install(|| -> Result<(), AdjointError> {
+        for (j, checkpoint) in checkpoints.iter().enumerate().rev() {
+            let from = j as u64 * interval;
+            let to = (from + interval).min(steps);
+            solver.set_state(checkpoint)?;
+            segment.truncate(0);
+            segment.push(checkpoint.clone());
+            for _ in from..to {
+                solver.advance(1)?;
+                segment.push(solver.state()?.clone());
+            }
+            let expected = checkpoints.get(j + 1).unwrap_or(&last);
+            if !same_bits(segment.last().expect("the segment's start"), expected) {
+                return Err(AdjointError::Recompute { from, to });
+            }
+            // Checkpoints (the last state among them) and the segment.
+            peak_states = peak_states.max(checkpoints.len() as u64 + 1 + segment.len() as u64);
+            for k in (from..to).rev() {
+                let state = &segment[(k - from) as usize];
                 adjoint.step(model, &surfaces, state, (&mut x_bar, &mut v_bar), &mut grad);
-            });
-            if let Some(&f) = frame_at.get(&k) {
-                total += loss.frame(f, state, &mut x_bar, &mut v_bar);
+                if let Some(&f) = frame_at.get(&k) {
+                    let bar = FrameBar {
+                        x: &mut x_bar,
+                        v: &mut v_bar,
+                        mass: &mut grad.mass,
+                    };
+                    total += loss.frame(f, state, bar);
+                }
             }
         }
-    }
+        Ok(())
+    })?;
     let backward_seconds = clock.elapsed().as_secs_f64();
     let peak_memory_bytes = peak_states * state_bytes
         + model.memory_bytes()
