@@ -40,6 +40,7 @@ pub mod benchmark;
 pub mod checkpoint;
 pub mod compare;
 mod fingerprint;
+pub mod fit;
 pub mod grad;
 pub mod lock;
 pub mod output;

@@ -23,6 +23,7 @@ mod bench;
 mod check;
 mod compare;
 mod estimate;
+mod fit;
 mod grad;
 mod progress;
 mod render;
@@ -86,6 +87,8 @@ enum Command {
     Sweep(sweep::SweepArgs),
     /// The gradient of a loss over a whole run (CPU, f64) with respect to scene keys.
     Grad(grad::GradArgs),
+    /// Fit scene values to a recorded run (L-BFGS on the run's gradient) and write the scene.
+    Fit(fit::FitArgs),
 }
 
 /// A failure with its exit status.
@@ -125,6 +128,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::compare(args),
         Command::Sweep(args) => sweep::sweep(args),
         Command::Grad(args) => grad::grad(args),
+        Command::Fit(args) => fit::fit(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
