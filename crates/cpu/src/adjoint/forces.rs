@@ -226,6 +226,10 @@ pub struct SpringBar {
 }
 
 /// The cotangents of [`spring_forces::spring_force`]'s inputs for the cotangent `g` of f_a.
+///
+/// Inlined into the per-spring loop, with one division (as the forward's): the result
+/// returned through memory and six divisions took half the loop's time.
+#[inline(always)]
 pub fn spring_vjp(
     (xa, xb): (DVec3, DVec3),
     (va, vb): (DVec3, DVec3),
@@ -244,14 +248,15 @@ pub fn spring_vjp(
             damping: 0.0,
         };
     }
-    let u = d / len;
+    let inv = 1.0 / len;
+    let u = d * inv;
     let w = va - vb;
     let wu = w.dot(u);
     let sf = ks * (len - rest) + kd * wu;
     let s_bar = -u.dot(g);
     let u_bar = -sf * g + s_bar * kd * w;
     SpringBar {
-        d: (u_bar - u * u.dot(u_bar)) / len + s_bar * ks * u,
+        d: (u_bar - u * u.dot(u_bar)) * inv + s_bar * ks * u,
         w: s_bar * kd * u,
         stiffness: s_bar * (len - rest),
         damping: s_bar * wu,
@@ -409,6 +414,7 @@ fn clamp_vjp(g: DVec3, limit: f64, bar: DVec3) -> (DVec3, f64) {
 }
 
 /// The cotangent of s for the cotangent `bar` of ŝ = s/|s| (ŝ = `unit`, |s| = `len`).
+#[inline]
 fn unit_vjp(unit: DVec3, len: f64, bar: DVec3) -> DVec3 {
     (bar - unit * unit.dot(bar)) / len
 }
