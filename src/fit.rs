@@ -333,9 +333,12 @@ pub fn fit(request: &FitRequest) -> Result<FitReport, GradError> {
         loss: loss0,
         values: problem.values(&start),
     }]));
+    // Stop when an iteration gains less than ε² of the starting loss: positions matched to
+    // rounding (ε relative) leave squared differences of ε² of their scale, and nothing
+    // below that is a fit. No gradient tolerance: its scale is the loss's, which is the user's.
     let solver = LBFGS::new(MoreThuenteLineSearch::new(), 7)
         .with_tolerance_grad(0.0)
-        .and_then(|s| s.with_tolerance_cost(0.0))
+        .and_then(|s| s.with_tolerance_cost(loss0 * f64::EPSILON * f64::EPSILON))
         .map_err(|e| GradError::Other(e.to_string()))?;
     let result = Executor::new(&problem, solver)
         .configure(|state| state.param(start.clone()).max_iters(request.max_iterations))
