@@ -179,6 +179,7 @@ impl Problem<'_> {
             wrt: self.keys.iter().map(|(k, _)| k.clone()).collect(),
             target: Target::Frames(self.request.to.clone()),
             threads: self.request.threads,
+            ..GradRequest::default()
         };
         let report = gradient(&request)?;
         *self.evaluations.lock().expect("not poisoned") += 1;

@@ -50,13 +50,24 @@ pub enum Target {
     /// L = (1/(F·N)) Σ_frames Σ_particles |x − x̂|² over the F frames of the run that the file
     /// (JSON Lines or NPZ written by `softbody run` for the same particles) has too.
     Frames(PathBuf),
+    /// Any loss, given by its cotangents ∂L/∂x and ∂L/∂v at every frame (frame-major,
+    /// `frames × particles` each; an empty one is zero). The loss itself is the caller's: the
+    /// report's is 0.
+    Cotangents {
+        /// ∂L/∂x_{f,i} at index f·N + i.
+        positions: Vec<DVec3>,
+        /// ∂L/∂v_{f,i} at index f·N + i.
+        velocities: Vec<DVec3>,
+    },
 }
 
 /// A gradient to compute.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct GradRequest {
-    /// The scene file.
+    /// The scene file (the origin of `text` when that is given: messages, mesh paths).
     pub scene: PathBuf,
+    /// The scene's TOML in place of the file's.
+    pub text: Option<String>,
     /// Settings applied to it (`--set` and the overrides), in order.
     pub settings: Vec<Setting>,
     /// The keys, as written.
@@ -65,6 +76,22 @@ pub struct GradRequest {
     pub target: Target,
     /// Threads (all cores if `None`); the result's bits do not depend on it.
     pub threads: Option<usize>,
+}
+
+impl Default for Target {
+    fn default() -> Target {
+        Target::Com(DVec3::ZERO)
+    }
+}
+
+impl GradRequest {
+    /// The scene with `settings` applied.
+    fn load(&self, settings: &[Setting]) -> Result<Scene, SceneError> {
+        match &self.text {
+            Some(text) => crate::scene_from_toml(text, &self.scene, settings),
+            None => load_scene(&self.scene, settings),
+        }
+    }
 }
 
 /// A key's gradient: a number, or three for a vector key.
@@ -83,6 +110,8 @@ pub struct GradReport {
     pub loss: f64,
     /// Each key's derivative, in the order asked (keys in their canonical spelling).
     pub gradient: Vec<(String, Derivative)>,
+    /// ∂L/∂m_i per particle, through m and through w = 1/m (pinned particles: through m).
+    pub mass: Vec<f64>,
     /// The adjoint's own result: the per-particle and per-spring gradients, the steps, the
     /// memory and the times.
     pub backward: Backward,
@@ -100,6 +129,9 @@ pub enum GradError {
     /// The forward run went unstable (exit status 3).
     #[error("{0}")]
     Unstable(String),
+    /// The request's stop flag was set.
+    #[error("stopped")]
+    Stopped,
     /// Anything else (exit status 1).
     #[error("{0}")]
     Other(String),
@@ -111,7 +143,7 @@ impl GradError {
         match self {
             GradError::Input(_) | GradError::Scene(_) => 2,
             GradError::Unstable(_) => 3,
-            GradError::Other(_) => 1,
+            GradError::Other(_) | GradError::Stopped => 1,
         }
     }
 }
@@ -121,6 +153,7 @@ impl From<AdjointError> for GradError {
         match e {
             AdjointError::Unsupported(m) => GradError::Input(m),
             AdjointError::Step(StepError::Unstable(i)) => GradError::Unstable(i.to_string()),
+            AdjointError::Stopped => GradError::Stopped,
             e => GradError::Other(e.to_string()),
         }
     }
@@ -171,19 +204,28 @@ fn parse_key(key: &str) -> Result<Key, GradError> {
 
 /// The loss's gradient over the run of the request's scene, with respect to its keys.
 pub fn gradient(request: &GradRequest) -> Result<GradReport, GradError> {
+    gradient_until(request, None)
+}
+
+/// [`gradient`], ending at the next checkpoint segment once `stop` is set
+/// ([`GradError::Stopped`]).
+pub fn gradient_until(
+    request: &GradRequest,
+    stop: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<GradReport, GradError> {
     let keys: Vec<Key> = request
         .wrt
         .iter()
         .map(|k| parse_key(k))
         .collect::<Result<_, _>>()?;
-    let scene = load_scene(&request.scene, &request.settings)?;
+    let scene = request.load(&request.settings)?;
     for key in &keys {
         check_index(&scene, &key.name)?;
     }
     let (model, state) = Model::build(&scene);
     softbody_cpu::adjoint::run::check_differentiable(&model)?;
     let mut loss = TargetLoss::new(&request.target, &model)?;
-    let backward = adjoint(&model, &state, request.threads, &mut loss)?;
+    let backward = adjoint(&model, &state, request.threads, &mut loss, stop)?;
     if let TargetLoss::Frames { matched: 0, .. } = loss {
         return Err(GradError::Input(format!(
             "--target-frames {}: none of its frames is a frame of this run",
@@ -210,9 +252,17 @@ pub fn gradient(request: &GradRequest) -> Result<GradReport, GradError> {
         };
         gradient.push((key.name.clone(), derivative));
     }
+    let g = &backward.gradient;
+    let mass = (0..model.len())
+        .map(|i| {
+            let w = model.inv_mass[i];
+            g.mass[i] - g.inv_mass[i] * w * w
+        })
+        .collect();
     Ok(GradReport {
         loss: backward.loss,
         gradient,
+        mass,
         backward,
     })
 }
@@ -221,6 +271,7 @@ fn display(target: &Target) -> String {
     match target {
         Target::Frames(p) => p.display().to_string(),
         Target::Com(c) => format!("{},{},{}", c.x, c.y, c.z),
+        Target::Cotangents { .. } => "the cotangents".to_owned(),
     }
 }
 
@@ -359,7 +410,7 @@ fn direction(
         let setting = Setting::new(&key.name, value(t))
             .map_err(|m| GradError::Input(format!("--wrt {}: {m}", key.name)))?;
         settings.push(setting);
-        let scene = load_scene(&request.scene, &settings).map_err(|e| {
+        let scene = request.load(&settings).map_err(|e| {
             GradError::Input(format!(
                 "--wrt {}: the scene cannot be built with the key varied ({e})",
                 key.name
@@ -396,6 +447,11 @@ enum TargetLoss {
         last: u64,
         masses: Vec<f64>,
     },
+    Cotangents {
+        positions: Vec<DVec3>,
+        velocities: Vec<DVec3>,
+        particles: usize,
+    },
     Frames {
         /// The recorded positions by frame number.
         recorded: BTreeMap<u64, Vec<DVec3>>,
@@ -414,6 +470,27 @@ impl TargetLoss {
                 last: frames.saturating_sub(1),
                 masses: model.mass.clone(),
             }),
+            Target::Cotangents {
+                positions,
+                velocities,
+            } => {
+                let expected = frames as usize * model.len();
+                for (what, given) in [("positions", positions), ("velocities", velocities)] {
+                    if !given.is_empty() && given.len() != expected {
+                        return Err(GradError::Input(format!(
+                            "the cotangents of the {what} are {} vectors; this run has {frames} \
+                             frames of {} particles: {expected}",
+                            given.len(),
+                            model.len()
+                        )));
+                    }
+                }
+                Ok(TargetLoss::Cotangents {
+                    positions: positions.clone(),
+                    velocities: velocities.clone(),
+                    particles: model.len(),
+                })
+            }
             Target::Frames(path) => {
                 let recorded = read_frames(path, model.len())?;
                 let common = recorded.keys().filter(|&&f| f < frames).count();
@@ -452,6 +529,19 @@ impl Loss for TargetLoss {
                     bar.mass[i] += 2.0 * d.dot(*x - c) / total;
                 }
                 d.length_squared()
+            }
+            TargetLoss::Cotangents {
+                positions,
+                velocities,
+                particles,
+            } => {
+                let at = frame as usize * *particles;
+                for (given, bar) in [(&*positions, &mut *bar.x), (&*velocities, &mut *bar.v)] {
+                    if let Some(given) = given.get(at..at + *particles) {
+                        bar.iter_mut().zip(given).for_each(|(b, g)| *b += *g);
+                    }
+                }
+                0.0
             }
             TargetLoss::Frames {
                 recorded, weight, ..

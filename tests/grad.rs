@@ -88,6 +88,7 @@ fn request(path: &Path, wrt: &[&str]) -> GradRequest {
         wrt: wrt.iter().map(|k| k.to_string()).collect(),
         target: Target::Com(TARGET),
         threads: Some(1),
+        ..GradRequest::default()
     }
 }
 

@@ -74,6 +74,7 @@ pub fn grad(args: GradArgs) -> Result<(), Failure> {
         wrt: args.wrt.clone(),
         target,
         threads: args.threads,
+        ..GradRequest::default()
     };
     let report = softbody::grad::gradient(&request).map_err(grad_failure)?;
     emit(&if args.json {

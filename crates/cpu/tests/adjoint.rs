@@ -220,7 +220,7 @@ fn dot1(a: &[f64], i: &dyn Fn(usize) -> f64) -> f64 {
 fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String>) {
     let (model, state) = build(case);
     let mut probe = Probe::new(model.len());
-    let back: Backward = gradient(&model, &state, Some(1), &mut probe).unwrap();
+    let back: Backward = gradient(&model, &state, Some(1), &mut probe, None).unwrap();
     let name = format!("{integrator:?}, {}", case.name);
     let l = forward_loss(&model, &state);
     check(&format!("{name}: loss"), back.loss, l, failures);
@@ -338,7 +338,7 @@ fn the_adjoint_is_the_derivative_of_the_computed_run() {
 fn the_cases_reach_their_laws() {
     for case in cases(Integrator::SymplecticEuler) {
         let (model, state) = build(&case);
-        let back = gradient(&model, &state, Some(1), &mut Probe::new(model.len())).unwrap();
+        let back = gradient(&model, &state, Some(1), &mut Probe::new(model.len()), None).unwrap();
         let g = &back.gradient;
         match case.name {
             "sliding on a slope" | "in a bowl" => assert!(g.friction_of(0) != 0.0, "{}", case.name),
@@ -373,9 +373,16 @@ fn the_same_bits_on_any_thread_count_and_recomputed_states_are_the_forward_ones(
         out
     };
     let mut probe = Probe::new(model.len());
-    let one = gradient(&model, &state, Some(1), &mut probe).unwrap();
+    let one = gradient(&model, &state, Some(1), &mut probe, None).unwrap();
     for threads in [2, 3] {
-        let other = gradient(&model, &state, Some(threads), &mut Probe::new(model.len())).unwrap();
+        let other = gradient(
+            &model,
+            &state,
+            Some(threads),
+            &mut Probe::new(model.len()),
+            None,
+        )
+        .unwrap();
         assert_eq!(bits(&one), bits(&other), "{threads} threads");
     }
     let sim = &model.simulation;
@@ -399,7 +406,7 @@ fn memory_grows_as_the_square_root_of_the_steps() {
                 masses = [1.0, 1.0]\nsprings = [{ a = 0, b = 1, stiffness = 10.0 }]\n";
     let scene = Scene::from_toml(toml, Path::new("long.toml")).unwrap();
     let (model, state) = Model::build(&scene);
-    let back = gradient(&model, &state, Some(1), &mut Probe::new(2)).unwrap();
+    let back = gradient(&model, &state, Some(1), &mut Probe::new(2), None).unwrap();
     assert_eq!(back.steps, 10_000);
     assert_eq!(back.interval, 100);
     assert!(back.peak_states <= 2 * 100 + 2, "{}", back.peak_states);

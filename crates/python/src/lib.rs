@@ -13,6 +13,7 @@
 //! frames' own collection.
 
 mod errors;
+mod grad;
 mod interrupt;
 mod scene;
 mod simulation;
@@ -41,6 +42,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Simulation>()?;
     m.add_class::<SweepPlan>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(grad::gradient, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_local, m)?)?;
     m.add_function(wrap_pyfunction!(run_job, m)?)?;
     Ok(())

@@ -8,6 +8,7 @@
 //! [`StepAdjoint::step`], adding each frame's loss cotangent as it passes the frame. At most
 //! ⌈T/S⌉ + S + 1 ≤ 2√T + 2 states are held at once, besides the model and O(N) scratch.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
@@ -48,6 +49,9 @@ pub enum AdjointError {
     /// The rayon pool could not be built.
     #[error("cannot start the thread pool: {0}")]
     Pool(#[from] rayon::ThreadPoolBuildError),
+    /// The caller asked the run to stop (Ctrl-C in Python).
+    #[error("stopped")]
+    Stopped,
     /// A recomputed segment did not end on the forward run's state: a defect, not an input.
     #[error(
         "the recomputation of steps {from}..{to} did not give the forward run's state (a defect of the solver's determinism)"
@@ -123,12 +127,15 @@ pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
 
 /// The loss of the run of `model` from `start` over `model.simulation.steps()` steps and its
 /// gradient, on `threads` threads (all cores if `None`; the result's bits do not depend on it).
+/// `stop`, when set, ends it at the next segment ([`AdjointError::Stopped`]).
 pub fn gradient(
     model: &Model,
     start: &State,
     threads: Option<usize>,
     loss: &mut (dyn Loss + Send),
+    stop: Option<&AtomicBool>,
 ) -> Result<Backward, AdjointError> {
+    let stopped = || stop.is_some_and(|s| s.load(Ordering::Relaxed));
     check_differentiable(model)?;
     let sim = &model.simulation;
     let steps = sim.steps();
@@ -146,6 +153,9 @@ pub fn gradient(
     let mut checkpoints = vec![start.clone()];
     let mut done = 0;
     while done < steps {
+        if stopped() {
+            return Err(AdjointError::Stopped);
+        }
         let n = interval.min(steps - done);
         solver.advance(n)?;
         done += n;
@@ -177,6 +187,9 @@ pub fn gradient(
     let pool = solver.pool().clone();
     pool.install(|| -> Result<(), AdjointError> {
         for (j, checkpoint) in checkpoints.iter().enumerate().rev() {
+            if stopped() {
+                return Err(AdjointError::Stopped);
+            }
             let from = j as u64 * interval;
             let to = (from + interval).min(steps);
             solver.set_state(checkpoint)?;

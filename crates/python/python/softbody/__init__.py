@@ -8,6 +8,8 @@ wgpu), with NumPy in and out.
     x = sim.positions                         # [N, 3] float64, metres
     traj = softbody.run(scene)                # every frame: traj.positions [F, N, 3], ...
     records = softbody.sweep("sweeps/jelly-stiffness-friction.toml")   # or executor="ray"
+    g = softbody.gradient(scene, ["body[0].structural.stiffness"], target_com=(1, 0, 0))
+    g = traj.backward(positions=dL_dx, wrt=["body[0].velocity"])      # any loss, [F, N, 3]
 
 Errors are the library's, with the command line's messages: SceneError (a bad scene, setting
 or sweep file), UnstableError (with .step, .time, .particle and, from run(), the frames before
@@ -20,7 +22,7 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple, Union
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -47,7 +49,9 @@ __all__ = [
     "SoftbodyError",
     "SweepPlan",
     "Trajectory",
+    "Gradient",
     "UnstableError",
+    "gradient",
     "load_scene",
     "run",
     "sweep",
@@ -97,6 +101,35 @@ class Trajectory:
     damping: np.ndarray  #: [S] N·s/m
     bodies: List[Tuple[str, int, int]] = field(default_factory=list)  #: (name, first, count)
     scene_text: str = ""
+    scene: Optional[Scene] = None  #: the scene that ran (what backward() runs again)
+
+    def backward(
+        self,
+        positions: Optional[Any] = None,
+        velocities: Optional[Any] = None,
+        *,
+        wrt: Sequence[str] = (),
+        threads: Optional[int] = None,
+    ) -> "Gradient":
+        """The gradient of any loss L of this run's frames, given its cotangents: `positions`
+        = ∂L/∂x and `velocities` = ∂L/∂v, arrays [F, N, 3] (F the run's frames; either may be
+        omitted). Returns ∂L/∂ each key of `wrt` (as ``--set`` names them) and the per-particle
+        and per-spring gradients. The run is taken again on the CPU, with checkpoints (memory
+        √T); it is the same run, bit for bit, on any thread count. The loss itself is the
+        caller's (`loss` is None)."""
+        if self.backend != "cpu":
+            raise ValueError(
+                f"gradients are computed on the CPU backend only; this run was on {self.backend}"
+            )
+        if self.scene is None:
+            raise ValueError("this trajectory does not know its scene; run it with softbody.run")
+        if positions is None and velocities is None:
+            raise ValueError("give the cotangents: positions, velocities or both")
+        return Gradient(
+            **_native.gradient(
+                self.scene, list(wrt), positions=positions, velocities=velocities, threads=threads
+            )
+        )
 
     @property
     def energy_total(self) -> np.ndarray:
@@ -115,8 +148,57 @@ class Trajectory:
         )
 
 
-def _trajectory(d: Dict[str, Any]) -> Trajectory:
-    return Trajectory(**d)
+def _trajectory(d: Dict[str, Any], scene: Optional[Scene] = None) -> Trajectory:
+    return Trajectory(**d, scene=scene)
+
+
+@dataclass(frozen=True, repr=False)
+class Gradient:
+    """The gradient of a loss over a whole run (``softbody.gradient``, ``Trajectory.backward``)."""
+
+    loss: Optional[float]  #: the loss (None for a loss given by its cotangents)
+    gradient: Dict[str, Any]  #: ∂L/∂ each key: a float, or an array [3] for a vector key
+    positions: np.ndarray  #: [N, 3] ∂L/∂ initial positions
+    velocities: np.ndarray  #: [N, 3] ∂L/∂ initial velocities
+    masses: np.ndarray  #: [N] ∂L/∂ each particle's mass
+    stiffness: np.ndarray  #: [S] ∂L/∂ each spring's stiffness
+    damping: np.ndarray  #: [S] ∂L/∂ each spring's damping
+    steps: int
+    peak_memory_bytes: int
+    forward_seconds: float
+    backward_seconds: float
+
+    def __repr__(self) -> str:
+        keys = ", ".join(self.gradient)
+        loss = "a loss given by its cotangents" if self.loss is None else f"loss {self.loss:g}"
+        return f"<softbody.Gradient of {loss} over {self.steps} steps, with respect to {keys or 'no key'}>"
+
+
+def gradient(
+    scene: SceneSource,
+    wrt: Sequence[str],
+    *,
+    target_com: Optional[Sequence[float]] = None,
+    target_frames: Optional[Union[str, "os.PathLike[str]"]] = None,
+    set: Optional[Mapping[str, Any]] = None,
+    threads: Optional[int] = None,
+) -> Gradient:
+    """The gradient of a built-in loss over the run of `scene` with respect to `wrt` (keys as
+    ``--set`` names them: ``body[0].mass``, ``body[0].structural.stiffness``,
+    ``body[0].velocity``, ``simulation.gravity``, ``terrain[0].friction``, …), on the CPU in
+    f64 (the command line's ``softbody grad``). The loss is `target_com` (|c − target|², c the
+    mass-weighted centre at the last frame) or `target_frames` (a .jsonl or .npz of a run of the
+    same particles: the mean squared distance over the frames both have). For any other loss,
+    ``softbody.run(scene).backward(...)``. The GIL is released; Ctrl-C raises
+    KeyboardInterrupt."""
+    if set:
+        scene = load_scene(scene, set=set)
+    com = None if target_com is None else [float(c) for c in target_com]
+    return Gradient(
+        **_native.gradient(
+            scene, list(wrt), target_com=com, target_frames=target_frames, threads=threads
+        )
+    )
 
 
 def run(
@@ -147,14 +229,13 @@ def run(
         )
         if value is not None
     }
-    if set or options:
-        scene = load_scene(scene, set={**(set or {}), **options})
+    scene = load_scene(scene, set={**(set or {}), **options} or None)
     try:
-        return _trajectory(_native.run(scene, backend, threads))
+        return _trajectory(_native.run(scene, backend, threads), scene)
     except UnstableError as e:
         partial = getattr(e, "trajectory", None)
         if isinstance(partial, dict):
-            e.trajectory = _trajectory(partial)
+            e.trajectory = _trajectory(partial, scene)
         raise
 
 

@@ -103,6 +103,18 @@ class Simulation:
 def run(scene: _SceneSource, backend: str = "cpu", threads: Optional[int] = None) -> Dict[str, Any]:
     """Every frame of a run and its metadata (softbody.run wraps it as a Trajectory)."""
 
+def gradient(
+    scene: _SceneSource,
+    wrt: List[str],
+    target_com: Optional[List[float]] = None,
+    target_frames: Optional[_Path] = None,
+    positions: Optional[Any] = None,
+    velocities: Optional[Any] = None,
+    threads: Optional[int] = None,
+) -> Dict[str, Any]:
+    """A run's gradient with respect to scene keys (softbody.gradient and Trajectory.backward
+    wrap it as a Gradient)."""
+
 _SweepSource = Union[_Path, Mapping[str, Any]]
 
 def sweep_local(

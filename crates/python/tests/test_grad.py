@@ -1,0 +1,81 @@
+"""softbody.gradient and Trajectory.backward: the library's adjoint from Python, against central
+differences of runs, against each other, and its refusals; the scipy fit example's law."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+import softbody
+from conftest import REPO
+
+TARGET = (0.4, 0.2, -0.1)
+
+
+def com_loss(scene: softbody.Scene, set=None) -> float:
+    traj = softbody.run(scene, set=set)
+    m = traj.masses
+    c = (m[:, None] * traj.positions[-1]).sum(axis=0) / m.sum()
+    return float(((c - np.array(TARGET)) ** 2).sum())
+
+
+def test_gradient_is_the_derivative_of_the_run(cube: softbody.Scene) -> None:
+    keys = ["body[0].structural.stiffness", "terrain[0].friction", "body[0].velocity"]
+    g = softbody.gradient(cube, keys, target_com=TARGET, threads=1)
+    assert g.loss == pytest.approx(com_loss(cube), rel=1e-12)
+    # Central differences with δ = 1e-6 of the value: truncation ~δ², rounding ~1e-13·L/δ.
+    for key, value in [("body[0].structural.stiffness", 500.0), ("terrain[0].friction", 0.3)]:
+        d = 1e-6 * value
+        fd = (com_loss(cube, {key: value + d}) - com_loss(cube, {key: value - d})) / (2 * d)
+        assert g.gradient[key] == pytest.approx(fd, rel=1e-6, abs=1e-13 * g.loss / d), key
+    v = g.gradient["body[0].velocity"]
+    assert v.shape == (3,)
+    assert g.positions.shape == (27, 3) and g.stiffness.shape == g.damping.shape
+    assert g.steps == 100 and g.peak_memory_bytes > 0
+
+
+def test_backward_with_a_losss_cotangents_is_the_built_in_gradient(cube: softbody.Scene) -> None:
+    # L = |c − target|² at the last frame, given as ∂L/∂x = 2(c − target)·m_i/M there.
+    traj = softbody.run(cube)
+    m = traj.masses
+    c = (m[:, None] * traj.positions[-1]).sum(axis=0) / m.sum()
+    dx = np.zeros_like(traj.positions)
+    dx[-1] = 2.0 * (c - np.array(TARGET)) * (m / m.sum())[:, None]
+    keys = ["body[0].velocity", "body[0].shear.damping"]
+    given = traj.backward(positions=dx, wrt=keys)
+    built_in = softbody.gradient(cube, keys, target_com=TARGET)
+    assert given.loss is None
+    for key in keys:
+        np.testing.assert_allclose(given.gradient[key], built_in.gradient[key], rtol=1e-12)
+    np.testing.assert_allclose(given.velocities, built_in.velocities, rtol=1e-12, atol=1e-300)
+
+
+def test_refusals(cube: softbody.Scene) -> None:
+    with pytest.raises(softbody.SceneError, match="body\\[N\\].structural.stiffness"):
+        softbody.gradient(cube, ["body[0].size"], target_com=TARGET)
+    with pytest.raises(ValueError, match="one loss"):
+        softbody.gradient(cube, ["body[0].mass"])
+    traj = softbody.run(cube)
+    with pytest.raises(ValueError, match="cotangents"):
+        traj.backward(wrt=["body[0].mass"])
+    with pytest.raises(softbody.SceneError, match="frames"):
+        traj.backward(positions=np.zeros((2, 27, 3)), wrt=["body[0].mass"])
+
+
+@pytest.mark.skipif(importlib.util.find_spec("scipy") is None, reason="scipy is not installed")
+def test_the_scipy_example_recovers_stiffness_and_damping_from_3x_off(tmp_path) -> None:
+    spec = importlib.util.spec_from_file_location(
+        "fit_example", REPO / "examples" / "python" / "fit_stiffness_damping.py"
+    )
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    scene_file = tmp_path / "jelly.toml"
+    scene_file.write_text(example.SCENE)
+    traj = softbody.run(scene_file)
+    np.savez(tmp_path / "recorded.npz", time=traj.time, positions=traj.positions,
+             frame_rate=np.float64(traj.frame_rate))
+    fitted = example.fit(tmp_path / "recorded.npz", softbody.load_scene(scene_file),
+                         np.array([2700.0, 6.0]))
+    np.testing.assert_allclose(fitted, [900.0, 2.0], rtol=1e-6)
