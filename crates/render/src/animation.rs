@@ -110,7 +110,7 @@ pub struct CameraPlan {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Follow {
     /// Follow when neither point is given and the bodies travel far
-    /// ([`framing::travels_far`](crate::framing::travels_far)); else stay.
+    /// ([`crate::framing::travels_far`]); else stay.
     #[default]
     Automatic,
     /// Always follow.
