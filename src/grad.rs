@@ -225,13 +225,13 @@ pub fn gradient_until(
     let (model, state) = Model::build(&scene);
     softbody_cpu::adjoint::run::check_differentiable(&model)?;
     let mut loss = TargetLoss::new(&request.target, &model)?;
-    let backward = adjoint(&model, &state, request.threads, &mut loss, stop)?;
     if let TargetLoss::Frames { matched: 0, .. } = loss {
         return Err(GradError::Input(format!(
             "--target-frames {}: none of its frames is a frame of this run",
             display(&request.target)
         )));
     }
+    let backward = adjoint(&model, &state, request.threads, &mut loss, stop)?;
     let values = Values::of(&model, &state);
     let mut gradient = Vec::new();
     for key in &keys {
@@ -594,6 +594,13 @@ fn read_frames(path: &Path, particles: usize) -> Result<BTreeMap<u64, Vec<DVec3>
         if shape.len() != 3 || shape[1] as usize != particles || shape[2] != 3 {
             return Err(bad(format!(
                 "positions has shape {shape:?}; this scene has {particles} particles: [F, {particles}, 3]"
+            )));
+        }
+        if time.len() as u64 != shape[0] {
+            return Err(bad(format!(
+                "time has {} entries for {} frames of positions",
+                time.len(),
+                shape[0]
             )));
         }
         let rate = rate.first().copied().unwrap_or(f64::NAN);

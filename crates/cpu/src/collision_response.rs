@@ -73,15 +73,33 @@ pub fn respond_one(
         let vn = v.dot(c.normal);
         if vn < 0.0 {
             let mask = *start_mask.get_or_insert_with(|| band_mask(surfaces, eps, x_start));
-            // Approach slower than a fall from rest through the band at the step's own
-            // acceleration is band-scale jitter, not an impact.
-            let a_n = (-(*v - v_start).dot(c.normal) / h).max(0.0);
-            let fresh = mask & 1 << k.min(31) == 0 && vn * vn > 2.0 * a_n * eps;
-            let k_r = if fresh { s.restitution } else { 0.0 };
-            *v -= (1.0 + k_r) * vn * c.normal;
+            let (scale, _) = reflection(s, k, mask, (eps, h), (*v, v_start), c.normal);
+            *v -= scale * vn * c.normal;
         }
         if c.phi < 0.0 {
             *x -= c.phi * c.normal;
         }
     }
+}
+
+/// The factor (1 + k_r) by which a particle approaching surface `s` (number `k`, v·N < 0) has
+/// its normal velocity taken away, and whether the impact is fresh (k_r its restitution;
+/// otherwise 0): `mask` is the [`band_mask`] of the step's start, `(v, v_start)` the velocity
+/// now and at the start. The forward response and its transpose decide by this one rule.
+#[inline]
+pub(crate) fn reflection(
+    s: &Surface,
+    k: usize,
+    mask: u32,
+    (eps, h): (f64, f64),
+    (v, v_start): (DVec3, DVec3),
+    normal: DVec3,
+) -> (f64, bool) {
+    let vn = v.dot(normal);
+    // Approach slower than a fall from rest through the band at the step's own acceleration is
+    // band-scale jitter, not an impact.
+    let a_n = (-(v - v_start).dot(normal) / h).max(0.0);
+    let fresh = mask & 1 << k.min(31) == 0 && vn * vn > 2.0 * a_n * eps;
+    let k_r = if fresh { s.restitution } else { 0.0 };
+    (1.0 + k_r, fresh)
 }

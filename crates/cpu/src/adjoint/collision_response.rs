@@ -12,7 +12,7 @@
 use glam::DVec3;
 use softbody_terrain::{Contact, Surface};
 
-use crate::collision_response::band_mask;
+use crate::collision_response::{band_mask, reflection};
 
 /// The most surfaces one particle's response records without allocating.
 const INLINE: usize = 8;
@@ -62,11 +62,9 @@ pub fn respond_one_vjp(
         let vn = v.dot(c.normal);
         if vn < 0.0 {
             let mask = *start_mask.get_or_insert_with(|| band_mask(surfaces, eps, x_start));
-            let a_n = (-(v - v_start).dot(c.normal) / h).max(0.0);
-            let fresh = mask & 1 << k.min(31) == 0 && vn * vn > 2.0 * a_n * eps;
-            let k_r = if fresh { s.restitution } else { 0.0 };
-            record.reflect = Some((1.0 + k_r, fresh));
-            v -= (1.0 + k_r) * vn * c.normal;
+            let (scale, fresh) = reflection(s, k, mask, (eps, h), (v, v_start), c.normal);
+            record.reflect = Some((scale, fresh));
+            v -= scale * vn * c.normal;
         }
         if c.phi < 0.0 {
             record.pushed = true;
