@@ -118,7 +118,7 @@ fn cg_solve(c: &mut Criterion) {
     let (model, state) = Model::build(&cube(n, 1e4, Integrator::ImplicitEuler, 1.0 / 60.0));
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; model.len()];
-    system.assemble(&model, None, &state.x, &state.v, &mut b);
+    system.assemble(&model, (None, None), &state.x, &state.v, &mut b);
     let constraints = vec![Constraint::Free; model.len()];
     let z = vec![DVec3::ZERO; model.len()];
     let mut scratch = Scratch::new(model.len());
@@ -162,7 +162,7 @@ fn implicit_parts(c: &mut Criterion) {
         let mut system = System::new(&model);
         let mut b = vec![DVec3::ZERO; model.len()];
         group.bench_function(BenchmarkId::new("assemble", &size), |bench| {
-            bench.iter(|| system.assemble(&model, None, &state.x, &state.v, &mut b))
+            bench.iter(|| system.assemble(&model, (None, None), &state.x, &state.v, &mut b))
         });
         let p = state.v.clone();
         let mut out = vec![DVec3::ZERO; model.len()];

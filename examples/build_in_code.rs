@@ -32,6 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             contact_distance: 1e-3,
             body_contact: Default::default(),
             preconditioner: Default::default(),
+            cg_tolerance: softbody::scene::implicit::CG_TOLERANCE,
         },
         bodies: vec![Body {
             name: "pendulum".into(),

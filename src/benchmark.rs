@@ -59,6 +59,7 @@ pub fn cube(n: u32, stiffness: f64, integrator: Integrator, dt: f64) -> Scene {
             contact_distance: 0.0,
             body_contact: Default::default(),
             preconditioner: Default::default(),
+            cg_tolerance: softbody_scene::implicit::CG_TOLERANCE,
         },
         bodies: vec![jelly(
             "cube".into(),
@@ -147,6 +148,7 @@ pub fn pile(n: u32) -> Scene {
                 friction_model: FrictionModel::Coulomb,
             },
             preconditioner: Default::default(),
+            cg_tolerance: softbody_scene::implicit::CG_TOLERANCE,
         },
         bodies,
         terrain: vec![Terrain {

@@ -17,7 +17,9 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use softbody_cpu::adjoint::run::{AdjointError, Backward, FrameBar, Loss, gradient as adjoint};
+use softbody_cpu::adjoint::run::{
+    AdjointError, Backward, FrameBar, Loss, Options, gradient as adjoint,
+};
 use softbody_scene::{Model, Scene, SceneError, State, StepError};
 
 use crate::output::jsonl;
@@ -231,7 +233,12 @@ pub fn gradient_until(
             display(&request.target)
         )));
     }
-    let backward = adjoint(&model, &state, request.threads, &mut loss, stop)?;
+    let options = Options {
+        threads: request.threads,
+        controls: None,
+        stop,
+    };
+    let backward = adjoint(&model, &state, &mut loss, options)?;
     let values = Values::of(&model, &state);
     let mut gradient = Vec::new();
     for key in &keys {

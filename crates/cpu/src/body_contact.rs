@@ -50,8 +50,10 @@ use crate::vec_bytes;
 
 pub use softbody_scene::model::{PENALTY, PENALTY_IMPLICIT, SLOP};
 
-/// Forces between particles that the explicit stages add to the springs' (a generic parameter
-/// of the integrators, so that a model whose bodies cannot touch pays nothing).
+/// Forces that the explicit stages add to the springs': between particles (contact between
+/// bodies), and the external forces a caller applies ([`External`]). A generic parameter of the
+/// integrators, so that a model whose bodies cannot touch, run without external forces, pays
+/// nothing.
 pub trait PairForces: Sync {
     /// Whether the force is always zero (the passes then update whole rows side by side).
     const NONE: bool = false;
@@ -67,6 +69,22 @@ impl PairForces for NoPairs {
     #[inline(always)]
     fn force(&self, _: &Model, _: usize, _: &[DVec3], _: &[DVec3]) -> DVec3 {
         DVec3::ZERO
+    }
+}
+
+/// External forces on the particles (a control input, held over a frame's steps), added to
+/// the forces between particles `inner`.
+pub struct External<'a, P> {
+    /// The force on each particle, N.
+    pub forces: &'a [DVec3],
+    /// The forces between particles besides them.
+    pub inner: &'a P,
+}
+
+impl<P: PairForces> PairForces for External<'_, P> {
+    #[inline(always)]
+    fn force(&self, model: &Model, i: usize, x: &[DVec3], v: &[DVec3]) -> DVec3 {
+        self.inner.force(model, i, x, v) + self.forces[i]
     }
 }
 

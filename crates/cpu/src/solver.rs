@@ -3,6 +3,8 @@
 
 use std::sync::Arc;
 
+use glam::DVec3;
+
 use softbody_scene::{
     Energies, History, Instability, Model, Solver, State, Statistics, StepError, Timings,
     solver::check_state_len,
@@ -28,6 +30,8 @@ pub struct CpuSolver {
     /// whose bodies can touch.
     body_contact: Option<(BodyContact, State)>,
     state: State,
+    /// The external force on each particle, while one is set.
+    external: Option<Vec<DVec3>>,
     pool: Arc<rayon::ThreadPool>,
     steps: u64,
     timings: Timings,
@@ -91,10 +95,44 @@ impl CpuSolver {
             stepper,
             body_contact,
             state,
+            external: None,
             pool,
             steps: 0,
             timings: Timings::default(),
         }
+    }
+
+    /// Applies `forces` (N, one per particle; pinned particles take none) in every step from
+    /// now on, until another call; `None` ends them.
+    pub fn set_external_forces(&mut self, forces: Option<&[DVec3]>) -> Result<(), StepError> {
+        let Some(forces) = forces else {
+            self.external = None;
+            return Ok(());
+        };
+        if forces.len() != self.model.len() {
+            return Err(StepError::Invalid(format!(
+                "external forces: {} given for {} particles",
+                forces.len(),
+                self.model.len()
+            )));
+        }
+        if let Some(i) = forces.iter().position(|f| !f.is_finite()) {
+            return Err(StepError::Invalid(format!(
+                "external forces: particle {i}'s is not finite ({})",
+                forces[i]
+            )));
+        }
+        match &mut self.external {
+            Some(held) => held.copy_from_slice(forces),
+            None => self.external = Some(forces.to_vec()),
+        }
+        Ok(())
+    }
+
+    /// Implicit Euler's contacts with the terrain in the last step (0 for the explicit
+    /// integrators, whose contact is not constrained).
+    pub(crate) fn implicit_contacts(&self) -> usize {
+        self.stepper.implicit_contacts(&self.model)
     }
 
     /// The pool the solver steps in.
@@ -129,6 +167,7 @@ impl Solver for CpuSolver {
             &mut self.timings,
         );
         let body_contact = &mut self.body_contact;
+        let external = self.external.as_deref();
         let dt = model.simulation.dt;
         let done = &mut self.steps;
         self.pool.install(|| {
@@ -138,7 +177,7 @@ impl Solver for CpuSolver {
                     timings.time("body contact", || contact.prepare(model, state));
                 }
                 let pairs = body_contact.as_ref().map(|(contact, _)| contact.partners());
-                let mut bad = stepper.step(model, surfaces, pairs, state, timings);
+                let mut bad = stepper.step(model, surfaces, (pairs, external), state, timings);
                 if let (Some((contact, start)), None) = (body_contact.as_mut(), bad) {
                     bad = timings
                         .time("body contact", || contact.respond(model, start, state))

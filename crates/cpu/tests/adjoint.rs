@@ -9,13 +9,16 @@
 //! values' scale the central difference's truncation error, δ²/6·|L'''|, is ~1e-13 of L's scale
 //! and its rounding error ~1e-16/δ = 1e-10; the tolerance, 1e-6 of the larger of |⟨∇L, d⟩| and
 //! the difference's own size, leaves room for both while a wrong term (a missing factor, a
-//! sign) is off by O(1).
+//! sign) is off by O(1). Gravity and drag move by 1e-3 and 1e-4 absolute: the held cube's
+//! loss depends on them by ~1e-4 of its size, where 1e-6 would leave the rounding of L over δ
+//! at 1e-6 of their derivatives; L is smooth in both (they enter the forces linearly), so the
+//! truncation error stays ~1e-8.
 
 use std::path::Path;
 
 use glam::DVec3;
 use softbody_cpu::CpuSolver;
-use softbody_cpu::adjoint::run::{Backward, FrameBar, Loss, gradient};
+use softbody_cpu::adjoint::run::{Backward, FrameBar, Loss, Options, gradient};
 use softbody_scene::{Integrator, Model, Scene, Solver, State};
 
 /// L = Σ_frames Σ_i (c_i·x_i + ½ w |v_i|²): linear in the positions with fixed pseudo-random
@@ -56,6 +59,14 @@ impl Loss for Probe {
     }
 }
 
+/// The gradient's options on `n` threads.
+fn threads(n: usize) -> Options<'static> {
+    Options {
+        threads: Some(n),
+        ..Options::default()
+    }
+}
+
 /// A fixed pseudo-random unit-ish vector for index i.
 fn direction(i: usize, salt: f64) -> DVec3 {
     let t = i as f64 + salt;
@@ -68,13 +79,24 @@ fn direction(i: usize, salt: f64) -> DVec3 {
 
 /// The forward loss: the solver's run, the probe's terms at every frame.
 fn forward_loss(model: &Model, start: &State) -> f64 {
+    forward_loss_with(model, start, None)
+}
+
+/// The forward loss of the run with external forces `controls` (F × N, frame f's held from
+/// its step to the next frame's).
+fn forward_loss_with(model: &Model, start: &State, controls: Option<&[DVec3]>) -> f64 {
     let sim = &model.simulation;
-    let probe = Probe::new(model.len());
+    let n = model.len();
+    let probe = Probe::new(n);
     let mut solver = CpuSolver::new(model.clone(), start.clone(), Some(1)).unwrap();
     let mut at = 0;
     let mut total = 0.0;
     for f in 0..sim.frame_count() {
         let step = sim.frame_step(f);
+        if let (Some(u), true) = (controls, f > 0) {
+            let f = f as usize - 1;
+            solver.set_external_forces(Some(&u[f * n..][..n])).unwrap();
+        }
         solver.advance(step - at).unwrap();
         at = step;
         total += probe.term(solver.state().unwrap());
@@ -89,6 +111,8 @@ struct Case {
     spin: f64,
     /// Every particle's initial position moves by up to this (m).
     strain: f64,
+    /// The initial positions are the body's scaled by this about its centre.
+    stretch: f64,
     /// The direction the initial positions are moved along, by particle and position: at a
     /// resting contact (v·N rounding to zero at every step, the contact force cancelling the
     /// push) the response sits on its kink, and a pseudo-random move of the particles has
@@ -129,6 +153,7 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             toml: sim(0.12, 0.01) + &cube([0.0, 1.0, 0.0], [0.4, -0.2, 0.1]) + "pinned = [0]\n",
             spin: 2.0,
             strain: 0.01,
+            stretch: 1.0,
             x0: scattered,
         },
         Case {
@@ -141,6 +166,7 @@ fn cases(integrator: Integrator) -> Vec<Case> {
                    normal = [0.36397023426620234, 1.0, 0.0]\nfriction = 0.1\nfriction_model = \"coulomb\"\nrestitution = 0.3\n",
             spin: 0.0,
             strain: 0.001,
+            stretch: 1.0,
             // Down the slope, within the plane.
             x0: |_, _| DVec3::new(0.9397, -0.3420, 0.0),
         },
@@ -152,6 +178,7 @@ fn cases(integrator: Integrator) -> Vec<Case> {
                    friction = 0.4\nfriction_model = \"viscous\"\nrestitution = 0.2\n",
             spin: 0.0,
             strain: 0.001,
+            stretch: 1.0,
             // A turn about the bowl's vertical axis.
             x0: |_, x| DVec3::Y.cross(x - DVec3::Y),
         },
@@ -165,9 +192,30 @@ fn cases(integrator: Integrator) -> Vec<Case> {
                    friction = 0.0\n",
             spin: 0.0,
             strain: 0.0,
+            stretch: 1.0,
+            x0: scattered,
+        },
+        Case {
+            name: "held stretched",
+            // A 4³ lattice pinned on its faces 20 % out from its centre: the 8 particles
+            // inside move, every spring stretched throughout.
+            toml: sim(0.12, 0.01)
+                + &cube([0.0, 1.0, 0.0], [0.0, 0.0, 0.0]).replace("[3, 3, 3]", "[4, 4, 4]")
+                + &format!("pinned = {:?}\n", faces(4)),
+            spin: 1.0,
+            strain: 0.003,
+            stretch: 1.2,
             x0: scattered,
         },
     ]
+}
+
+/// The particles on the faces of an n³ lattice.
+fn faces(n: usize) -> Vec<usize> {
+    let edge = |c: usize| c == 0 || c == n - 1;
+    (0..n * n * n)
+        .filter(|&p| edge(p % n) || edge(p / n % n) || edge(p / (n * n)))
+        .collect()
 }
 
 fn build(case: &Case) -> (Model, State) {
@@ -177,7 +225,7 @@ fn build(case: &Case) -> (Model, State) {
     // Strained (by up to 7 % of the lattice's spacing) and spinning: the springs work.
     for (i, (x, v)) in state.x.iter_mut().zip(&mut state.v).enumerate() {
         *v += case.spin * DVec3::Y.cross(*x - c);
-        *x += case.strain * direction(i, 3.0);
+        *x = c + case.stretch * (*x - c) + case.strain * direction(i, 3.0);
     }
     (model, state)
 }
@@ -220,7 +268,7 @@ fn dot1(a: &[f64], i: &dyn Fn(usize) -> f64) -> f64 {
 fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String>) {
     let (model, state) = build(case);
     let mut probe = Probe::new(model.len());
-    let back: Backward = gradient(&model, &state, Some(1), &mut probe, None).unwrap();
+    let back: Backward = gradient(&model, &state, &mut probe, threads(1)).unwrap();
     let name = format!("{integrator:?}, {}", case.name);
     let l = forward_loss(&model, &state);
     check(&format!("{name}: loss"), back.loss, l, failures);
@@ -283,7 +331,7 @@ fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String>) {
         fd,
         failures,
     );
-    let fd = central(&model, &state, 10.0, &|m, _, s| {
+    let fd = central(&model, &state, 1000.0, &|m, _, s| {
         m.simulation.gravity += s * dg
     });
     check(
@@ -292,7 +340,7 @@ fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String>) {
         fd,
         failures,
     );
-    let fd = central(&model, &state, 1.0, &|m, _, s| m.simulation.drag += s);
+    let fd = central(&model, &state, 100.0, &|m, _, s| m.simulation.drag += s);
     check(&format!("{name}: drag"), g.drag_total(), fd, failures);
     for k in 0..model.terrain.len() {
         let fd = central(&model, &state, 1.0, &|m, _, s| m.terrain[k].friction += s);
@@ -314,6 +362,45 @@ fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String>) {
     }
 }
 
+/// Implicit Euler's linearisation keeps a spring's transverse stiffness k_s·max(0, 1 − r/ℓ):
+/// a kink where a spring passes its rest length, which the run's derivative has there (the
+/// branch's one-sided one), and which central differences straddle whenever a spring passes
+/// within their δ of it (the free-flying cube's springs do, several times in 120 steps: the
+/// differences' error then falls as δ, not δ²). So its case holds every spring stretched,
+/// which is asserted along the run with a margin (1 % of the rest length) far above the
+/// differences' moves (~1e-6 of the values' scale).
+///
+/// The forward solves each step by CG to a relative residual τ = 1e-8 (`CG_TOLERANCE`), and
+/// the adjoint the transposed system to the same τ: both are the exact steps' to O(τ)
+/// relative, at a fixed iteration count a smooth function of the values (differences of
+/// δ = 1e-6 of the scale change Δv by ~1e-6 of itself, and straddle no change of the count).
+/// The adjoint matches the differences to O(τ·κ^½), κ the preconditioned system's condition
+/// number, O(1) at h = 1e-3 for these springs (h²k_s/m ≈ 3e-2): the bound is 100 τ = 1e-6,
+/// the explicit integrators' own. Steps in contact are refused.
+#[test]
+fn the_implicit_adjoint_is_the_derivative_of_the_computed_run() {
+    let integrator = Integrator::ImplicitEuler;
+    let case = cases(integrator)
+        .into_iter()
+        .find(|c| c.name == "held stretched")
+        .unwrap();
+    let (model, state) = build(&case);
+    let mut solver = CpuSolver::new(model.clone(), state, Some(1)).unwrap();
+    let springs = model.springs();
+    for step in 0..=model.simulation.steps() {
+        let x = &solver.state().unwrap().x;
+        for s in 0..springs.len() {
+            let len = (x[springs.a[s] as usize] - x[springs.b[s] as usize]).length();
+            let strain = len / springs.rest[s] - 1.0;
+            assert!(strain > 0.01, "step {step}: spring {s} at strain {strain}");
+        }
+        solver.advance(1).unwrap();
+    }
+    let mut failures = Vec::new();
+    check_case(integrator, &case, &mut failures);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
 const EXPLICIT: [Integrator; 4] = [
     Integrator::ExplicitEuler,
     Integrator::SymplecticEuler,
@@ -332,13 +419,68 @@ fn the_adjoint_is_the_derivative_of_the_computed_run() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// The gradient of external forces held over each frame's steps (a control input) against
+/// central differences of the run, as the other groups' (δ = 1e-6 N on forces of 0.05 N):
+/// free flight and the slope for every explicit integrator (on the slope, forces and their
+/// change along it, which keep every contact's branch), implicit Euler held stretched.
+#[test]
+fn the_controls_gradient_is_the_derivative_of_the_computed_run() {
+    let slope = DVec3::new(0.9397, -0.3420, 0.0);
+    let mut failures = Vec::new();
+    let runs = EXPLICIT
+        .iter()
+        .flat_map(|&i| [(i, "free flight"), (i, "sliding on a slope")])
+        .chain([(Integrator::ImplicitEuler, "held stretched")]);
+    for (integrator, name) in runs {
+        let case = cases(integrator)
+            .into_iter()
+            .find(|c| c.name == name)
+            .unwrap();
+        let (model, state) = build(&case);
+        let n = model.len();
+        let count = model.simulation.frame_count() as usize * n;
+        let along = |k: usize, salt: f64| match name {
+            "sliding on a slope" => direction(k, salt).x * slope,
+            _ => direction(k, salt),
+        };
+        let u: Vec<DVec3> = (0..count).map(|k| 0.05 * along(k, 5.0)).collect();
+        let d: Vec<DVec3> = (0..count).map(|k| along(k, 9.0)).collect();
+        let options = Options {
+            threads: Some(1),
+            controls: Some(&u),
+            stop: None,
+        };
+        let back = gradient(&model, &state, &mut Probe::new(n), options).unwrap();
+        let what = format!("{integrator:?}, {name}");
+        check(
+            &format!("{what}: loss"),
+            back.loss,
+            forward_loss_with(&model, &state, Some(&u)),
+            &mut failures,
+        );
+        let delta = 1e-6;
+        let at = |s: f64| {
+            let moved: Vec<DVec3> = u.iter().zip(&d).map(|(u, d)| *u + s * *d).collect();
+            forward_loss_with(&model, &state, Some(&moved))
+        };
+        let fd = (at(delta) - at(-delta)) / (2.0 * delta);
+        check(
+            &format!("{what}: controls"),
+            dot(&back.controls, &|k| d[k]),
+            fd,
+            &mut failures,
+        );
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
 /// The cases touch what they are meant to: the slope's and the bowl's particles press on the
 /// terrain, the bouncing ones make fresh impacts (their restitution's gradient is not zero).
 #[test]
 fn the_cases_reach_their_laws() {
     for case in cases(Integrator::SymplecticEuler) {
         let (model, state) = build(&case);
-        let back = gradient(&model, &state, Some(1), &mut Probe::new(model.len()), None).unwrap();
+        let back = gradient(&model, &state, &mut Probe::new(model.len()), threads(1)).unwrap();
         let g = &back.gradient;
         match case.name {
             "sliding on a slope" | "in a bowl" => assert!(g.friction_of(0) != 0.0, "{}", case.name),
@@ -348,11 +490,24 @@ fn the_cases_reach_their_laws() {
     }
 }
 
-/// The gradient's bits do not depend on the thread count; the states the backward pass
-/// recomputes are the forward run's (the loss sees the bits a plain run has at each frame).
+/// The gradient's bits do not depend on the thread count (RK4 in contact, implicit Euler held
+/// stretched); the states the backward pass recomputes are the forward run's (the loss sees
+/// the bits a plain run has at each frame).
 #[test]
 fn the_same_bits_on_any_thread_count_and_recomputed_states_are_the_forward_ones() {
-    let case = &cases(Integrator::Rk4)[1];
+    for (integrator, name) in [
+        (Integrator::Rk4, "sliding on a slope"),
+        (Integrator::ImplicitEuler, "held stretched"),
+    ] {
+        let case = cases(integrator)
+            .into_iter()
+            .find(|c| c.name == name)
+            .unwrap();
+        same_bits_on_any_thread_count(&case);
+    }
+}
+
+fn same_bits_on_any_thread_count(case: &Case) {
     let (model, state) = build(case);
     let bits = |b: &Backward| {
         let mut out: Vec<u64> =
@@ -373,17 +528,10 @@ fn the_same_bits_on_any_thread_count_and_recomputed_states_are_the_forward_ones(
         out
     };
     let mut probe = Probe::new(model.len());
-    let one = gradient(&model, &state, Some(1), &mut probe, None).unwrap();
-    for threads in [2, 3] {
-        let other = gradient(
-            &model,
-            &state,
-            Some(threads),
-            &mut Probe::new(model.len()),
-            None,
-        )
-        .unwrap();
-        assert_eq!(bits(&one), bits(&other), "{threads} threads");
+    let one = gradient(&model, &state, &mut probe, threads(1)).unwrap();
+    for n in [2, 3] {
+        let other = gradient(&model, &state, &mut Probe::new(model.len()), threads(n)).unwrap();
+        assert_eq!(bits(&one), bits(&other), "{n} threads");
     }
     let sim = &model.simulation;
     let mut solver = CpuSolver::new(model.clone(), state.clone(), Some(1)).unwrap();
@@ -406,7 +554,7 @@ fn memory_grows_as_the_square_root_of_the_steps() {
                 masses = [1.0, 1.0]\nsprings = [{ a = 0, b = 1, stiffness = 10.0 }]\n";
     let scene = Scene::from_toml(toml, Path::new("long.toml")).unwrap();
     let (model, state) = Model::build(&scene);
-    let back = gradient(&model, &state, Some(1), &mut Probe::new(2), None).unwrap();
+    let back = gradient(&model, &state, &mut Probe::new(2), threads(1)).unwrap();
     assert_eq!(back.steps, 10_000);
     assert_eq!(back.interval, 100);
     assert!(back.peak_states <= 2 * 100 + 2, "{}", back.peak_states);

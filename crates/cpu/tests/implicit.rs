@@ -219,7 +219,7 @@ fn cg_solution_matches_a_direct_sparse_solve() {
 
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, None, &state.x, &state.v, &mut b);
+    system.assemble(&model, (None, None), &state.x, &state.v, &mut b);
     let b_scale = b_ref.iter().map(|b| b.length()).fold(0.0, f64::max);
     let b_err = max_diff(&b, &b_ref);
     println!("b: max |b − b_ref| = {b_err:.2e} (max |b_i| = {b_scale:.3e})");
@@ -317,7 +317,7 @@ fn lattice_product_is_the_assembled_matrix() {
                 let mut system = System::new(&model);
                 assert!(system.lattice.is_some(), "{dims} takes the lattice product");
                 let mut b = vec![DVec3::ZERO; n];
-                system.assemble(&model, None, &state.x, &state.v, &mut b);
+                system.assemble(&model, (None, None), &state.x, &state.v, &mut b);
                 let b_err = max_diff(&b, &b_ref);
                 assert!(b_err <= 1e-12 * b_scale, "{dims}: b differs by {b_err:e}");
                 let diag_err = (0..n)
@@ -383,7 +383,7 @@ fn filtered() -> Filtered {
     let a = dense(n, &triplets);
     let mut system = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(&model, None, &state.x, &state.v, &mut b);
+    system.assemble(&model, (None, None), &state.x, &state.v, &mut b);
     let normal = slid_normal();
     let mut constraints = vec![Constraint::Free; n];
     constraints[FIXED] = Constraint::Fixed;
@@ -613,7 +613,7 @@ fn implicit_steps_change_momentum_by_minus_the_residual_sum() {
     let mut worst = 0.0f64;
     for _ in 0..400 {
         let st = solver.state().unwrap();
-        system.assemble(&model, None, &st.x, &st.v, &mut b);
+        system.assemble(&model, (None, None), &st.x, &st.v, &mut b);
         let (v_before, p_before) = (st.v.clone(), momentum(&model, st));
         solver.advance(1).unwrap();
         let st = solver.state().unwrap();

@@ -57,7 +57,7 @@ fn deformed(n: u32) -> (Model, State) {
 fn assembled(model: &Model, state: &State) -> System {
     let mut system = System::new(model);
     let mut b = vec![DVec3::ZERO; model.len()];
-    system.assemble(model, None, &state.x, &state.v, &mut b);
+    system.assemble(model, (None, None), &state.x, &state.v, &mut b);
     system
 }
 
@@ -71,7 +71,7 @@ fn solve_once(
     let n = model.len();
     let mut system = System::new(model);
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(model, None, &state.x, &state.v, &mut b);
+    system.assemble(model, (None, None), &state.x, &state.v, &mut b);
     let mut constraints = vec![Constraint::Free; n];
     let mut z = vec![DVec3::ZERO; n];
     for i in 0..n {
@@ -331,7 +331,7 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
     moved.x.iter_mut().for_each(|x| *x *= 1.01);
     let mut b = vec![DVec3::ZERO; n];
     for _ in 0..KEEP_ASSEMBLIES {
-        system.assemble(&model, None, &moved.x, &moved.v, &mut b);
+        system.assemble(&model, (None, None), &moved.x, &moved.v, &mut b);
         incremental.prepare(&system, &model, &second);
         assert!(
             applied(&mut incremental) == kept,
@@ -348,7 +348,7 @@ fn a_second_solves_preconditioner_is_the_fresh_one() {
         applied(&mut fresh) == expected,
         "other constraints kept old values"
     );
-    system.assemble(&model, None, &moved.x, &moved.v, &mut b);
+    system.assemble(&model, (None, None), &moved.x, &moved.v, &mut b);
     incremental.prepare(&system, &model, &second);
     assert!(
         applied(&mut incremental) == expected,

@@ -424,6 +424,7 @@ impl Parts {
             contact: body_contact.as_ref(),
             start: collision_response.as_ref().map(|c| &c.start),
             terrain: plan.surfaces() > 0,
+            cg_tolerance: model.simulation.cg_tolerance,
         };
         let stepper = Stepper::new(s, around, plan.integrator, plan.route, plan.two_pass)?;
         let check = CheckFinite::new(s)?;

@@ -661,7 +661,13 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     contact.prepare(&model, &state);
     let mut sys = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    sys.assemble(&model, Some(contact.partners()), &state.x, &state.v, &mut b);
+    sys.assemble(
+        &model,
+        (Some(contact.partners()), None),
+        &state.x,
+        &state.v,
+        &mut b,
+    );
     let mut ap = vec![DVec3::ZERO; n];
     sys.apply(&model, &p, &mut ap);
 

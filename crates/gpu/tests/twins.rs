@@ -905,7 +905,7 @@ fn implicit_system_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let (gb, gdiag, gap) = g.debug_implicit_system(&p).map_err(step_error)?;
     let mut sys = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    sys.assemble(&model, None, &state.x, &state.v, &mut b);
+    sys.assemble(&model, (None, None), &state.x, &state.v, &mut b);
     let mut ap = vec![DVec3::ZERO; n];
     sys.apply(&model, &p, &mut ap);
     let compressed = (0..model.springs().len())
@@ -1026,7 +1026,7 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let n = model.len();
     let mut sys = System::new(&model);
     let mut b = vec![DVec3::ZERO; n];
-    sys.assemble(&model, None, &state.x, &state.v, &mut b);
+    sys.assemble(&model, (None, None), &state.x, &state.v, &mut b);
     let b: Vec<DVec3> = b.into_iter().map(f32_exact).collect();
     let mut rng = Rng::new(11);
     let (mut constraints, mut z, mut warm) = (Vec::new(), Vec::new(), Vec::new());
@@ -1054,7 +1054,7 @@ fn implicit_cg_twin(gpu: &Arc<Gpu>) -> Result<(), Failed> {
     let solve = |tol: f64| {
         let mut sys = System::new(&model);
         let mut bb = vec![DVec3::ZERO; n];
-        sys.assemble(&model, None, &state.x, &state.v, &mut bb);
+        sys.assemble(&model, (None, None), &state.x, &state.v, &mut bb);
         let mut dv = warm.clone();
         let mut scratch = Scratch::new(n);
         let out = cg::CgProblem {

@@ -38,6 +38,8 @@ pub struct SimulationFile {
     pub body_friction_model: FrictionModel,
     #[serde(default)]
     pub preconditioner: Preconditioner,
+    #[serde(default = "default_cg_tolerance")]
+    pub cg_tolerance: f64,
 }
 
 fn default_integrator() -> Integrator {
@@ -48,6 +50,9 @@ fn default_frame_rate() -> f64 {
 }
 fn default_gravity() -> [f64; 3] {
     [0.0, -9.81, 0.0]
+}
+fn default_cg_tolerance() -> f64 {
+    crate::implicit::CG_TOLERANCE
 }
 fn default_contact_distance() -> f64 {
     1e-3

@@ -1,10 +1,15 @@
 //! What the implicit-Euler solvers of every backend share: the velocity constraint of a
 //! particle in the filtered CG solve, and the limits of a step's solve.
 //!
-//! Each backend keeps its own CG tolerance, which depends on its precision (the CPU's f64 solve
-//! goes to 1e-8, the GPU's f32 solve to 1e-5).
+//! The CG tolerance is the scene's `simulation.cg_tolerance` ([`CG_TOLERANCE`] by default);
+//! the GPU's f32 solve stops at no less than its own floor (1e-5), below which f32 resolves
+//! nothing.
 
 use glam::DVec3;
+
+/// The default of `simulation.cg_tolerance`: CG stops when the preconditioned residual is this
+/// fraction of the right-hand side's.
+pub const CG_TOLERANCE: f64 = 1e-8;
 
 /// CG stops after this many iterations whatever the residual (counted in the statistics).
 pub const CG_MAX_ITERATIONS: u32 = 2000;

@@ -124,6 +124,16 @@ pub(crate) fn scene(scene: &Scene) -> Check {
     non_negative(s.key("contact_distance"), sim.contact_distance)?;
     unit_interval(s.key("body_restitution"), sim.body_contact.restitution)?;
     non_negative(s.key("body_friction"), sim.body_contact.friction)?;
+    positive(s.key("cg_tolerance"), sim.cg_tolerance)?;
+    if sim.cg_tolerance >= 1.0 {
+        return Err(Invalid::new(
+            s.key("cg_tolerance"),
+            format!(
+                "must be below 1 (a fraction of the right-hand side's residual), not {}",
+                Num(sim.cg_tolerance)
+            ),
+        ));
+    }
     if sim.duration / sim.dt > 1e15 {
         return Err(Invalid::new(
             s.key("duration"),
@@ -512,6 +522,29 @@ mod tests {
                  2.2250738585072014e-308 m {why}"
             )
         );
+    }
+
+    /// Implicit Euler's CG tolerance is a fraction in (0, 1); 1e-8 when the scene says none.
+    #[test]
+    fn the_cg_tolerance_is_a_fraction_below_one() {
+        let rest = format!("{CUBE}mass = 1.0\n");
+        for (value, why) in [
+            ("0.0", "must be greater than zero, not 0"),
+            ("-1e-9", "must be greater than zero, not -1e-9"),
+            ("inf", "must be a finite number, not inf"),
+            (
+                "1.0",
+                "must be below 1 (a fraction of the right-hand side's residual), not 1",
+            ),
+        ] {
+            assert_eq!(
+                error_of(&format!("cg_tolerance = {value}"), &rest),
+                format!("simulation.cg_tolerance: {why}")
+            );
+        }
+        let text = format!("[simulation]\ndt = 0.001\nduration = 0.01\n{rest}");
+        let scene = Scene::from_toml(&text, "s.toml".as_ref()).unwrap();
+        assert_eq!(scene.simulation.cg_tolerance, 1e-8);
     }
 
     /// Very large and very small values are written in exponent form, not as 300 digits.

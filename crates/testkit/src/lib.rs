@@ -338,7 +338,7 @@ pub fn cg_momentum_bound(
 ) -> f64 {
     let n = model.len();
     let mut b = vec![DVec3::ZERO; n];
-    system.assemble(model, None, x, v, &mut b);
+    system.assemble(model, (None, None), x, v, &mut b);
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
     for i in 0..n {
         let d = system.diag[i];

@@ -31,6 +31,7 @@ pub fn simulation(integrator: Integrator, dt: f64) -> Simulation {
         contact_distance: 0.001,
         body_contact: Default::default(),
         preconditioner: Default::default(),
+        cg_tolerance: softbody_scene::implicit::CG_TOLERANCE,
     }
 }
 

@@ -44,12 +44,14 @@ impl Stage {
     }
 
     /// Writes a(x, v) of every particle into `a`, as [`crate::forces::accelerations`] does
-    /// (the same functions), keeping the springs' forces and sums.
+    /// (the same functions), keeping the springs' forces and each particle's sum of them and
+    /// of its `external` force (whose cotangent is then the sum's, [`Scratch::sum_bar`]).
     pub fn evaluate(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
         (x, v): (&[DVec3], &[DVec3]),
+        external: Option<&[DVec3]>,
         a: &mut [DVec3],
     ) {
         spring_forces::compute(model.springs(), x, v, &mut self.per_spring);
@@ -61,6 +63,9 @@ impl Stage {
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, (sum, a))| {
                 *sum = spring_forces::gather(adjacency, per_spring, i);
+                if let Some(external) = external {
+                    *sum += external[i];
+                }
                 *a = if model.inv_mass[i] == 0.0 {
                     DVec3::ZERO
                 } else {
@@ -93,6 +98,12 @@ impl Scratch {
             d_bar: vec![DVec3::ZERO; s],
             w_bar: vec![DVec3::ZERO; s],
         }
+    }
+
+    /// S̄_i of the last [`accelerations_vjp`]: the cotangent of each particle's sum of spring
+    /// and external forces, and so of its external force (0 where pinned).
+    pub fn sum_bar(&self) -> &[DVec3] {
+        &self.sum_bar
     }
 
     /// Bytes held on the heap.

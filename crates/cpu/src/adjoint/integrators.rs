@@ -91,24 +91,28 @@ impl StepAdjoint {
     }
 
     /// Turns `(x_bar, v_bar)`, the cotangent of the state after the step that starts at
-    /// `start`, into the cotangent of `start`, adding the model's values' to `grad`.
+    /// `start`, into the cotangent of `start`, adding the model's values' to `grad`; with
+    /// `external` forces on the particles in the step, their cotangents are added to the
+    /// second of the pair.
     pub fn step(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
         start: &State,
+        external: Option<(&[DVec3], &mut [DVec3])>,
         (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
         grad: &mut Gradient,
     ) {
         let h = model.simulation.dt;
         let (x, v) = (&start.x[..], &start.v[..]);
-        self.forward(model, surfaces, x, v);
+        let (forces, mut forces_bar) = external.unzip();
+        self.forward(model, surfaces, x, v, forces);
         self.respond_vjp(model, surfaces, start, (x_bar, v_bar), grad);
-        let vjp = |s: &mut Self,
-                   j: usize,
-                   a_bar: Option<&[DVec3]>,
-                   out: (&mut [DVec3], &mut [DVec3]),
-                   grad: &mut Gradient| {
+        let mut vjp = |s: &mut Self,
+                       j: usize,
+                       a_bar: Option<&[DVec3]>,
+                       out: (&mut [DVec3], &mut [DVec3]),
+                       grad: &mut Gradient| {
             let a_bar = a_bar.unwrap_or(&s.a_bar);
             accelerations_vjp(
                 model,
@@ -120,6 +124,9 @@ impl StepAdjoint {
                 out,
                 grad,
             );
+            if let Some(bar) = forces_bar.as_deref_mut() {
+                axpy(bar, 1.0, s.scratch.sum_bar());
+            }
         };
         match self.integrator {
             Integrator::ExplicitEuler => {
@@ -182,18 +189,26 @@ impl StepAdjoint {
                 self.k_bar = (kx, kv);
                 self.pre = (ox, ov);
             }
-            Integrator::ImplicitEuler => unreachable!("run::gradient refuses implicit Euler"),
+            Integrator::ImplicitEuler => unreachable!("implicit Euler has its own transpose"),
         }
     }
 
-    /// The stage states and accelerations of the step from (x, v), and the state before the
-    /// collision response, by the forward's formulas.
-    fn forward(&mut self, model: &Model, surfaces: &[Surface], x: &[DVec3], v: &[DVec3]) {
+    /// The stage states and accelerations of the step from (x, v) with the `external` forces,
+    /// and the state before the collision response, by the forward's formulas.
+    fn forward(
+        &mut self,
+        model: &Model,
+        surfaces: &[Surface],
+        x: &[DVec3],
+        v: &[DVec3],
+        external: Option<&[DVec3]>,
+    ) {
         let h = model.simulation.dt;
         self.xs[0].copy_from_slice(x);
         self.vs[0].copy_from_slice(v);
         let accel = |s: &mut Self, j: usize| {
-            s.stages[j].evaluate(model, surfaces, (&s.xs[j], &s.vs[j]), &mut s.accs[j]);
+            let at = (&s.xs[j][..], &s.vs[j][..]);
+            s.stages[j].evaluate(model, surfaces, at, external, &mut s.accs[j]);
         };
         accel(self, 0);
         let stages = self.xs.len();

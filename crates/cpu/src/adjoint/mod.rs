@@ -1,13 +1,13 @@
-//! Reverse-mode gradients of a whole run: the discrete adjoint of the explicit integrators as
-//! they are implemented, so that what is differentiated is the computed trajectory, not the
-//! ODE.
+//! Reverse-mode gradients of a whole run: the discrete adjoint of the integrators as they are
+//! implemented, so that what is differentiated is the computed trajectory, not the ODE.
 //!
 //! A run is the map (x₀, v₀, θ) ↦ (x_k, v_k)_{k ≤ T}, one step Φ at a time. For a loss
 //! L = Σ_frames ℓ_f(x_f, v_f), the adjoint sweeps back from the last step: with the cotangent
 //! (x̄, v̄) of the state after step k, the cotangent of the state before it is
 //! (∂Φ/∂(x, v))ᵀ (x̄, v̄), plus the frame's own ∂ℓ/∂(x, v), and the model's values θ gather
-//! (∂Φ/∂θ)ᵀ (x̄, v̄) on the way ([`integrators`] for each method's transpose, [`forces`] for the
-//! accelerations', [`collision_response`] for the response's). The states the sweep needs come
+//! (∂Φ/∂θ)ᵀ (x̄, v̄) on the way ([`integrators`] for each explicit method's transpose,
+//! [`implicit_euler`] for implicit Euler's, [`forces`] for the accelerations',
+//! [`collision_response`] for the response's). The states the sweep needs come
 //! from checkpoints every ⌈√T⌉ steps and a recomputation of each segment by the forward solver
 //! itself ([`run`]): the forward is deterministic, so the recomputed states are the forward's
 //! bits (checked at every segment's end).
@@ -16,11 +16,13 @@
 //! contact starting or ending, stick ↔ slip, a cap on friction reached — the gradient is the
 //! one-sided derivative of the branch the forward run took at that step (docs/physics.md).
 //!
-//! Implicit Euler, contact between bodies and the terrain shapes whose normals turn at edges
-//! (box, heightfield, mesh) have no adjoint yet; [`run::gradient`] refuses them.
+//! Implicit Euler's steps in contact with the terrain, contact between bodies and the terrain
+//! shapes whose normals turn at edges (box, heightfield, mesh) have no adjoint yet;
+//! [`run::gradient`] refuses them.
 
 pub mod collision_response;
 pub mod forces;
+pub mod implicit_euler;
 pub mod integrators;
 pub mod run;
 

@@ -1,21 +1,26 @@
 //! The gradient of a loss over a whole run, in memory that grows as √T.
 //!
 //! The forward pass steps the [`CpuSolver`] and keeps its state every S = ⌈√T⌉ steps (⌈T/S⌉
-//! checkpoints). The backward pass takes the segments from the last to the first: it restores
-//! the segment's checkpoint, recomputes its S states with the same solver (the same bits: the
-//! segment's last state must equal the next checkpoint, or the run is refused as
-//! [`AdjointError::Recompute`]), and sweeps the segment's steps back with
-//! [`StepAdjoint::step`], adding each frame's loss cotangent as it passes the frame. At most
-//! ⌈T/S⌉ + S + 1 ≤ 2√T + 2 states are held at once, besides the model and O(N) scratch.
+//! checkpoints), each with the solver's history (implicit Euler's warm start and contact
+//! flags; nothing for the explicit integrators). The backward pass takes the segments from the
+//! last to the first: it restores the segment's checkpoint, recomputes its S states with the
+//! same solver (the same bits: the segment's last state must equal the next checkpoint, or the
+//! run is refused as [`AdjointError::Recompute`]), and sweeps the segment's steps back with
+//! [`StepAdjoint::step`] or [`ImplicitAdjoint::step`], adding each frame's loss cotangent as it
+//! passes the frame. At most ⌈T/S⌉ checkpoints and S + 2 states are held at once, besides the
+//! model and O(N) scratch: 2√T + 2 states for the explicit integrators, whose checkpoints are
+//! states; implicit Euler's also hold its warm start (three Δv, and the positions and
+//! constraints its multigrid was computed for), 3.6 states' bytes each.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
-use softbody_scene::{Integrator, Model, Solver, State, StepError, TerrainShape};
+use softbody_scene::{History, Integrator, Model, Solver, State, StepError, TerrainShape};
 use softbody_terrain::Surface;
 
 use super::Gradient;
+use super::implicit_euler::ImplicitAdjoint;
 use super::integrators::StepAdjoint;
 use crate::CpuSolver;
 
@@ -64,6 +69,19 @@ pub enum AdjointError {
     },
 }
 
+/// How [`gradient`] runs besides the model, its start and the loss.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Options<'a> {
+    /// Threads (all cores if `None`; the result's bits do not depend on it).
+    pub threads: Option<usize>,
+    /// External forces on the particles, frame by frame: F × N forces (F the run's frame
+    /// count, frame f's N first), frame f's held over the steps from its step to the next
+    /// frame's (the last frame's acts on none).
+    pub controls: Option<&'a [DVec3]>,
+    /// When set, the run ends at the next segment ([`AdjointError::Stopped`]).
+    pub stop: Option<&'a AtomicBool>,
+}
+
 /// What [`gradient`] computed.
 #[derive(Debug, Clone)]
 pub struct Backward {
@@ -75,6 +93,8 @@ pub struct Backward {
     pub v0: Vec<DVec3>,
     /// The model's values' gradient.
     pub gradient: Gradient,
+    /// ∂L/∂u of each control force, laid out as [`Options::controls`] (empty without them).
+    pub controls: Vec<DVec3>,
     /// Steps of the run.
     pub steps: u64,
     /// Steps between checkpoints, S.
@@ -90,15 +110,9 @@ pub struct Backward {
     pub backward_seconds: f64,
 }
 
-/// Refuses a model whose run has no adjoint yet, saying what it holds.
+/// Refuses a model whose run has no adjoint yet, saying what it holds. (Implicit Euler's
+/// steps in contact with the terrain are refused as the run meets them, by [`gradient`].)
 pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
-    if model.simulation.integrator == Integrator::ImplicitEuler {
-        return Err(AdjointError::Unsupported(
-            "gradients of implicit-euler runs are not built yet; the explicit integrators \
-             (explicit-euler, symplectic-euler, midpoint, rk4) have them"
-                .into(),
-        ));
-    }
     if model.contact.enabled() {
         return Err(AdjointError::Unsupported(
             "gradients through contact between bodies are not built yet; this scene's bodies \
@@ -126,50 +140,112 @@ pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
 }
 
 /// The loss of the run of `model` from `start` over `model.simulation.steps()` steps and its
-/// gradient, on `threads` threads (all cores if `None`; the result's bits do not depend on it).
-/// `stop`, when set, ends it at the next segment ([`AdjointError::Stopped`]).
+/// gradient, run as `options` say.
 pub fn gradient(
     model: &Model,
     start: &State,
-    threads: Option<usize>,
     loss: &mut (dyn Loss + Send),
-    stop: Option<&AtomicBool>,
+    options: Options<'_>,
 ) -> Result<Backward, AdjointError> {
-    let stopped = || stop.is_some_and(|s| s.load(Ordering::Relaxed));
+    let stopped = || options.stop.is_some_and(|s| s.load(Ordering::Relaxed));
     check_differentiable(model)?;
     let sim = &model.simulation;
     let steps = sim.steps();
     let interval = ((steps as f64).sqrt().ceil() as u64).max(1);
     let frames = sim.frame_count();
+    let n = model.len();
+    let frame_steps: Vec<u64> = (0..frames).map(|f| sim.frame_step(f)).collect();
     let mut frame_at = std::collections::BTreeMap::new();
-    for f in 0..frames {
-        frame_at.insert(sim.frame_step(f), f);
+    for (f, &k) in frame_steps.iter().enumerate() {
+        frame_at.insert(k, f as u64);
     }
+    if let Some(u) = options.controls
+        && u.len() as u64 != frames * n as u64
+    {
+        return Err(AdjointError::Step(StepError::Invalid(format!(
+            "controls: {} forces for {frames} frames of {n} particles (F × N = {})",
+            u.len(),
+            frames * n as u64
+        ))));
+    }
+    // The frame whose control acts in step k: the last one taken at or before it.
+    let control_of = |k: u64| frame_steps.partition_point(|&s| s <= k).saturating_sub(1);
     let surfaces: Vec<Surface> = model.terrain.iter().map(Surface::new).collect();
-    let mut solver = CpuSolver::new(model.clone(), start.clone(), threads)?;
+    let mut solver = CpuSolver::new(model.clone(), start.clone(), options.threads)?;
     let state_bytes = 2 * crate::vec_bytes(&start.x);
+    let implicit = sim.integrator == Integrator::ImplicitEuler;
+    // Implicit Euler's steps one at a time, each asked whether it met the terrain.
+    let advance_checked = |solver: &mut CpuSolver, count: u64, done: u64| {
+        if !implicit {
+            return Ok(solver.advance(count)?);
+        }
+        for k in done..done + count {
+            solver.advance(1)?;
+            let contacts = solver.implicit_contacts();
+            if contacts > 0 {
+                return Err(AdjointError::Unsupported(format!(
+                    "gradients of implicit-euler steps in contact with the terrain are not built \
+                     yet: step {} (t = {} s) has {contacts} particle{} in contact; the explicit \
+                     integrators have them",
+                    k + 1,
+                    (k + 1) as f64 * sim.dt,
+                    if contacts == 1 { "" } else { "s" },
+                )));
+            }
+        }
+        Ok(())
+    };
+    // Steps `done..done + count`, each frame's control set for its steps.
+    let advance = |solver: &mut CpuSolver, count: u64, done: u64| -> Result<(), AdjointError> {
+        let Some(u) = options.controls else {
+            return advance_checked(solver, count, done);
+        };
+        let end = done + count;
+        let mut k = done;
+        while k < end {
+            let f = control_of(k);
+            solver.set_external_forces(Some(&u[f * n..][..n]))?;
+            let next = frame_steps.get(f + 1).map_or(end, |&s| s.min(end));
+            advance_checked(solver, next - k, k)?;
+            k = next;
+        }
+        Ok(())
+    };
 
     let clock = Instant::now();
-    let mut checkpoints = vec![start.clone()];
+    // Each checkpoint with what the solver's next step starts from besides the state
+    // (implicit Euler's warm start and contact flags; nothing for the explicit integrators),
+    // so that a segment's recomputation gives the forward's bits.
+    let mut checkpoints: Vec<(State, History)> = vec![(start.clone(), solver.history()?)];
     let mut done = 0;
     while done < steps {
         if stopped() {
             return Err(AdjointError::Stopped);
         }
-        let n = interval.min(steps - done);
-        solver.advance(n)?;
-        done += n;
+        let k = interval.min(steps - done);
+        advance(&mut solver, k, done)?;
+        done += k;
         if done < steps {
-            checkpoints.push(solver.state()?.clone());
+            checkpoints.push((solver.state()?.clone(), solver.history()?));
         }
     }
     let last = solver.state()?.clone();
     let forward_seconds = clock.elapsed().as_secs_f64();
+    let history_bytes = |h: &History| h.parts.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
+    let checkpoint_bytes = checkpoints
+        .iter()
+        .map(|(_, h)| history_bytes(h))
+        .max()
+        .unwrap_or(0)
+        + state_bytes;
 
     let clock = Instant::now();
-    let n = model.len();
     let mut grad = Gradient::zeros(model);
-    let mut adjoint = StepAdjoint::new(model);
+    let mut controls_bar = vec![DVec3::ZERO; options.controls.map_or(0, <[DVec3]>::len)];
+    let mut transpose = match implicit {
+        true => Transpose::Implicit(Box::new(ImplicitAdjoint::new(model))),
+        false => Transpose::Explicit(Box::new(StepAdjoint::new(model))),
+    };
     let (mut x_bar, mut v_bar) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
     let mut total = 0.0;
     if let Some(&f) = frame_at.get(&steps) {
@@ -181,57 +257,79 @@ pub fn gradient(
         total += loss.frame(f, &last, bar);
     }
     let mut segment: Vec<State> = Vec::with_capacity(interval as usize + 1);
-    let mut peak_states = 0;
+    let (mut peak_states, mut peak_bytes) = (0, 0);
     // In the solver's pool throughout: its steps and the transposes run there without a
     // hand-over between threads at every step.
     let pool = solver.pool().clone();
     pool.install(|| -> Result<(), AdjointError> {
-        for (j, checkpoint) in checkpoints.iter().enumerate().rev() {
+        for (j, (checkpoint, history)) in checkpoints.iter().enumerate().rev() {
             if stopped() {
                 return Err(AdjointError::Stopped);
             }
             let from = j as u64 * interval;
             let to = (from + interval).min(steps);
-            solver.set_state(checkpoint)?;
+            solver.restore(from, checkpoint, history)?;
             segment.truncate(0);
             segment.push(checkpoint.clone());
-            for _ in from..to {
-                solver.advance(1)?;
+            for k in from..to {
+                advance(&mut solver, 1, k)?;
                 segment.push(solver.state()?.clone());
             }
-            let expected = checkpoints.get(j + 1).unwrap_or(&last);
+            let expected = checkpoints.get(j + 1).map_or(&last, |(state, _)| state);
             if !same_bits(segment.last().expect("the segment's start"), expected) {
                 return Err(AdjointError::Recompute { from, to });
             }
-            // Checkpoints (the last state among them) and the segment.
+            // Checkpoints, the last state and the segment.
             peak_states = peak_states.max(checkpoints.len() as u64 + 1 + segment.len() as u64);
+            peak_bytes = peak_bytes.max(
+                checkpoints.len() as u64 * checkpoint_bytes
+                    + (1 + segment.len() as u64) * state_bytes,
+            );
             for k in (from..to).rev() {
-                let state = &segment[(k - from) as usize];
-                adjoint.step(model, &surfaces, state, (&mut x_bar, &mut v_bar), &mut grad);
+                let i = (k - from) as usize;
+                let bars = (&mut x_bar[..], &mut v_bar[..]);
+                let f = control_of(k);
+                let external = options
+                    .controls
+                    .map(|u| (&u[f * n..][..n], &mut controls_bar[f * n..][..n]));
+                match &mut transpose {
+                    Transpose::Explicit(t) => {
+                        t.step(model, &surfaces, &segment[i], external, bars, &mut grad)
+                    }
+                    Transpose::Implicit(t) => t.step(
+                        model,
+                        (&segment[i], &segment[i + 1]),
+                        external,
+                        bars,
+                        &mut grad,
+                    ),
+                }
                 if let Some(&f) = frame_at.get(&k) {
                     let bar = FrameBar {
                         x: &mut x_bar,
                         v: &mut v_bar,
                         mass: &mut grad.mass,
                     };
-                    total += loss.frame(f, state, bar);
+                    total += loss.frame(f, &segment[i], bar);
                 }
             }
         }
         Ok(())
     })?;
     let backward_seconds = clock.elapsed().as_secs_f64();
-    let peak_memory_bytes = peak_states * state_bytes
+    let peak_memory_bytes = peak_bytes
         + model.memory_bytes()
         + solver.memory_bytes()
-        + adjoint.memory_bytes()
+        + transpose.memory_bytes()
         + grad.memory_bytes()
+        + crate::vec_bytes(&controls_bar)
         + 2 * crate::vec_bytes(&x_bar);
     Ok(Backward {
         loss: total,
         x0: x_bar,
         v0: v_bar,
         gradient: grad,
+        controls: controls_bar,
         steps,
         interval,
         peak_states,
@@ -239,6 +337,21 @@ pub fn gradient(
         forward_seconds,
         backward_seconds,
     })
+}
+
+/// The transpose of a step of the run's integrator.
+enum Transpose {
+    Explicit(Box<StepAdjoint>),
+    Implicit(Box<ImplicitAdjoint>),
+}
+
+impl Transpose {
+    fn memory_bytes(&self) -> u64 {
+        match self {
+            Transpose::Explicit(t) => t.memory_bytes(),
+            Transpose::Implicit(t) => t.memory_bytes(),
+        }
+    }
 }
 
 /// Whether two states are the same bits.

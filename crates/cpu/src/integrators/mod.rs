@@ -23,7 +23,7 @@ use glam::DVec3;
 use softbody_scene::{History, Integrator, Model, State, Statistics, StepError, Timings};
 use softbody_terrain::{PlaneGeometry, Surface};
 
-use crate::body_contact::{NoPairs, PairForces, Partners};
+use crate::body_contact::{External, NoPairs, PairForces, Partners};
 use crate::collision_response::respond_one;
 use crate::forces::{acceleration_of, acceleration_with};
 use crate::pipeline::{PerParticle, Plan, RowUpdate, pass_rows};
@@ -63,25 +63,39 @@ impl Stepper {
         }
     }
 
-    /// Advances `state` by one step, timing its stages into `timings`, and returns the first
-    /// particle with a non-finite position or velocity afterwards, and which it is.
+    /// Advances `state` by one step with the forces between particles of the bodies in
+    /// contact `pairs` and the `external` forces on each particle (a control input), timing its
+    /// stages into `timings`, and returns the first particle with a non-finite position or
+    /// velocity afterwards, and which it is.
     pub fn step(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
-        pairs: Option<&Partners>,
+        (pairs, external): (Option<&Partners>, Option<&[DVec3]>),
         state: &mut State,
         timings: &mut Timings,
     ) -> Option<(usize, &'static str)> {
-        // Each integrator once without forces between particles and once with them.
+        // Each integrator once for each combination of forces between particles and external
+        // forces: without both, rows update side by side.
         macro_rules! with_pairs {
             (|$q:ident| $body:expr) => {
-                match pairs {
-                    None => {
+                match (pairs, external) {
+                    (None, None) => {
                         let $q = &NoPairs;
                         $body
                     }
-                    Some($q) => $body,
+                    (Some($q), None) => $body,
+                    (None, Some(forces)) => {
+                        let $q = &External {
+                            forces,
+                            inner: &NoPairs,
+                        };
+                        $body
+                    }
+                    (Some(inner), Some(forces)) => {
+                        let $q = &External { forces, inner };
+                        $body
+                    }
                 }
             };
         }
@@ -102,11 +116,20 @@ impl Stepper {
                 with_pairs!(|q| s.step(model, surfaces, q, state))
             }),
             Stepper::ImplicitEuler(s) => {
-                s.step(model, surfaces, pairs, state, timings);
+                s.step(model, surfaces, (pairs, external), state, timings);
                 return timings.time("finiteness", || crate::first_non_finite(state));
             }
         };
         bad.map(|i| (i, crate::non_finite_what(state, i)))
+    }
+
+    /// Implicit Euler's contacts with the terrain in its last step ([`implicit_euler`]'s
+    /// constrained particles besides the pinned ones); 0 for the others.
+    pub(crate) fn implicit_contacts(&self, model: &Model) -> usize {
+        match self {
+            Stepper::ImplicitEuler(s) => s.contacts(model),
+            _ => 0,
+        }
     }
 
     /// Bytes of scratch held on the heap.

@@ -47,6 +47,10 @@ pub(crate) struct Around<'a> {
     pub start: Option<&'a wgpu::Buffer>,
     /// Whether the scene has terrain (implicit Euler's contacts).
     pub terrain: bool,
+    /// The scene's `cg_tolerance` (implicit Euler's, at no less than [`CG_TOLERANCE_F32`]).
+    ///
+    /// [`CG_TOLERANCE_F32`]: implicit_euler::CG_TOLERANCE_F32
+    pub cg_tolerance: f64,
 }
 
 impl Stepper {
@@ -69,7 +73,7 @@ impl Stepper {
         }
         Ok(match integrator {
             Integrator::ImplicitEuler => Stepper::Implicit(Box::new(
-                implicit_euler::ImplicitEuler::new(s, around.contact, around.terrain, per_spring)?,
+                implicit_euler::ImplicitEuler::new(s, around, per_spring)?,
             )),
             _ => Stepper::PerSpring(per_spring::PerSpring::new(s, around.contact, integrator)?),
         })

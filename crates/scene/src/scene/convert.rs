@@ -83,6 +83,7 @@ pub(super) fn scene(file: SceneFile, base: &Path) -> Result<Scene, Invalid> {
             friction_model: s.body_friction_model,
         },
         preconditioner: s.preconditioner,
+        cg_tolerance: s.cg_tolerance,
     };
     let bodies = file
         .bodies

@@ -37,6 +37,9 @@ pub struct Simulation {
     pub body_contact: BodyContact,
     /// Implicit Euler's CG preconditioner on the CPU (the GPU always runs block Jacobi).
     pub preconditioner: Preconditioner,
+    /// Implicit Euler's CG stops at this relative residual, in (0, 1)
+    /// ([`crate::implicit::CG_TOLERANCE`] by default; the GPU at no less than its f32 floor).
+    pub cg_tolerance: f64,
 }
 
 /// The laws of contact between particles of bodies: the same as a terrain surface's, one set for

@@ -3,7 +3,7 @@
 //! (M − h ∂f/∂v − h² ∂f/∂x) Δv = h (f + h ∂f/∂x v),  v' = v + Δv,  x' = x + h v',
 //!
 //! solved matrix-free by filtered, preconditioned CG ([`cg`], [`system`]) to a relative
-//! residual of [`CG_TOLERANCE`] or at most [`CG_MAX_ITERATIONS`] iterations, warm started from
+//! residual of the scene's `cg_tolerance` ([`CG_TOLERANCE`] by default) or at most [`CG_MAX_ITERATIONS`] iterations, warm started from
 //! the combination of the last [`cg::WARM_START_BASIS`] steps' Δv closest to the solution. The
 //! preconditioner is the scene's `preconditioner`: aggregation multigrid on the lattice
 //! ([`multigrid`]; the default, where every particle has lattice coordinates) or block Jacobi
@@ -48,7 +48,7 @@ pub mod system;
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::implicit::resting_slack;
-pub use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS};
+pub use softbody_scene::implicit::{ACTIVE_SET_ROUNDS, CG_MAX_ITERATIONS, CG_TOLERANCE};
 use softbody_scene::{FrictionModel, History, Model, State, Statistics, StepError, Timings};
 
 use self::cg::{Constraint, Scratch};
@@ -91,9 +91,6 @@ fn decode(bytes: &[u8]) -> Result<Constraint, StepError> {
         ))),
     }
 }
-
-/// CG stops when the preconditioned residual is this fraction of the right-hand side's.
-pub const CG_TOLERANCE: f64 = 1e-8;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Mode {
@@ -304,7 +301,7 @@ impl ImplicitEuler {
                 // The system at those positions (its diagonal blocks and springs' blocks do not
                 // depend on the velocities); the next step assembles its own.
                 let zeros = vec![DVec3::ZERO; n];
-                (self.system).assemble(model, None, &self.prepared_x, &zeros, &mut self.b);
+                (self.system).assemble(model, (None, None), &self.prepared_x, &zeros, &mut self.b);
                 mg.restore(&self.system, model, &constraints, kept);
             }
         }
@@ -319,21 +316,23 @@ impl ImplicitEuler {
     }
 
     /// One step, with the pairs of bodies in contact at its start `partners` (given exactly
-    /// when the model has contact between bodies), its stages timed into `timings`:
+    /// when the model has contact between bodies) and the `external` forces on the particles,
+    /// its stages timed into `timings`:
     /// "assemble" (the linear system),
     /// "contacts" (candidates, constraints, active set), "cg" (the solves), "update".
     pub fn step(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
-        partners: Option<&Partners>,
+        (partners, external): (Option<&Partners>, Option<&[DVec3]>),
         state: &mut State,
         timings: &mut Timings,
     ) {
         let sim = &model.simulation;
         let (h, eps) = (sim.dt, sim.contact_distance);
         timings.time("assemble", || {
-            (self.system).assemble(model, partners, &state.x, &state.v, &mut self.b)
+            let around = (partners, external);
+            (self.system).assemble(model, around, &state.x, &state.v, &mut self.b)
         });
         let mut candidates = timings.time("contacts", || {
             self.find_candidates(model, surfaces, state, h, eps)
@@ -356,6 +355,7 @@ impl ImplicitEuler {
                 );
                 cg::CgProblem {
                     earlier: &earlier,
+                    tolerance: model.simulation.cg_tolerance,
                     preconditioner: match self.multigrid.as_mut() {
                         Some(mg) => cg::Preconditioner::Multigrid(mg),
                         None => cg::Preconditioner::BlockJacobi,
@@ -384,6 +384,14 @@ impl ImplicitEuler {
         self.earlier.rotate_right(1);
         std::mem::swap(&mut self.earlier[0], &mut self.last);
         timings.time("update", || self.finish(&candidates, h, state));
+    }
+
+    /// The particles the last step's final solve constrained besides the pinned ones: its
+    /// contacts with the terrain.
+    pub(crate) fn contacts(&self, model: &Model) -> usize {
+        (self.constraints.iter().enumerate())
+            .filter(|&(i, s)| *s != Constraint::Free && !model.is_pinned(i))
+            .count()
     }
 
     /// Records who touches and sticks, then v ← v + Δv, x ← x + h v.

@@ -188,11 +188,11 @@ impl System {
 
     /// Linearises at (x, v), with the pairs of bodies in contact `partners` (given exactly when
     /// the model has contact between bodies), and writes the right-hand side
-    /// h(f + h ∂f/∂x v) into `b`.
+    /// h(f + h ∂f/∂x v) into `b`, f including the `external` forces on the particles.
     pub fn assemble(
         &mut self,
         model: &Model,
-        partners: Option<&Partners>,
+        (partners, external): (Option<&Partners>, Option<&[DVec3]>),
         x: &[DVec3],
         v: &[DVec3],
         b: &mut [DVec3],
@@ -239,6 +239,9 @@ impl System {
                 let m = model.mass[i];
                 let (force, springs_block) = springs(i);
                 let mut f = m * sim.gravity - sim.drag * m * v[i] + force;
+                if let Some(external) = external {
+                    f += external[i];
+                }
                 *md = m * (1.0 + h * sim.drag);
                 let mut block = DMat3::from_diagonal(DVec3::splat(*md)) + springs_block;
                 if let Some(pairs) = pairs {

@@ -23,7 +23,8 @@
 //! than the last one (plus 2), one more per 16 iterations beyond, and a step at least one.
 //!
 //! The CG stopping rule is the CPU's (relative preconditioned residual, round-off growth, cap),
-//! with the tolerance [`CG_TOLERANCE_F32`] (the CPU's 1e-8 is below what f32 resolves) and a
+//! with the scene's tolerance at no less than [`CG_TOLERANCE_F32`] (the default 1e-8 is below
+//! what f32 resolves) and a
 //! floor at what the f32 state resolves of the right-hand side (each spring's h k_s ε with ε
 //! half a ulp of its ends' coordinates; `shaders/cg.wgsl`, docs/physics.md): without it a
 //! stiff body's solves resolve the forces of its positions' rounding, 25–33 iterations a step
@@ -46,6 +47,7 @@ use crate::body_contact::BodyContact;
 use crate::buffers::Setup;
 use crate::check_finite::CheckFinite;
 use crate::grid::Grid;
+use crate::integrators::Around;
 use crate::kernel::{Call, Resources};
 use crate::layout::{
     CG_DISPATCH_WORDS, CG_PARTIAL_HALVES, CandidateGpu, CgScalars, SpringBlockGpu, dispatch_slot,
@@ -54,8 +56,8 @@ use crate::shaders::Stage;
 use crate::submit::Submitter;
 use crate::{GpuError, VEC4};
 
-/// CG's relative tolerance on the GPU (preconditioned residual norm, as the CPU's
-/// `CG_TOLERANCE`, which is 1e-8): f32 resolves about 6e-8 relative per operation, and the
+/// The floor of CG's relative tolerance on the GPU (preconditioned residual norm, as the
+/// scene's `cg_tolerance`, 1e-8 by default): f32 resolves about 6e-8 relative per operation, and the
 /// recursively updated residual of an f32 CG drifts from the true one by about that times the
 /// condition number, so 1e-5 is as far as a solve can usefully go; it is reached in a few dozen
 /// iterations on the test scenes (see the adapter tests for the measured residuals).
@@ -119,11 +121,12 @@ pub(crate) struct Buffers {
 }
 
 impl Buffers {
-    fn new(s: Setup<'_>) -> Buffers {
+    /// Sized for the setup's model, CG stopping at `tolerance`.
+    fn new(s: Setup<'_>, tolerance: f32) -> Buffers {
         let builder = s.builder;
         let vectors = |label| builder.storage(label, s.n, VEC4);
         let settings = CgScalars {
-            tolerance: CG_TOLERANCE_F32,
+            tolerance,
             max_iterations: CG_MAX_ITERATIONS,
             n_partials: s.particles.groups() as u32,
             particle_grid: [s.particles.x, s.particles.y],
@@ -233,16 +236,17 @@ pub(crate) struct ImplicitEuler {
 }
 
 impl ImplicitEuler {
-    /// Its buffers and calls; `contact`: the contact between bodies, for models whose bodies
-    /// touch; `terrain`: whether the scene has terrain to touch; `two_pass`: the product in two
-    /// passes even where the fused one fits ([`System::new`]).
+    /// Its buffers and calls; `around`: the contact between bodies (for models whose bodies
+    /// touch), whether the scene has terrain to touch and its CG tolerance; `two_pass`: the
+    /// product in two passes even where the fused one fits ([`System::new`]).
     pub fn new(
         s: Setup<'_>,
-        contact: Option<&BodyContact>,
-        terrain: bool,
+        around: Around<'_>,
         two_pass: bool,
     ) -> Result<ImplicitEuler, GpuError> {
-        let buffers = Buffers::new(s);
+        let (contact, terrain) = (around.contact, around.terrain);
+        let tolerance = CG_TOLERANCE_F32.max(around.cg_tolerance as f32);
+        let buffers = Buffers::new(s, tolerance);
         let resources = buffers.resources(s.buffers.resources());
         let call = |entry| s.builder.call(Stage::ImplicitEuler, entry, &resources);
         let contacts = match terrain {

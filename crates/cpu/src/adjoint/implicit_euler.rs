@@ -1,0 +1,368 @@
+//! The transpose of one implicit Euler step, twin of [`crate::integrators::implicit_euler`],
+//! for steps without terrain contact (pinned particles are its constraints).
+//!
+//! The step solves A Δv = b with A = M(1 + h·drag) + Σ_s B_s and b = h(m g − drag·m v +
+//! Σ± (f_s − h K_s w_s)), Δv prescribed (−v) on pinned particles; then v' = v + Δv,
+//! x' = x + h v'. With the cotangent (x̄', v̄') of the state after it:
+//!
+//! - ṽ = v̄' + h x̄' is the cotangent of v' and so of Δv; x̄ = x̄', v̄ = ṽ;
+//! - μ solves the transposed system, A being symmetric the same one, A_ff μ_f = ṽ_f on the
+//!   free particles (μ = 0 on the pinned ones), by the forward's preconditioned CG;
+//! - a pinned particle's prescribed Δv = −v hands v̄ −= ṽ − (A μ) back;
+//! - everything A and b depend on takes μᵀ ∂r/∂(x, v, θ) for the residual r = b − A Δv at the
+//!   step's Δv (held fixed): per particle r_i ∋ h m_i (g − drag·v_i) − m_i(1 + h·drag) Δv_i,
+//!   and per spring s = (a, b), with m = μ_a − μ_b, δ = Δv_a − Δv_b, q = w + δ (the new
+//!   relative velocity), the scalar ([`spring_residual_vjp`])
+//!
+//!   φ_s = mᵀ(h f_s − h² K_s q − h k_d u uᵀ δ),  K_s = k_s[(1 − α) uuᵀ + α I],
+//!   α = max(0, 1 − r/ℓ),
+//!
+//!   whose derivatives in d = x_a − x_b, w, k_s and k_d go to the springs' ends with the
+//!   forward's signs. Where α is clamped at 0 (a compressed spring) its derivative is 0, the
+//!   branch the forward took.
+//!
+//! The forward's CG stops at the scene's relative residual τ (`simulation.cg_tolerance`): its
+//! Δv, and so the run, is the exact step's to O(τ), and this transpose, solved to the same τ,
+//! is the exact step's, which the computed run's derivative matches to the same order.
+
+use glam::DVec3;
+use rayon::prelude::*;
+use softbody_scene::implicit::Constraint;
+use softbody_scene::{Model, State};
+
+use super::Gradient;
+use crate::forces::PARTICLE_CHUNK;
+use crate::integrators::implicit_euler::cg::{self, CgProblem, Preconditioner};
+use crate::integrators::implicit_euler::multigrid::Multigrid;
+use crate::integrators::implicit_euler::system::System;
+use crate::spring_forces;
+use crate::vec_bytes;
+
+/// The transpose of one implicit Euler step and its scratch, sized for one model.
+#[derive(Debug)]
+pub struct ImplicitAdjoint {
+    system: System,
+    multigrid: Option<Multigrid>,
+    scratch: cg::Scratch,
+    constraints: Vec<Constraint>,
+    /// The step's Δv = v' − v.
+    dv: Vec<DVec3>,
+    /// ṽ, the cotangent of Δv.
+    dv_bar: Vec<DVec3>,
+    /// A μ.
+    a_mu: Vec<DVec3>,
+    /// μ, warm started from the last step's.
+    mu: Vec<DVec3>,
+    zeros: Vec<DVec3>,
+    /// Each spring's cotangents of d and w.
+    d_bar: Vec<DVec3>,
+    w_bar: Vec<DVec3>,
+}
+
+impl ImplicitAdjoint {
+    /// Sized for `model`, with the preconditioner its scene names.
+    pub fn new(model: &Model) -> ImplicitAdjoint {
+        let n = model.len();
+        let s = model.springs().len();
+        let system = System::new(model);
+        let multigrid = match model.simulation.preconditioner {
+            softbody_scene::Preconditioner::Multigrid => Multigrid::new(model, &system),
+            softbody_scene::Preconditioner::BlockJacobi => None,
+        };
+        let constraints = (0..n)
+            .map(|i| match model.is_pinned(i) {
+                true => Constraint::Fixed,
+                false => Constraint::Free,
+            })
+            .collect();
+        ImplicitAdjoint {
+            system,
+            multigrid,
+            scratch: cg::Scratch::new(n),
+            constraints,
+            dv: vec![DVec3::ZERO; n],
+            dv_bar: vec![DVec3::ZERO; n],
+            a_mu: vec![DVec3::ZERO; n],
+            mu: vec![DVec3::ZERO; n],
+            zeros: vec![DVec3::ZERO; n],
+            d_bar: vec![DVec3::ZERO; s],
+            w_bar: vec![DVec3::ZERO; s],
+        }
+    }
+
+    /// Bytes held on the heap.
+    pub fn memory_bytes(&self) -> u64 {
+        self.system.memory_bytes()
+            + self.multigrid.as_ref().map_or(0, Multigrid::memory_bytes)
+            + self.scratch.memory_bytes()
+            + vec_bytes(&self.constraints)
+            + [
+                &self.dv,
+                &self.dv_bar,
+                &self.a_mu,
+                &self.mu,
+                &self.zeros,
+                &self.d_bar,
+                &self.w_bar,
+            ]
+            .into_iter()
+            .map(vec_bytes)
+            .sum::<u64>()
+    }
+
+    /// Turns `(x_bar, v_bar)`, the cotangent of `end`, the state after the step from `start`,
+    /// into the cotangent of `start`, adding the model's values' to `grad`; with `external`
+    /// forces on the particles in the step (which enter b as h f_ext, so their cotangent is
+    /// h μ), their cotangents are added to the second of the pair.
+    pub fn step(
+        &mut self,
+        model: &Model,
+        (start, end): (&State, &State),
+        external: Option<(&[DVec3], &mut [DVec3])>,
+        (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
+        grad: &mut Gradient,
+    ) {
+        let sim = &model.simulation;
+        let h = sim.dt;
+        let (x, v) = (&start.x[..], &start.v[..]);
+        // The step's linearisation (its right-hand side is not needed: `dv_bar` is scratch
+        // until ṽ is written).
+        (self.system).assemble(model, (None, None), x, v, &mut self.dv_bar);
+        (&mut self.dv, &mut self.dv_bar, &mut *v_bar)
+            .into_par_iter()
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, (dv, vt, vb))| {
+                *dv = end.v[i] - v[i];
+                *vt = *vb + h * x_bar[i];
+                *vb = *vt;
+            });
+        CgProblem {
+            preconditioner: match self.multigrid.as_mut() {
+                Some(mg) => Preconditioner::Multigrid(mg),
+                None => Preconditioner::BlockJacobi,
+            },
+            tolerance: model.simulation.cg_tolerance,
+            ..CgProblem::new(
+                &mut self.system,
+                model,
+                &self.constraints,
+                &self.dv_bar,
+                &self.zeros,
+            )
+        }
+        .solve(&mut self.mu, &mut self.scratch);
+
+        // Pinned particles: v̄ −= ṽ − (A μ).
+        if self.constraints.contains(&Constraint::Fixed) {
+            self.system.apply(model, &self.mu, &mut self.a_mu);
+            for (i, s) in self.constraints.iter().enumerate() {
+                if *s == Constraint::Fixed {
+                    v_bar[i] -= self.dv_bar[i] - self.a_mu[i];
+                }
+            }
+        }
+
+        if let Some((_, bar)) = external {
+            for (b, mu) in bar.iter_mut().zip(&self.mu) {
+                *b += h * *mu;
+            }
+        }
+
+        // Per particle: mass, gravity, drag.
+        let (mu, dv) = (&self.mu, &self.dv);
+        v_bar
+            .par_iter_mut()
+            .zip(grad.mass.par_iter_mut())
+            .zip(grad.gravity.par_iter_mut().zip(grad.drag.par_iter_mut()))
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, ((vb, mb), (gb, db)))| {
+                let m = model.mass[i];
+                let mu = mu[i];
+                *mb += mu.dot(h * sim.gravity - h * sim.drag * v[i] - (1.0 + h * sim.drag) * dv[i]);
+                *gb += h * m * mu;
+                *db -= h * m * mu.dot(v[i] + dv[i]);
+                *vb -= h * sim.drag * m * mu;
+            });
+
+        // Per spring, then each particle's gather with the forward's signs.
+        let springs = model.springs();
+        const CHUNK: usize = 4096;
+        self.d_bar
+            .par_chunks_mut(CHUNK)
+            .zip(self.w_bar.par_chunks_mut(CHUNK))
+            .zip(grad.stiffness.par_chunks_mut(CHUNK))
+            .zip(grad.damping.par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each(|(c, (((d_bar, w_bar), kb), cb))| {
+                for j in 0..d_bar.len() {
+                    let s = c * CHUNK + j;
+                    let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
+                    let bar = spring_residual_vjp(
+                        SpringAt {
+                            d: x[a] - x[b],
+                            w: v[a] - v[b],
+                            delta: dv[a] - dv[b],
+                            rest: springs.rest[s],
+                            stiffness: springs.stiffness[s],
+                            damping: springs.damping[s],
+                        },
+                        h,
+                        mu[a] - mu[b],
+                    );
+                    (d_bar[j], w_bar[j]) = (bar.d, bar.w);
+                    kb[j] += bar.stiffness;
+                    cb[j] += bar.damping;
+                }
+            });
+        let (adjacency, d_bar, w_bar) = (model.adjacency(), &self.d_bar, &self.w_bar);
+        x_bar
+            .par_iter_mut()
+            .zip(v_bar.par_iter_mut())
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, (xb, vb))| {
+                *xb += spring_forces::gather(adjacency, d_bar, i);
+                *vb += spring_forces::gather(adjacency, w_bar, i);
+            });
+    }
+}
+
+/// A spring at the start of a step: its ends' difference d and relative velocity w, the
+/// step's δ = Δv_a − Δv_b, and its values.
+#[derive(Debug, Clone, Copy)]
+pub struct SpringAt {
+    /// d = x_a − x_b.
+    pub d: DVec3,
+    /// w = v_a − v_b.
+    pub w: DVec3,
+    /// δ = Δv_a − Δv_b.
+    pub delta: DVec3,
+    /// Rest length r.
+    pub rest: f64,
+    /// k_s.
+    pub stiffness: f64,
+    /// k_d.
+    pub damping: f64,
+}
+
+/// The derivatives of φ = mᵀ(h f_s − h² K_s (w + δ) − h k_d u uᵀ δ) (the module's) in d, w,
+/// k_s and k_d, as [`super::forces::SpringBar`].
+#[inline(always)]
+pub fn spring_residual_vjp(s: SpringAt, h: f64, m: DVec3) -> super::forces::SpringBar {
+    let len = s.d.length();
+    if len == 0.0 {
+        // No direction: the forward's force and block are zero.
+        return super::forces::SpringBar {
+            d: DVec3::ZERO,
+            w: DVec3::ZERO,
+            stiffness: 0.0,
+            damping: 0.0,
+        };
+    }
+    let inv = 1.0 / len;
+    let u = s.d * inv;
+    let (k, kd, r) = (s.stiffness, s.damping, s.rest);
+    let (alpha, alpha_len) = if len > r {
+        (1.0 - r * inv, r * inv * inv)
+    } else {
+        (0.0, 0.0)
+    };
+    let q = s.w + s.delta;
+    let (cu, e, sd, wu, mq) = (u.dot(m), u.dot(q), u.dot(s.delta), u.dot(s.w), m.dot(q));
+    let p = k * (len - r) + kd * wu;
+    let h2 = h * h;
+    let u_bar = -h * kd * cu * s.w
+        - h * p * m
+        - h2 * k * (1.0 - alpha) * (cu * q + e * m)
+        - h * kd * (sd * m + cu * s.delta);
+    let len_bar = -h * k * cu - h2 * k * (mq - e * cu) * alpha_len;
+    super::forces::SpringBar {
+        d: (u_bar - u * u.dot(u_bar)) * inv + len_bar * u,
+        w: -h * kd * cu * u - h2 * k * ((1.0 - alpha) * cu * u + alpha * m),
+        stiffness: -h * (len - r) * cu - h2 * ((1.0 - alpha) * e * cu + alpha * mq),
+        damping: -h * cu * (wu + sd),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::{SpringAt, spring_residual_vjp};
+
+    /// φ itself, by the module's formula written out with the forward's block.
+    fn phi(s: SpringAt, h: f64, m: DVec3) -> f64 {
+        let len = s.d.length();
+        let u = s.d / len;
+        let alpha = (1.0 - s.rest / len).max(0.0);
+        let f = -(s.stiffness * (len - s.rest) + s.damping * s.w.dot(u)) * u;
+        let k = |p: DVec3| s.stiffness * ((1.0 - alpha) * u.dot(p) * u + alpha * p);
+        m.dot(h * f - h * h * k(s.w + s.delta) - h * s.damping * u.dot(s.delta) * u)
+    }
+
+    /// Each derivative against central differences of φ, stretched and compressed (where α is
+    /// clamped): φ is a smooth function of each input on either side, so differences with
+    /// δ = 1e-6 agree to ~1e-9 of the scale.
+    #[test]
+    fn the_residuals_derivatives_are_its_differences() {
+        let (h, m) = (2e-3, DVec3::new(0.3, -1.1, 0.7));
+        for stretch in [1.3, 0.8] {
+            let s = SpringAt {
+                d: DVec3::new(0.2, 0.05, -0.1) * stretch,
+                w: DVec3::new(-0.4, 0.9, 0.3),
+                delta: DVec3::new(0.02, -0.07, 0.05),
+                rest: DVec3::new(0.2, 0.05, -0.1).length(),
+                stiffness: 800.0,
+                damping: 3.0,
+            };
+            let bar = spring_residual_vjp(s, h, m);
+            let diff = |f: &dyn Fn(f64) -> SpringAt, scale: f64| {
+                let e = 1e-6 * scale;
+                (phi(f(e), h, m) - phi(f(-e), h, m)) / (2.0 * e)
+            };
+            for axis in 0..3 {
+                let unit = DVec3::AXES[axis];
+                let fd = diff(
+                    &|e| SpringAt {
+                        d: s.d + e * unit,
+                        ..s
+                    },
+                    1.0,
+                );
+                assert!(
+                    (bar.d[axis] - fd).abs() < 1e-8 * fd.abs().max(1.0),
+                    "d {stretch}"
+                );
+                let fd = diff(
+                    &|e| SpringAt {
+                        w: s.w + e * unit,
+                        ..s
+                    },
+                    1.0,
+                );
+                assert!(
+                    (bar.w[axis] - fd).abs() < 1e-8 * fd.abs().max(1.0),
+                    "w {stretch}"
+                );
+            }
+            let fd = diff(
+                &|e| SpringAt {
+                    stiffness: s.stiffness + e,
+                    ..s
+                },
+                1.0,
+            );
+            assert!((bar.stiffness - fd).abs() < 1e-8 * fd.abs().max(1e-3));
+            let fd = diff(
+                &|e| SpringAt {
+                    damping: s.damping + e,
+                    ..s
+                },
+                1.0,
+            );
+            assert!((bar.damping - fd).abs() < 1e-8 * fd.abs().max(1e-3));
+        }
+    }
+}
