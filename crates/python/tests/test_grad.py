@@ -52,6 +52,28 @@ def test_backward_with_a_losss_cotangents_is_the_built_in_gradient(cube: softbod
     np.testing.assert_allclose(given.velocities, built_in.velocities, rtol=1e-12, atol=1e-300)
 
 
+def test_implicit_euler_has_its_gradient_in_flight_and_refuses_contact(cube: softbody.Scene) -> None:
+    implicit = {"simulation.integrator": "implicit-euler"}
+    # Its bottom face on the ground: in contact from the first step.
+    grounded = {**implicit, "body[0].center": [0.0, 0.1, 0.0]}
+    with pytest.raises(softbody.SceneError, match="implicit-euler steps in contact"):
+        softbody.gradient(cube, ["body[0].mass"], target_com=TARGET, set=grounded)
+    # From 0.2 m up the cube falls 4.9 cm in the run's 0.1 s: no contact.
+    keys = ["body[0].structural.stiffness", "body[0].velocity"]
+    g = softbody.gradient(cube, keys, target_com=TARGET, set=implicit, threads=1)
+    assert g.loss == pytest.approx(com_loss(cube, implicit), rel=1e-12)
+    # The springs' forces and blocks cancel in the sum of the system's rows, so the centre's
+    # velocity gains h g a step whatever the springs do, and c moves by h v' a step:
+    # ∂c/∂v₀ = T = 0.1 s and ∂L/∂v₀ = 2(c − target)·T, to the CG's tolerance (1e-8; 100×
+    # it, as the Rust tests allow).
+    traj = softbody.run(cube, set=implicit)
+    m = traj.masses
+    c = (m[:, None] * traj.positions[-1]).sum(axis=0) / m.sum()
+    np.testing.assert_allclose(
+        g.gradient["body[0].velocity"], 2.0 * (c - np.array(TARGET)) * 0.1, rtol=1e-6
+    )
+
+
 def test_refusals(cube: softbody.Scene) -> None:
     with pytest.raises(softbody.SceneError, match="body\\[N\\].structural.stiffness"):
         softbody.gradient(cube, ["body[0].size"], target_com=TARGET)
