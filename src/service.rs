@@ -338,7 +338,7 @@ pub fn load(source: &SceneSource, settings: &[Setting]) -> Result<Loaded, SceneE
 /// Runs `request`: see the module's documentation for what it does and the keep rule.
 pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
     let Hooks {
-        mut observer,
+        observer,
         mut progress,
         stop,
         mut notice,
@@ -455,7 +455,7 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
 
     let mut tee = Tee {
         output: output.as_mut().map(Output::sink),
-        observer: observer.as_deref_mut(),
+        observer,
         frames: 0,
     };
     let started = Instant::now();
@@ -476,8 +476,8 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
         checkpoints.as_mut(),
     );
     let seconds = started.elapsed().as_secs_f64();
+    // The tee's borrows of the output end here, before the output is committed.
     let frames = tee.frames;
-    drop(tee);
 
     // A checkpoint refused while its frames were read (damaged, or of another version) gave
     // the output frames that are not to be kept, and is left as it was.
@@ -489,12 +489,12 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
     };
     let mut result = result.map_err(RunFailure::from);
     let mut kept = false;
-    if let Some(output) = output {
-        if keep {
-            match output.commit() {
-                Ok(()) => kept = true,
-                Err(e) => result = Err(e.into()),
-            }
+    if let Some(output) = output
+        && keep
+    {
+        match output.commit() {
+            Ok(()) => kept = true,
+            Err(e) => result = Err(e.into()),
         }
     }
     let ended = matches!(&result, Ok(_) | Err(RunFailure::Run(RunError::Unstable(_))))
