@@ -129,7 +129,6 @@ pub fn accelerations_vjp(
     grad: &mut Gradient,
 ) {
     let springs = model.springs();
-    let adjacency = model.adjacency();
     let sim = &model.simulation;
     let (eps, h) = (sim.contact_distance, sim.dt);
     let ns = surfaces.len();
@@ -176,42 +175,51 @@ pub fn accelerations_vjp(
         },
     );
 
-    // Per spring: its parameters and the cotangents of its ends' difference, a chunk of
-    // springs per task over slices of one length (no bounds checks inside).
-    const CHUNK: usize = 4096;
     let sum_bar = &scratch.sum_bar;
-    scratch
-        .d_bar
+    let (d_bar, w_bar) = (&mut scratch.d_bar, &mut scratch.w_bar);
+    springs_transpose(model, (d_bar, w_bar), grad, (x_bar, v_bar), |s, a, b| {
+        spring_vjp(
+            (x[a], x[b]),
+            (v[a], v[b]),
+            springs.rest[s],
+            springs.stiffness[s],
+            springs.damping[s],
+            sum_bar[a] - sum_bar[b],
+        )
+    });
+}
+
+/// The springs' share of a transpose: `bar(s, a, b)`, the cotangents of spring s = (a, b), for
+/// every spring, a chunk of springs per task; the cotangents of d and w kept per spring in
+/// `d_bar`, `w_bar` and those of k_s and k_d added to `grad`; then each particle's x̄ and v̄
+/// gather d̄ and w̄ with the forward's signs (x̄_a += d̄, x̄_b −= d̄), in a fixed order.
+pub(crate) fn springs_transpose(
+    model: &Model,
+    (d_bar, w_bar): (&mut [DVec3], &mut [DVec3]),
+    grad: &mut Gradient,
+    (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
+    bar: impl Fn(usize, usize, usize) -> SpringBar + Sync,
+) {
+    let springs = model.springs();
+    const CHUNK: usize = 4096;
+    d_bar
         .par_chunks_mut(CHUNK)
-        .zip(scratch.w_bar.par_chunks_mut(CHUNK))
+        .zip(w_bar.par_chunks_mut(CHUNK))
         .zip(grad.stiffness.par_chunks_mut(CHUNK))
         .zip(grad.damping.par_chunks_mut(CHUNK))
         .enumerate()
         .for_each(|(c, (((d_bar, w_bar), kb), cb))| {
-            let range = c * CHUNK..c * CHUNK + d_bar.len();
-            let (ea, eb) = (&springs.a[range.clone()], &springs.b[range.clone()]);
-            let rest = &springs.rest[range.clone()];
-            let (ks, kd) = (&springs.stiffness[range.clone()], &springs.damping[range]);
             let n = d_bar.len();
             let (w_bar, kb, cb) = (&mut w_bar[..n], &mut kb[..n], &mut cb[..n]);
+            let (ea, eb) = (&springs.a[c * CHUNK..][..n], &springs.b[c * CHUNK..][..n]);
             for j in 0..n {
-                let (a, b) = (ea[j] as usize, eb[j] as usize);
-                let bar = spring_vjp(
-                    (x[a], x[b]),
-                    (v[a], v[b]),
-                    rest[j],
-                    ks[j],
-                    kd[j],
-                    sum_bar[a] - sum_bar[b],
-                );
+                let bar = bar(c * CHUNK + j, ea[j] as usize, eb[j] as usize);
                 (d_bar[j], w_bar[j]) = (bar.d, bar.w);
                 kb[j] += bar.stiffness;
                 cb[j] += bar.damping;
             }
         });
-
-    // Per particle: the springs' ends, gathered with the forward's signs.
-    let (d_bar, w_bar) = (&scratch.d_bar, &scratch.w_bar);
+    let (adjacency, d_bar, w_bar) = (model.adjacency(), &*d_bar, &*w_bar);
     x_bar
         .par_iter_mut()
         .zip(v_bar.par_iter_mut())

@@ -31,11 +31,11 @@ use softbody_scene::implicit::Constraint;
 use softbody_scene::{Model, State};
 
 use super::Gradient;
+use super::forces::springs_transpose;
 use crate::forces::PARTICLE_CHUNK;
 use crate::integrators::implicit_euler::cg::{self, CgProblem, Preconditioner};
 use crate::integrators::implicit_euler::multigrid::Multigrid;
 use crate::integrators::implicit_euler::system::System;
-use crate::spring_forces;
 use crate::vec_bytes;
 
 /// The transpose of one implicit Euler step and its scratch, sized for one model.
@@ -188,44 +188,18 @@ impl ImplicitAdjoint {
 
         // Per spring, then each particle's gather with the forward's signs.
         let springs = model.springs();
-        const CHUNK: usize = 4096;
-        self.d_bar
-            .par_chunks_mut(CHUNK)
-            .zip(self.w_bar.par_chunks_mut(CHUNK))
-            .zip(grad.stiffness.par_chunks_mut(CHUNK))
-            .zip(grad.damping.par_chunks_mut(CHUNK))
-            .enumerate()
-            .for_each(|(c, (((d_bar, w_bar), kb), cb))| {
-                for j in 0..d_bar.len() {
-                    let s = c * CHUNK + j;
-                    let (a, b) = (springs.a[s] as usize, springs.b[s] as usize);
-                    let bar = spring_residual_vjp(
-                        SpringAt {
-                            d: x[a] - x[b],
-                            w: v[a] - v[b],
-                            delta: dv[a] - dv[b],
-                            rest: springs.rest[s],
-                            stiffness: springs.stiffness[s],
-                            damping: springs.damping[s],
-                        },
-                        h,
-                        mu[a] - mu[b],
-                    );
-                    (d_bar[j], w_bar[j]) = (bar.d, bar.w);
-                    kb[j] += bar.stiffness;
-                    cb[j] += bar.damping;
-                }
-            });
-        let (adjacency, d_bar, w_bar) = (model.adjacency(), &self.d_bar, &self.w_bar);
-        x_bar
-            .par_iter_mut()
-            .zip(v_bar.par_iter_mut())
-            .enumerate()
-            .with_min_len(PARTICLE_CHUNK)
-            .for_each(|(i, (xb, vb))| {
-                *xb += spring_forces::gather(adjacency, d_bar, i);
-                *vb += spring_forces::gather(adjacency, w_bar, i);
-            });
+        let (d_bar, w_bar) = (&mut self.d_bar[..], &mut self.w_bar[..]);
+        springs_transpose(model, (d_bar, w_bar), grad, (x_bar, v_bar), |s, a, b| {
+            let at = SpringAt {
+                d: x[a] - x[b],
+                w: v[a] - v[b],
+                delta: dv[a] - dv[b],
+                rest: springs.rest[s],
+                stiffness: springs.stiffness[s],
+                damping: springs.damping[s],
+            };
+            spring_residual_vjp(at, h, mu[a] - mu[b])
+        });
     }
 }
 
