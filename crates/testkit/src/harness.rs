@@ -122,6 +122,18 @@ impl Law {
         self
     }
 
+    /// On `kind`, the fast tier takes only the trials of `fast`; the law's other integrators'
+    /// trials there are heavy.
+    pub fn fast_only_for(mut self, kind: Kind, fast: impl IntoIterator<Item = Integrator>) -> Law {
+        let fast: Vec<Integrator> = fast.into_iter().collect();
+        for integrator in Integrator::ALL {
+            if !fast.contains(&integrator) {
+                self = self.heavy_for(kind, integrator);
+            }
+        }
+        self
+    }
+
     /// The trial of `case` on `kind` is heavy.
     pub fn heavy_case(mut self, kind: Kind, case: &str) -> Law {
         self.heavy.push((kind, Some(case.to_owned())));
