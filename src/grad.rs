@@ -20,7 +20,7 @@ use glam::DVec3;
 use softbody_cpu::adjoint::run::{
     AdjointError, Backward, FrameBar, Loss, Options, gradient as adjoint,
 };
-use softbody_scene::{Model, Scene, SceneError, State, StepError};
+use softbody_scene::{Controls, Model, Scene, SceneError, State, StepError};
 
 use crate::output::jsonl;
 use crate::{Setting, load_scene};
@@ -78,6 +78,9 @@ pub struct GradRequest {
     pub target: Target,
     /// Threads (all cores if `None`); the result's bits do not depend on it.
     pub threads: Option<usize>,
+    /// Control forces on the particles, F × N frame-major ([`softbody_scene::controls`]): the
+    /// run's, whose gradient is [`Backward::controls`].
+    pub controls: Option<std::sync::Arc<[DVec3]>>,
 }
 
 impl Default for Target {
@@ -233,9 +236,15 @@ pub fn gradient_until(
             display(&request.target)
         )));
     }
+    let controls = request
+        .controls
+        .as_ref()
+        .map(|u| Controls::new(&model, u.clone()))
+        .transpose()
+        .map_err(|e| GradError::Input(e.to_string()))?;
     let options = Options {
         threads: request.threads,
-        controls: None,
+        controls: controls.as_ref(),
         stop,
     };
     let backward = adjoint(&model, &state, &mut loss, options)?;

@@ -66,8 +66,8 @@ pub use softbody_gpu::{GpuError, GpuSolver};
 /// The scene crate: format, validation, topology, model.
 pub use softbody_scene as scene;
 pub use softbody_scene::{
-    Energies, Instability, Integrator, Model, Preconditioner, Scene, SceneError, Solver, State,
-    Statistics, StepError,
+    Controls, Energies, Instability, Integrator, Model, Preconditioner, Scene, SceneError, Solver,
+    State, Statistics, StepError,
 };
 /// The terrain crate: point queries, the heightfield split rule, signed-distance grids.
 pub use softbody_terrain as terrain;

@@ -240,10 +240,21 @@ pub fn run_until(
         steps: 0,
         last_energies: e0,
     };
+    // Control forces do work on the bodies: the guard bounds E − E₀ − W, W the controls' work
+    // up to the last frame, frame by frame (`Controls::work`: exact for forces held over a
+    // frame).
+    let controls = solver.controls().cloned();
+    let mut work = 0.0;
+    let work_of = |frame: u64, from: &[DVec3], to: &[DVec3]| {
+        controls
+            .as_ref()
+            .map_or(0.0, |c| c.work(frame as usize, from, to))
+    };
     // The last frame's step, state and history: an instability found at a frame is replayed
     // step by step from there to report its exact step.
     let mut previous = None;
     if replaying && let Some(mut replay) = replay {
+        let mut before: Option<Vec<DVec3>> = None;
         loop {
             let f = &replayed;
             sink.frame(&Frame {
@@ -254,6 +265,10 @@ pub fn run_until(
                 velocities: &f.state.v,
                 energies: f.energies,
             })?;
+            if let Some(x) = &before {
+                work += work_of(f.index - 1, x, &f.state.x);
+            }
+            before = controls.is_some().then(|| f.state.x.clone());
             summary.frames += 1;
             summary.steps = f.step;
             summary.last_energies = f.energies;
@@ -273,8 +288,8 @@ pub fn run_until(
         solver.restore(*step, state, &history).map_err(refused)?;
     }
     let mut previous = previous.map(|(step, state)| (step, state, history));
-    let exceeds = |e: &Energies| {
-        !e.total().is_finite() || e.total() - e0.total() > ENERGY_GROWTH_BOUND * scale
+    let exceeds = |e: &Energies, work: f64| {
+        !e.total().is_finite() || e.total() - e0.total() - work > ENERGY_GROWTH_BOUND * scale
     };
     for k in summary.frames..frames {
         let target = sim.frame_step(k);
@@ -287,16 +302,23 @@ pub fn run_until(
             progress(solver.steps_taken(), total);
         }
         let mut energies = solver.energies()?;
-        if exceeds(&energies) {
+        // The work up to this frame, and from the last frame to positions x.
+        let work_to = |x: &[DVec3], previous: &Option<(u64, State, History)>| match previous {
+            Some((_, before, _)) if k > 0 => work + work_of(k - 1, &before.x, x),
+            _ => work,
+        };
+        let state = solver.state()?.clone();
+        if exceeds(&energies, work_to(&state.x, &previous)) {
             if let Some((step, state, history)) = &previous {
-                energies = first_exceeding(solver, (*step, state, history), target, exceeds)?;
+                let exceeds_at = |e: &Energies, x: &[DVec3]| exceeds(e, work_to(x, &previous));
+                energies = first_exceeding(solver, (*step, state, history), target, exceeds_at)?;
             }
             return Err(RunError::Unstable(energy_instability(
                 solver, &energies, &e0, scale,
             )?));
         }
         let step = solver.steps_taken();
-        let state = solver.state()?.clone();
+        work = work_to(&state.x, &previous);
         let frame = Frame {
             index: k,
             step,
@@ -318,20 +340,20 @@ pub fn run_until(
 }
 
 /// Steps `solver` again one step at a time from `from` (a frame's step, state and history) up
-/// to `target` and stops at the first step whose energies `exceed` the guard, returning them;
-/// the steps are those of the run, so this is where the run first exceeded it (at `target`
-/// itself when no earlier step did).
+/// to `target` and stops at the first step whose energies (and positions) `exceed` the guard,
+/// returning them; the steps are those of the run, so this is where the run first exceeded it
+/// (at `target` itself when no earlier step did).
 fn first_exceeding(
     solver: &mut dyn Solver,
     (step, state, history): (u64, &State, &History),
     target: u64,
-    exceeds: impl Fn(&Energies) -> bool,
+    exceeds: impl Fn(&Energies, &[DVec3]) -> bool,
 ) -> Result<Energies, RunError> {
     solver.restore(step, state, history)?;
     loop {
         solver.advance(1)?;
         let energies = solver.energies()?;
-        if exceeds(&energies) || solver.steps_taken() >= target {
+        if exceeds(&energies, &solver.state()?.x) || solver.steps_taken() >= target {
             return Ok(energies);
         }
     }
@@ -425,6 +447,98 @@ pub(crate) mod tests {
         assert_eq!((frames, steps), (3, scene.simulation.frame_step(2)));
         let expected: Vec<&str> = text.lines().take(1 + 3).collect();
         assert_eq!(partial.lines().collect::<Vec<_>>(), expected);
+    }
+
+    /// Control forces through the run service: a body pushed with u_i = m_i a in frame 0, left
+    /// alone in frame 1 and pushed with m_i b in frame 2 moves as a rigid body (its springs
+    /// stay at rest) with v = a t₀ after frame 1, the same after frame 2, and a t₀ + b t₀ after
+    /// frame 3 (t₀ a frame's time; symplectic Euler adds h a exactly each step, to rounding).
+    /// Without gravity the energy scale is 0, so the kinetic energy the pushes give would be
+    /// called an instability but for the controls' work, which the guard subtracts. The GPU
+    /// and checkpoints refuse controls as bad input.
+    #[test]
+    fn control_forces_push_over_their_frames_and_their_work_is_not_an_instability() {
+        use crate::service::{self, Hooks, RunFailure, RunRequest, SceneSource};
+        struct Velocities(Vec<Vec<DVec3>>);
+        impl FrameSink for Velocities {
+            fn header(&mut self, _: &Header) -> std::io::Result<()> {
+                Ok(())
+            }
+            fn frame(&mut self, f: &Frame<'_>) -> std::io::Result<()> {
+                self.0.push(f.velocities.to_vec());
+                Ok(())
+            }
+            fn finish(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let text = "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 0.01\nduration = 0.3\n\
+            frame_rate = 10.0\ngravity = [0.0, 0.0, 0.0]\n[[body]]\nkind = \"cuboid\"\n\
+            size = [0.2, 0.2, 0.2]\nresolution = [3, 3, 3]\nmass = 2.7\n\
+            structural = { stiffness = 500.0, damping = 0.0 }\n";
+        let origin = std::path::PathBuf::from("pushed.toml");
+        let scene = crate::scene_from_toml(text, &origin, &[]).unwrap();
+        let (model, _) = Model::build(&scene);
+        let (frames, n) = (model.simulation.frame_count() as usize, model.len());
+        assert_eq!(frames, 4);
+        let (a, b) = (DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, -2.0, 0.5));
+        let push = [a, DVec3::ZERO, b, DVec3::new(1e3, 1e3, 1e3)];
+        let controls: Vec<DVec3> = (0..frames * n)
+            .map(|k| model.mass[k % n] * push[k / n])
+            .collect();
+        let request = |backend, checkpoint| RunRequest {
+            scene: SceneSource::Text {
+                text: text.to_owned(),
+                origin: origin.clone(),
+            },
+            backend,
+            threads: Some(1),
+            checkpoint,
+            controls: Some(controls.clone().into()),
+            ..RunRequest::file(&origin)
+        };
+        let mut seen = Velocities(Vec::new());
+        let hooks = Hooks {
+            observer: Some(&mut seen),
+            ..Hooks::default()
+        };
+        let outcome = service::execute(&request(crate::Backend::Cpu, None), hooks);
+        assert!(outcome.result.is_ok(), "{:?}", outcome.result.err());
+        let t0 = 0.1;
+        let expected = [DVec3::ZERO, a * t0, a * t0, (a + b) * t0];
+        for (f, (v, e)) in seen.0.iter().zip(expected).enumerate() {
+            for (i, v) in v.iter().enumerate() {
+                assert!(
+                    (*v - e).length() < 1e-12,
+                    "frame {f}, particle {i}: {v} ≠ {e}"
+                );
+            }
+        }
+        for (backend, checkpoint) in [
+            (crate::Backend::Gpu, None),
+            (
+                crate::Backend::Cpu,
+                Some(service::CheckpointPlan {
+                    every: Some(1),
+                    resume: false,
+                }),
+            ),
+        ] {
+            let mut r = request(backend, checkpoint);
+            if checkpoint.is_some() {
+                // Refused before anything is written there.
+                r.destination = service::Destination::File {
+                    format: Format::Jsonl,
+                    path: std::env::temp_dir().join("softbody-controls-refused/run.jsonl"),
+                };
+            }
+            let outcome = service::execute(&r, Hooks::default());
+            match outcome.result {
+                Err(RunFailure::Request(why)) => assert!(why.contains("control forces"), "{why}"),
+                Err(RunFailure::Open(_)) if backend == crate::Backend::Gpu => {} // no adapter
+                other => panic!("{backend:?}: {other:?}"),
+            }
+        }
     }
 
     /// The header's spring arrays are built for a sink that reads them and left empty for one

@@ -30,10 +30,12 @@
 //! ([`RunFailure::Request`], exit status 2).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use softbody_scene::{Integrator, SceneError};
+use glam::DVec3;
+use softbody_scene::{Controls, Integrator, SceneError};
 
 use crate::checkpoint::{CheckpointError, Checkpoints};
 use crate::lock::{LockError, OutputLock};
@@ -108,6 +110,9 @@ pub struct RunRequest {
     pub destination: Destination,
     /// Checkpointing, if any (needs a file destination).
     pub checkpoint: Option<CheckpointPlan>,
+    /// Control forces, F × N (frame-major) for the run's F frames and N particles
+    /// ([`softbody_scene::controls`]; the CPU backend; not with checkpoints).
+    pub controls: Option<Arc<[DVec3]>>,
 }
 
 impl RunRequest {
@@ -121,6 +126,7 @@ impl RunRequest {
             threads: None,
             destination: Destination::None,
             checkpoint: None,
+            controls: None,
         }
     }
 }
@@ -369,6 +375,12 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
             scene,
         );
     }
+    if request.checkpoint.is_some() && request.controls.is_some() {
+        return Outcome::failed(
+            RunFailure::Request("checkpoints of a run with control forces are not built".into()),
+            scene,
+        );
+    }
     if request.checkpoint.is_some()
         && let Some(path) = path
         && let Err(why) = checkpointable(path)
@@ -399,6 +411,12 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
         device: device.clone(),
         ..Outcome::failed(e, scene)
     };
+    if let Some(forces) = &request.controls {
+        let controls = Controls::new(solver.model(), forces.clone());
+        if let Err(e) = controls.and_then(|c| solver.set_controls(Some(c))) {
+            return failed(RunFailure::Request(e.to_string()), scene);
+        }
+    }
     // Said before the first step, so that a run about to diverge is warned of before it is
     // waited for. The step's estimate only to a listener: it takes seconds on large bodies.
     match solver.state() {
@@ -629,6 +647,7 @@ mod tests {
                 every: Some(1),
                 resume: false,
             }),
+            controls: None,
         }
     }
 

@@ -155,6 +155,7 @@ impl Job {
                 _ => Destination::None,
             },
             checkpoint: None,
+            controls: None,
         };
         let mut metrics = Accumulator::new(self.metrics.contains(&Metric::MaxStrain));
         let outcome = service::execute(

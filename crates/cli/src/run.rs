@@ -86,6 +86,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             every: args.checkpoint_every,
             resume: args.resume,
         }),
+        controls: None,
     };
 
     let mut bar = None;

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use softbody_scene::{
-    Energies, History, Instability, Model, Solver, State, Statistics, StepError, Timings,
+    Controls, Energies, History, Instability, Model, Solver, State, Statistics, StepError, Timings,
     solver::check_state_len,
 };
 
@@ -30,8 +30,8 @@ pub struct CpuSolver {
     /// whose bodies can touch.
     body_contact: Option<(BodyContact, State)>,
     state: State,
-    /// The external force on each particle, while one is set.
-    external: Option<Vec<DVec3>>,
+    /// The control forces, while some are set.
+    controls: Option<Controls>,
     pool: Arc<rayon::ThreadPool>,
     steps: u64,
     timings: Timings,
@@ -95,38 +95,50 @@ impl CpuSolver {
             stepper,
             body_contact,
             state,
-            external: None,
+            controls: None,
             pool,
             steps: 0,
             timings: Timings::default(),
         }
     }
 
-    /// Applies `forces` (N, one per particle; pinned particles take none) in every step from
-    /// now on, until another call; `None` ends them.
-    pub fn set_external_forces(&mut self, forces: Option<&[DVec3]>) -> Result<(), StepError> {
-        let Some(forces) = forces else {
-            self.external = None;
-            return Ok(());
-        };
-        if forces.len() != self.model.len() {
-            return Err(StepError::Invalid(format!(
-                "external forces: {} given for {} particles",
-                forces.len(),
-                self.model.len()
-            )));
-        }
-        if let Some(i) = forces.iter().position(|f| !f.is_finite()) {
-            return Err(StepError::Invalid(format!(
-                "external forces: particle {i}'s is not finite ({})",
-                forces[i]
-            )));
-        }
-        match &mut self.external {
-            Some(held) => held.copy_from_slice(forces),
-            None => self.external = Some(forces.to_vec()),
-        }
-        Ok(())
+    /// Advances `steps` steps with `external` forces on the particles.
+    fn advance_with(&mut self, steps: u64, external: Option<&[DVec3]>) -> Result<(), StepError> {
+        let (model, surfaces, stepper, state, timings) = (
+            &self.model,
+            &self.surfaces[..],
+            &mut self.stepper,
+            &mut self.state,
+            &mut self.timings,
+        );
+        let body_contact = &mut self.body_contact;
+        let dt = model.simulation.dt;
+        let done = &mut self.steps;
+        self.pool.install(|| {
+            for _ in 0..steps {
+                if let Some((contact, start)) = body_contact.as_mut() {
+                    start.clone_from(state);
+                    timings.time("body contact", || contact.prepare(model, state));
+                }
+                let pairs = body_contact.as_ref().map(|(contact, _)| contact.partners());
+                let mut bad = stepper.step(model, surfaces, (pairs, external), state, timings);
+                if let (Some((contact, start)), None) = (body_contact.as_mut(), bad) {
+                    bad = timings
+                        .time("body contact", || contact.respond(model, start, state))
+                        .map(|i| (i, crate::non_finite_what(state, i)));
+                }
+                *done += 1;
+                if let Some((i, what)) = bad {
+                    return Err(StepError::Unstable(Instability {
+                        step: *done,
+                        time: *done as f64 * dt,
+                        particle: i as u32,
+                        what: what.to_owned(),
+                    }));
+                }
+            }
+            Ok(())
+        })
     }
 
     /// Implicit Euler's contacts with the terrain in the last step (0 for the explicit
@@ -159,42 +171,17 @@ impl Solver for CpuSolver {
     }
 
     fn advance(&mut self, steps: u64) -> Result<(), StepError> {
-        let (model, surfaces, stepper, state, timings) = (
-            &self.model,
-            &self.surfaces[..],
-            &mut self.stepper,
-            &mut self.state,
-            &mut self.timings,
-        );
-        let body_contact = &mut self.body_contact;
-        let external = self.external.as_deref();
-        let dt = model.simulation.dt;
-        let done = &mut self.steps;
-        self.pool.install(|| {
-            for _ in 0..steps {
-                if let Some((contact, start)) = body_contact.as_mut() {
-                    start.clone_from(state);
-                    timings.time("body contact", || contact.prepare(model, state));
-                }
-                let pairs = body_contact.as_ref().map(|(contact, _)| contact.partners());
-                let mut bad = stepper.step(model, surfaces, (pairs, external), state, timings);
-                if let (Some((contact, start)), None) = (body_contact.as_mut(), bad) {
-                    bad = timings
-                        .time("body contact", || contact.respond(model, start, state))
-                        .map(|i| (i, crate::non_finite_what(state, i)));
-                }
-                *done += 1;
-                if let Some((i, what)) = bad {
-                    return Err(StepError::Unstable(Instability {
-                        step: *done,
-                        time: *done as f64 * dt,
-                        particle: i as u32,
-                        what: what.to_owned(),
-                    }));
-                }
-            }
-            Ok(())
-        })
+        let end = self.steps + steps;
+        let controls = self.controls.clone();
+        while self.steps < end {
+            // The steps up to the next frame's take one frame's forces.
+            let (forces, until) = match controls.as_ref().and_then(|c| c.at(self.steps)) {
+                Some((f, next)) => (controls.as_ref().map(|c| c.frame(f)), next.min(end)),
+                None => (None, end),
+            };
+            self.advance_with(until - self.steps, forces)?;
+        }
+        Ok(())
     }
 
     fn sync(&mut self) -> Result<(), StepError> {
@@ -213,6 +200,18 @@ impl Solver for CpuSolver {
         check_state_len(&self.model, state)?;
         self.state.clone_from(state);
         Ok(())
+    }
+
+    fn set_controls(&mut self, controls: Option<Controls>) -> Result<(), StepError> {
+        if let Some(c) = &controls {
+            c.check(&self.model)?;
+        }
+        self.controls = controls;
+        Ok(())
+    }
+
+    fn controls(&self) -> Option<&Controls> {
+        self.controls.as_ref()
     }
 
     fn history(&mut self) -> Result<History, StepError> {

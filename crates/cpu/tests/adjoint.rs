@@ -19,7 +19,7 @@ use std::path::Path;
 use glam::DVec3;
 use softbody_cpu::CpuSolver;
 use softbody_cpu::adjoint::run::{Backward, FrameBar, Loss, Options, gradient};
-use softbody_scene::{Integrator, Model, Scene, Solver, State};
+use softbody_scene::{Controls, Integrator, Model, Scene, Solver, State};
 
 /// L = Σ_frames Σ_i (c_i·x_i + ½ w |v_i|²): linear in the positions with fixed pseudo-random
 /// weights, quadratic in the velocities.
@@ -89,14 +89,12 @@ fn forward_loss_with(model: &Model, start: &State, controls: Option<&[DVec3]>) -
     let n = model.len();
     let probe = Probe::new(n);
     let mut solver = CpuSolver::new(model.clone(), start.clone(), Some(1)).unwrap();
+    let controls = controls.map(|u| Controls::new(model, u).unwrap());
+    solver.set_controls(controls).unwrap();
     let mut at = 0;
     let mut total = 0.0;
     for f in 0..sim.frame_count() {
         let step = sim.frame_step(f);
-        if let (Some(u), true) = (controls, f > 0) {
-            let f = f as usize - 1;
-            solver.set_external_forces(Some(&u[f * n..][..n])).unwrap();
-        }
         solver.advance(step - at).unwrap();
         at = step;
         total += probe.term(solver.state().unwrap());
@@ -445,9 +443,10 @@ fn the_controls_gradient_is_the_derivative_of_the_computed_run() {
         };
         let u: Vec<DVec3> = (0..count).map(|k| 0.05 * along(k, 5.0)).collect();
         let d: Vec<DVec3> = (0..count).map(|k| along(k, 9.0)).collect();
+        let controls = Controls::new(&model, u.as_slice()).unwrap();
         let options = Options {
             threads: Some(1),
-            controls: Some(&u),
+            controls: Some(&controls),
             stop: None,
         };
         let back = gradient(&model, &state, &mut Probe::new(n), options).unwrap();

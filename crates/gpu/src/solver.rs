@@ -56,8 +56,8 @@
 use std::sync::Arc;
 
 use softbody_scene::{
-    Energies, History, Instability, Integrator, Model, Solver, State, Statistics, StepError,
-    Timings, solver::check_state_len,
+    Controls, Energies, History, Instability, Integrator, Model, Solver, State, Statistics,
+    StepError, Timings, solver::check_state_len,
 };
 
 use crate::body_contact::BodyContact;
@@ -533,6 +533,19 @@ impl Solver for GpuSolver {
         self.state_fresh = false;
         self.band_stale = true;
         Ok(())
+    }
+
+    fn set_controls(&mut self, controls: Option<Controls>) -> Result<(), StepError> {
+        match controls {
+            None => Ok(()),
+            Some(_) => Err(StepError::Invalid(
+                "control forces are not built on the GPU backend yet; run on the CPU".into(),
+            )),
+        }
+    }
+
+    fn controls(&self) -> Option<&Controls> {
+        None
     }
 
     fn history(&mut self) -> Result<History, StepError> {

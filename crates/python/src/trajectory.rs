@@ -3,6 +3,7 @@
 
 use numpy::IntoPyArray;
 use numpy::ndarray::{Array1, Array3};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use softbody::StepError;
@@ -11,6 +12,7 @@ use softbody::run::RunError;
 use softbody::service::{self, ExitClass, Hooks, RunFailure, RunRequest, SceneSource};
 
 use crate::errors::{DeviceError, SceneError, SoftbodyError, open_error, step_error};
+use crate::grad::frame_vectors;
 use crate::interrupt::{count_or_none, interruptible};
 use crate::scene::scene_of;
 use crate::simulation::{backend_of, pairs_array};
@@ -98,20 +100,30 @@ impl Collect {
     }
 }
 
-/// Runs `scene` to its end and returns its frames as a dict (the GIL released meanwhile).
-/// An instability raises UnstableError with the frames before it as `.trajectory`; Ctrl-C
-/// raises KeyboardInterrupt.
+/// Runs `scene` to its end and returns its frames as a dict (the GIL released meanwhile),
+/// with `controls` ([F, N, 3] forces, frame f's held over its steps; the CPU backend) if
+/// given. An instability raises UnstableError with the frames before it as `.trajectory`;
+/// Ctrl-C raises KeyboardInterrupt.
 #[pyfunction]
-#[pyo3(signature = (scene, backend = "cpu", threads = None))]
+#[pyo3(signature = (scene, backend = "cpu", threads = None, controls = None))]
 pub(crate) fn run<'py>(
     py: Python<'py>,
     scene: &Bound<'py, PyAny>,
     backend: &str,
     threads: Option<i64>,
+    controls: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let scene = scene_of(scene)?;
     let backend = backend_of(backend)?;
     let threads = count_or_none("threads", threads, 1)?;
+    let controls = controls
+        .map(|u| frame_vectors(Some(u), "controls"))
+        .transpose()?;
+    if controls.is_some() && backend != softbody::Backend::Cpu {
+        return Err(PyValueError::new_err(
+            "control forces are not built on the GPU backend yet; run on the CPU",
+        ));
+    }
     let s = scene.get();
     let request = RunRequest {
         scene: SceneSource::Text {
@@ -120,6 +132,7 @@ pub(crate) fn run<'py>(
         },
         backend,
         threads,
+        controls: controls.map(Into::into),
         ..RunRequest::file(&s.origin)
     };
     let (outcome, collect) = interruptible(py, |stop| {

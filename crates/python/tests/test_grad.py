@@ -74,6 +74,43 @@ def test_implicit_euler_has_its_gradient_in_flight_and_refuses_contact(cube: sof
     )
 
 
+def test_control_forces_move_the_run_and_backward_gives_their_gradient(cube: softbody.Scene) -> None:
+    free = softbody.run(cube)
+    frames, n = free.positions.shape[:2]
+    rng = np.random.default_rng(7)
+    u = 0.05 * rng.standard_normal((frames, n, 3))
+    pushed = softbody.run(cube, controls=u)
+    np.testing.assert_array_equal(pushed.controls, u)
+    # Frame 0's forces act over the first frame's steps: its end moves, the start does not.
+    np.testing.assert_array_equal(pushed.positions[0], free.positions[0])
+    assert np.abs(pushed.positions[1] - free.positions[1]).max() > 0.0
+    # L = ½ Σ |x|² at the last frame.
+    dx = np.zeros_like(pushed.positions)
+    dx[-1] = pushed.positions[-1]
+    g = pushed.backward(positions=dx)
+    assert g.controls.shape == (frames, n, 3)
+    assert not g.controls[-1].any()  # the last frame's forces act in no step
+    # Central differences along a random direction, as the Rust tests take them (δ = 1e-6 N on
+    # forces of 0.05 N, in flight: no contact's branch to cross; truncation ~δ²).
+    d = rng.standard_normal((frames, n, 3))
+    delta = 1e-6
+
+    def loss(s: float) -> float:
+        x = softbody.run(cube, controls=u + s * d).positions[-1]
+        return 0.5 * float((x**2).sum())
+
+    fd = (loss(delta) - loss(-delta)) / (2 * delta)
+    assert float((g.controls * d).sum()) == pytest.approx(fd, rel=1e-6)
+    # The built-in loss takes them too.
+    com = softbody.gradient(cube, ["body[0].mass"], target_com=TARGET, controls=u)
+    assert com.controls.shape == (frames, n, 3)
+    assert softbody.gradient(cube, ["body[0].mass"], target_com=TARGET).controls is None
+    with pytest.raises(ValueError, match="GPU"):
+        softbody.run(cube, backend="gpu", controls=u)
+    with pytest.raises(softbody.SceneError, match=f"for {frames} frames of {n} particles"):
+        softbody.run(cube, controls=u[:-1])
+
+
 def test_refusals(cube: softbody.Scene) -> None:
     with pytest.raises(softbody.SceneError, match="body\\[N\\].structural.stiffness"):
         softbody.gradient(cube, ["body[0].size"], target_com=TARGET)

@@ -21,6 +21,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod controls;
 pub mod error;
 pub mod format;
 pub mod implicit;
@@ -39,6 +40,7 @@ mod winding;
 use std::fmt;
 use std::str::FromStr;
 
+pub use controls::Controls;
 pub use error::{Diagnostic, Invalid, KeyPath, Num, SceneError};
 pub use format::FrictionModel;
 pub use format::SurfaceKind;

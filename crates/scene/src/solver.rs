@@ -2,6 +2,7 @@
 
 use std::fmt;
 
+use crate::controls::Controls;
 use crate::model::{Model, State};
 
 /// Energies of a state, joules.
@@ -277,6 +278,12 @@ pub trait Solver: Send {
     /// Replaces the current state; the step count stays. The state must have one position and
     /// one velocity per particle ([`StepError::Invalid`] otherwise).
     fn set_state(&mut self, state: &State) -> Result<(), StepError>;
+    /// Applies `controls` (external forces frame by frame, [`crate::controls`]) in every step
+    /// from now on, matched to frames by the step count; `None` ends them.
+    /// [`StepError::Invalid`] where the backend takes none (the GPU, for now).
+    fn set_controls(&mut self, controls: Option<Controls>) -> Result<(), StepError>;
+    /// The controls being applied, if any.
+    fn controls(&self) -> Option<&Controls>;
     /// What the solver carries into its next step besides the state (a GPU backend reads it
     /// back).
     fn history(&mut self) -> Result<History, StepError>;

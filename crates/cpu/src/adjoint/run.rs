@@ -16,7 +16,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
-use softbody_scene::{History, Integrator, Model, Solver, State, StepError, TerrainShape};
+use softbody_scene::{
+    Controls, History, Integrator, Model, Solver, State, StepError, TerrainShape,
+};
 use softbody_terrain::Surface;
 
 use super::Gradient;
@@ -74,10 +76,8 @@ pub enum AdjointError {
 pub struct Options<'a> {
     /// Threads (all cores if `None`; the result's bits do not depend on it).
     pub threads: Option<usize>,
-    /// External forces on the particles, frame by frame: F × N forces (F the run's frame
-    /// count, frame f's N first), frame f's held over the steps from its step to the next
-    /// frame's (the last frame's acts on none).
-    pub controls: Option<&'a [DVec3]>,
+    /// External forces on the particles, frame by frame ([`softbody_scene::controls`]).
+    pub controls: Option<&'a Controls>,
     /// When set, the run ends at the next segment ([`AdjointError::Stopped`]).
     pub stop: Option<&'a AtomicBool>,
 }
@@ -93,7 +93,7 @@ pub struct Backward {
     pub v0: Vec<DVec3>,
     /// The model's values' gradient.
     pub gradient: Gradient,
-    /// ∂L/∂u of each control force, laid out as [`Options::controls`] (empty without them).
+    /// ∂L/∂u of each control force, laid out as [`Controls::forces`] (empty without them).
     pub controls: Vec<DVec3>,
     /// Steps of the run.
     pub steps: u64,
@@ -159,23 +159,13 @@ pub fn gradient(
     for (f, &k) in frame_steps.iter().enumerate() {
         frame_at.insert(k, f as u64);
     }
-    if let Some(u) = options.controls
-        && u.len() as u64 != frames * n as u64
-    {
-        return Err(AdjointError::Step(StepError::Invalid(format!(
-            "controls: {} forces for {frames} frames of {n} particles (F × N = {})",
-            u.len(),
-            frames * n as u64
-        ))));
-    }
-    // The frame whose control acts in step k: the last one taken at or before it.
-    let control_of = |k: u64| frame_steps.partition_point(|&s| s <= k).saturating_sub(1);
     let surfaces: Vec<Surface> = model.terrain.iter().map(Surface::new).collect();
     let mut solver = CpuSolver::new(model.clone(), start.clone(), options.threads)?;
+    solver.set_controls(options.controls.cloned())?;
     let state_bytes = 2 * crate::vec_bytes(&start.x);
     let implicit = sim.integrator == Integrator::ImplicitEuler;
     // Implicit Euler's steps one at a time, each asked whether it met the terrain.
-    let advance_checked = |solver: &mut CpuSolver, count: u64, done: u64| {
+    let advance = |solver: &mut CpuSolver, count: u64, done: u64| -> Result<(), AdjointError> {
         if !implicit {
             return Ok(solver.advance(count)?);
         }
@@ -195,23 +185,6 @@ pub fn gradient(
         }
         Ok(())
     };
-    // Steps `done..done + count`, each frame's control set for its steps.
-    let advance = |solver: &mut CpuSolver, count: u64, done: u64| -> Result<(), AdjointError> {
-        let Some(u) = options.controls else {
-            return advance_checked(solver, count, done);
-        };
-        let end = done + count;
-        let mut k = done;
-        while k < end {
-            let f = control_of(k);
-            solver.set_external_forces(Some(&u[f * n..][..n]))?;
-            let next = frame_steps.get(f + 1).map_or(end, |&s| s.min(end));
-            advance_checked(solver, next - k, k)?;
-            k = next;
-        }
-        Ok(())
-    };
-
     let clock = Instant::now();
     // Each checkpoint with what the solver's next step starts from besides the state
     // (implicit Euler's warm start and contact flags; nothing for the explicit integrators),
@@ -241,7 +214,7 @@ pub fn gradient(
 
     let clock = Instant::now();
     let mut grad = Gradient::zeros(model);
-    let mut controls_bar = vec![DVec3::ZERO; options.controls.map_or(0, <[DVec3]>::len)];
+    let mut controls_bar = vec![DVec3::ZERO; options.controls.map_or(0, |c| c.forces().len())];
     let mut transpose = match implicit {
         true => Transpose::Implicit(Box::new(ImplicitAdjoint::new(model))),
         false => Transpose::Explicit(Box::new(StepAdjoint::new(model))),
@@ -288,10 +261,10 @@ pub fn gradient(
             for k in (from..to).rev() {
                 let i = (k - from) as usize;
                 let bars = (&mut x_bar[..], &mut v_bar[..]);
-                let f = control_of(k);
-                let external = options
-                    .controls
-                    .map(|u| (&u[f * n..][..n], &mut controls_bar[f * n..][..n]));
+                let external = options.controls.and_then(|c| {
+                    let (f, _) = c.at(k)?;
+                    Some((c.frame(f), &mut controls_bar[f * n..][..n]))
+                });
                 match &mut transpose {
                     Transpose::Explicit(t) => {
                         t.step(model, &surfaces, &segment[i], external, bars, &mut grad)

@@ -102,6 +102,7 @@ class Trajectory:
     bodies: List[Tuple[str, int, int]] = field(default_factory=list)  #: (name, first, count)
     scene_text: str = ""
     scene: Optional[Scene] = None  #: the scene that ran (what backward() runs again)
+    controls: Optional[np.ndarray] = None  #: [F, N, 3] N: the run's control forces, if any
 
     def backward(
         self,
@@ -114,9 +115,10 @@ class Trajectory:
         """The gradient of any loss L of this run's frames, given its cotangents: `positions`
         = ∂L/∂x and `velocities` = ∂L/∂v, arrays [F, N, 3] (F the run's frames; either may be
         omitted). Returns ∂L/∂ each key of `wrt` (as ``--set`` names them) and the per-particle
-        and per-spring gradients. The run is taken again on the CPU, with checkpoints (memory
-        √T); it is the same run, bit for bit, on any thread count. The loss itself is the
-        caller's (`loss` is None)."""
+        and per-spring gradients, and for a run with control forces their gradient
+        (`Gradient.controls`, [F, N, 3]). The run is taken again on the CPU, with checkpoints
+        (memory √T); it is the same run, bit for bit, on any thread count. The loss itself is
+        the caller's (`loss` is None)."""
         if self.backend != "cpu":
             raise ValueError(
                 f"gradients are computed on the CPU backend only; this run was on {self.backend}"
@@ -127,7 +129,12 @@ class Trajectory:
             raise ValueError("give the cotangents: positions, velocities or both")
         return Gradient(
             **_native.gradient(
-                self.scene, list(wrt), positions=positions, velocities=velocities, threads=threads
+                self.scene,
+                list(wrt),
+                positions=positions,
+                velocities=velocities,
+                controls=self.controls,
+                threads=threads,
             )
         )
 
@@ -148,8 +155,10 @@ class Trajectory:
         )
 
 
-def _trajectory(d: Dict[str, Any], scene: Optional[Scene] = None) -> Trajectory:
-    return Trajectory(**d, scene=scene)
+def _trajectory(
+    d: Dict[str, Any], scene: Optional[Scene] = None, controls: Optional[np.ndarray] = None
+) -> Trajectory:
+    return Trajectory(**d, scene=scene, controls=controls)
 
 
 @dataclass(frozen=True, repr=False)
@@ -167,6 +176,7 @@ class Gradient:
     peak_memory_bytes: int
     forward_seconds: float
     backward_seconds: float
+    controls: Optional[np.ndarray] = None  #: [F, N, 3] ∂L/∂ each control force (None without)
 
     def __repr__(self) -> str:
         keys = ", ".join(self.gradient)
@@ -181,6 +191,7 @@ def gradient(
     target_com: Optional[Sequence[float]] = None,
     target_frames: Optional[Union[str, "os.PathLike[str]"]] = None,
     set: Optional[Mapping[str, Any]] = None,
+    controls: Optional[Any] = None,
     threads: Optional[int] = None,
 ) -> Gradient:
     """The gradient of a built-in loss over the run of `scene` with respect to `wrt` (keys as
@@ -188,15 +199,21 @@ def gradient(
     ``body[0].velocity``, ``simulation.gravity``, ``terrain[0].friction``, …), on the CPU in
     f64 (the command line's ``softbody grad``). The loss is `target_com` (|c − target|², c the
     mass-weighted centre at the last frame) or `target_frames` (a .jsonl or .npz of a run of the
-    same particles: the mean squared distance over the frames both have). For any other loss,
-    ``softbody.run(scene).backward(...)``. The GIL is released; Ctrl-C raises
-    KeyboardInterrupt."""
+    same particles: the mean squared distance over the frames both have). `controls` are the
+    run's control forces ([F, N, 3], as ``run`` takes them); their gradient is
+    ``Gradient.controls``. For any other loss, ``softbody.run(scene).backward(...)``. The GIL
+    is released; Ctrl-C raises KeyboardInterrupt."""
     if set:
         scene = load_scene(scene, set=set)
     com = None if target_com is None else [float(c) for c in target_com]
     return Gradient(
         **_native.gradient(
-            scene, list(wrt), target_com=com, target_frames=target_frames, threads=threads
+            scene,
+            list(wrt),
+            target_com=com,
+            target_frames=target_frames,
+            controls=_controls(controls),
+            threads=threads,
         )
     )
 
@@ -211,10 +228,16 @@ def run(
     dt: Optional[float] = None,
     duration: Optional[float] = None,
     frame_rate: Optional[float] = None,
+    controls: Optional[Any] = None,
 ) -> Trajectory:
     """Runs the scene to its end (its duration and frame rate) and returns every frame. The
     GIL is released while it runs. An instability raises UnstableError, whose `.trajectory`
     holds the frames before it; Ctrl-C raises KeyboardInterrupt.
+
+    `controls` are external forces on the particles, an array [F, N, 3] in newtons for the
+    run's F frames and N particles: frame f's act from its step to the next frame's (the last
+    frame's on none), beside gravity, and pinned particles take none (the CPU backend). The
+    trajectory keeps them, so that ``backward`` gives their gradient.
 
     `integrator`, `dt`, `duration` and `frame_rate` are the command line's ``--integrator``,
     ``--dt``, ``--duration`` and ``--fps``: the settings ``simulation.<name>``, applied after
@@ -230,13 +253,19 @@ def run(
         if value is not None
     }
     scene = load_scene(scene, set={**(set or {}), **options} or None)
+    controls = _controls(controls)
     try:
-        return _trajectory(_native.run(scene, backend, threads), scene)
+        return _trajectory(_native.run(scene, backend, threads, controls), scene, controls)
     except UnstableError as e:
         partial = getattr(e, "trajectory", None)
         if isinstance(partial, dict):
-            e.trajectory = _trajectory(partial, scene)
+            e.trajectory = _trajectory(partial, scene, controls)
         raise
+
+
+def _controls(controls: Optional[Any]) -> Optional[np.ndarray]:
+    # A copy the caller cannot change under the trajectory that keeps it.
+    return None if controls is None else np.array(controls, dtype=np.float64, order="C")
 
 
 def _default_out(spec: Union[str, "os.PathLike[str]", Mapping[str, Any]]) -> Path:

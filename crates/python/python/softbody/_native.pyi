@@ -100,7 +100,12 @@ class Simulation:
     @property
     def rest_lengths(self) -> npt.NDArray[np.float64]: ...
 
-def run(scene: _SceneSource, backend: str = "cpu", threads: Optional[int] = None) -> Dict[str, Any]:
+def run(
+    scene: _SceneSource,
+    backend: str = "cpu",
+    threads: Optional[int] = None,
+    controls: Optional[Any] = None,
+) -> Dict[str, Any]:
     """Every frame of a run and its metadata (softbody.run wraps it as a Trajectory)."""
 
 def gradient(
@@ -110,6 +115,7 @@ def gradient(
     target_frames: Optional[_Path] = None,
     positions: Optional[Any] = None,
     velocities: Optional[Any] = None,
+    controls: Optional[Any] = None,
     threads: Optional[int] = None,
 ) -> Dict[str, Any]:
     """A run's gradient with respect to scene keys (softbody.gradient and Trajectory.backward
