@@ -20,7 +20,10 @@ use glam::DVec3;
 use softbody_cpu::adjoint::run::{
     AdjointError, Backward, FrameBar, Loss, Options, gradient as adjoint,
 };
-use softbody_scene::{Controls, Model, Scene, SceneError, State, StepError};
+use softbody_scene::{Controls, Model, Scene, SceneError, Solver, State, StepError};
+
+use crate::guard::EnergyGuard;
+use crate::run::RunError;
 
 use crate::output::jsonl;
 use crate::{Setting, load_scene};
@@ -242,10 +245,24 @@ pub fn gradient_until(
         .map(|u| Controls::new(&model, u.clone()))
         .transpose()
         .map_err(|e| GradError::Input(e.to_string()))?;
+    // `run`'s energy guard on the forward pass: what `run` calls unstable has no gradient.
+    let mut guard: Option<EnergyGuard> = None;
+    let mut check = |k: u64, solver: &mut dyn Solver| -> Result<(), StepError> {
+        let step_error = |e: RunError| match e {
+            RunError::Unstable(i) => StepError::Unstable(i),
+            e => StepError::Invalid(e.to_string()),
+        };
+        if k == 0 {
+            guard = Some(EnergyGuard::start(solver).map_err(step_error)?);
+        }
+        let guard = guard.as_mut().expect("frame 0 is checked first");
+        guard.frame(k, solver).map(|_| ()).map_err(step_error)
+    };
     let options = Options {
         threads: request.threads,
         controls: controls.as_ref(),
         stop,
+        check: Some(&mut check),
     };
     let backward = adjoint(&model, &state, &mut loss, options)?;
     let values = Values::of(&model, &state);

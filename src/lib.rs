@@ -42,6 +42,7 @@ pub mod compare;
 mod fingerprint;
 pub mod fit;
 pub mod grad;
+pub mod guard;
 pub mod lock;
 pub mod output;
 mod overrides;

@@ -2,11 +2,9 @@
 //!
 //! Frame k is taken at step round(k / (frame_rate·dt)) and stamped with that step times dt;
 //! frame 0 is the initial state. A run stops at the first step whose state is not finite (the
-//! solver reports it), or at the first frame whose total energy exceeds its initial value by
-//! more than [`ENERGY_GROWTH_BOUND`] times the scene's energy scale
-//! E_s = K₀ + E_el,₀ + M|g|(D + 1 m) (D: diagonal of the initial bounding box, M: total mass):
-//! no scene of springs, dampers, drag and terrain can gain that much, so it can only be a
-//! diverging integrator; and at the first frame whose energy is not a finite number (it
+//! solver reports it), or at the first frame whose total energy, less the control forces' work,
+//! exceeds its initial value by more than [`ENERGY_GROWTH_BOUND`] times the scene's energy
+//! scale ([`EnergyGuard`]); and at the first frame whose energy is not a finite number (it
 //! overflowed f64), so that no frame records a non-number. Either way every frame before it has
 //! been written. A scene whose initial energy already overflows (velocities of 1e200 m/s,
 //! gravity of 1e308 m/s²) is refused before anything is written: by validation, which names the
@@ -16,15 +14,13 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use glam::DVec3;
-use softbody_scene::{Energies, History, Instability, Model, Solver, State, StepError};
+use softbody_scene::{Energies, History, Instability, Model, Solver, StepError};
 
 use crate::checkpoint::{CheckpointError, Checkpoints, JournalFrame};
+use crate::guard::energy_scale_of;
+pub use crate::guard::{ENERGY_GROWTH_BOUND, EnergyGuard, energy_scale};
 
 use crate::output::{Frame, FrameSink, Header};
-
-/// How many energy scales a run may gain before it is called unstable.
-pub const ENERGY_GROWTH_BOUND: f64 = 10.0;
 
 /// Steps advanced between progress reports (and looks at [`run_until`]'s stop flag) at most.
 pub const PROGRESS_STEPS: u64 = 256;
@@ -124,29 +120,6 @@ pub struct Summary {
     pub last_energies: Energies,
 }
 
-/// The energy scale E_s of the solver's current (initial) state.
-pub fn energy_scale(solver: &mut dyn Solver, e0: &Energies) -> Result<f64, StepError> {
-    let x = solver.state()?.x.clone();
-    Ok(energy_scale_of(solver.model(), &x, e0))
-}
-
-/// The energy scale E_s of `model` at positions `x` with energies `e0`.
-fn energy_scale_of(model: &Model, x: &[DVec3], e0: &Energies) -> f64 {
-    let g = model.simulation.gravity.length();
-    let mass: f64 = model.mass.iter().sum();
-    let (lo, hi) = x
-        .iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(*p), hi.max(*p))
-        });
-    let diagonal = if x.is_empty() {
-        0.0
-    } else {
-        (hi - lo).length()
-    };
-    e0.kinetic + e0.elastic + mass * g * (diagonal + 1.0)
-}
-
 /// Runs the solver to the end of its scene, writing each frame to `sink`; `progress` hears
 /// (steps done, steps in all) as the run goes. `scene` names the file the scene came from, and
 /// its text, in the frames' header.
@@ -217,16 +190,14 @@ pub fn run_until(
         None => false,
     };
     // Frame 0 is the initial state, whose energies are E₀.
-    let (e0, scale) = if replaying {
+    let mut guard = if replaying {
         let e0 = replayed.energies;
-        (e0, energy_scale_of(solver.model(), &replayed.state.x, &e0))
+        let scale = energy_scale_of(solver.model(), &replayed.state.x, &e0);
+        EnergyGuard::resumed(solver, e0, scale)?
     } else {
-        let e0 = solver.energies()?;
-        (e0, energy_scale(solver, &e0)?)
+        EnergyGuard::start(solver)?
     };
-    if !e0.total().is_finite() {
-        return Err(RunError::Overflow(e0));
-    }
+    let e0 = guard.initial();
     // Handed over: its spring arrays are as large as the state, so a sink that keeps them
     // moves them, and the run keeps none.
     let springs = sink.wants_springs();
@@ -240,21 +211,7 @@ pub fn run_until(
         steps: 0,
         last_energies: e0,
     };
-    // Control forces do work on the bodies: the guard bounds E − E₀ − W, W the controls' work
-    // up to the last frame, frame by frame (`Controls::work`: exact for forces held over a
-    // frame).
-    let controls = solver.controls().cloned();
-    let mut work = 0.0;
-    let work_of = |frame: u64, from: &[DVec3], to: &[DVec3]| {
-        controls
-            .as_ref()
-            .map_or(0.0, |c| c.work(frame as usize, from, to))
-    };
-    // The last frame's step, state and history: an instability found at a frame is replayed
-    // step by step from there to report its exact step.
-    let mut previous = None;
     if replaying && let Some(mut replay) = replay {
-        let mut before: Option<Vec<DVec3>> = None;
         loop {
             let f = &replayed;
             sink.frame(&Frame {
@@ -265,10 +222,7 @@ pub fn run_until(
                 velocities: &f.state.v,
                 energies: f.energies,
             })?;
-            if let Some(x) = &before {
-                work += work_of(f.index - 1, x, &f.state.x);
-            }
-            before = controls.is_some().then(|| f.state.x.clone());
+            guard.passed(f.index, f.step, f.state.clone(), History::default());
             summary.frames += 1;
             summary.steps = f.step;
             summary.last_energies = f.energies;
@@ -276,21 +230,19 @@ pub fn run_until(
                 break;
             }
         }
-        previous = Some((replayed.step, replayed.state));
-    }
-    if let Some((step, state)) = &previous {
+        // The last frame again, with the history the run goes on from.
+        let f = &replayed;
+        guard.passed(f.index, f.step, f.state.clone(), history.clone());
         // A history the solver refuses (a part missing or of another size) is a checkpoint
         // that this version cannot read: bad input, not a failure of the solver.
         let refused = |e| match (e, checkpoints.as_deref()) {
             (StepError::Invalid(why), Some(c)) => CheckpointError::Corrupt(c.file(), why).into(),
             (e, _) => RunError::from(e),
         };
-        solver.restore(*step, state, &history).map_err(refused)?;
+        solver
+            .restore(f.step, &f.state, &history)
+            .map_err(refused)?;
     }
-    let mut previous = previous.map(|(step, state)| (step, state, history));
-    let exceeds = |e: &Energies, work: f64| {
-        !e.total().is_finite() || e.total() - e0.total() - work > ENERGY_GROWTH_BOUND * scale
-    };
     for k in summary.frames..frames {
         let target = sim.frame_step(k);
         while solver.steps_taken() < target {
@@ -301,24 +253,9 @@ pub fn run_until(
             solver.advance(n)?;
             progress(solver.steps_taken(), total);
         }
-        let mut energies = solver.energies()?;
-        // The work up to this frame, and from the last frame to positions x.
-        let work_to = |x: &[DVec3], previous: &Option<(u64, State, History)>| match previous {
-            Some((_, before, _)) if k > 0 => work + work_of(k - 1, &before.x, x),
-            _ => work,
-        };
-        let state = solver.state()?.clone();
-        if exceeds(&energies, work_to(&state.x, &previous)) {
-            if let Some((step, state, history)) = &previous {
-                let exceeds_at = |e: &Energies, x: &[DVec3]| exceeds(e, work_to(x, &previous));
-                energies = first_exceeding(solver, (*step, state, history), target, exceeds_at)?;
-            }
-            return Err(RunError::Unstable(energy_instability(
-                solver, &energies, &e0, scale,
-            )?));
-        }
+        let energies = guard.frame(k, solver)?;
+        let state = guard.last_state().expect("the frame just checked");
         let step = solver.steps_taken();
-        work = work_to(&state.x, &previous);
         let frame = Frame {
             index: k,
             step,
@@ -334,73 +271,14 @@ pub fn run_until(
         summary.frames += 1;
         summary.steps = step;
         summary.last_energies = energies;
-        previous = Some((step, state, solver.history()?));
     }
     Ok(summary)
 }
 
-/// Steps `solver` again one step at a time from `from` (a frame's step, state and history) up
-/// to `target` and stops at the first step whose energies (and positions) `exceed` the guard,
-/// returning them; the steps are those of the run, so this is where the run first exceeded it
-/// (at `target` itself when no earlier step did).
-fn first_exceeding(
-    solver: &mut dyn Solver,
-    (step, state, history): (u64, &State, &History),
-    target: u64,
-    exceeds: impl Fn(&Energies, &[DVec3]) -> bool,
-) -> Result<Energies, RunError> {
-    solver.restore(step, state, history)?;
-    loop {
-        solver.advance(1)?;
-        let energies = solver.energies()?;
-        if exceeds(&energies, &solver.state()?.x) || solver.steps_taken() >= target {
-            return Ok(energies);
-        }
-    }
-}
-
-/// The instability of a solver whose energies exceed the guard (or overflowed) at its current
-/// step.
-fn energy_instability(
-    solver: &mut dyn Solver,
-    energies: &Energies,
-    e0: &Energies,
-    scale: f64,
-) -> Result<Instability, StepError> {
-    let step = solver.steps_taken();
-    let time = step as f64 * solver.model().simulation.dt;
-    let (fastest, speed) = solver
-        .state()?
-        .v
-        .iter()
-        .enumerate()
-        .map(|(i, v)| (i, v.length()))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .unwrap_or((0, 0.0));
-    let what = if energies.total().is_finite() {
-        format!(
-            "is the fastest ({speed:.3e} m/s) as the total energy reached {:.3e} J, more than \
-             {ENERGY_GROWTH_BOUND} energy scales ({scale:.3e} J each) above its initial {:.3e} J",
-            energies.total(),
-            e0.total()
-        )
-    } else {
-        format!(
-            "is the fastest ({speed:.3e} m/s) as the energy overflowed (kinetic {} J, \
-             gravitational {} J, elastic {} J)",
-            energies.kinetic, energies.gravitational, energies.elastic
-        )
-    };
-    Ok(Instability {
-        step,
-        time,
-        particle: fastest as u32,
-        what,
-    })
-}
-
 #[cfg(test)]
 pub(crate) mod tests {
+    use glam::DVec3;
+
     use super::*;
     use crate::output::{self, Format};
 

@@ -333,3 +333,47 @@ fn rewrite_time(from: &std::path::Path, to: &std::path::Path, times: &[f64]) {
     }
     out.finish().unwrap();
 }
+
+/// `grad` takes `run`'s energy guard on its forward pass: a stiff jelly under explicit Euler
+/// whose energy grows past ten energy scales (finite all the while) is unstable at the same
+/// step in both, exit 3, and has no gradient.
+#[test]
+fn grad_calls_unstable_what_run_calls_unstable_at_the_same_step() {
+    let sandbox = Sandbox::new();
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/jelly-on-ground.toml"
+    );
+    let settings = [
+        "--set",
+        "body[0].structural.stiffness=1e6",
+        "--set",
+        "simulation.integrator=\"explicit-euler\"",
+        "--set",
+        "simulation.duration=0.1",
+    ];
+    let out = sandbox.path().join("run.jsonl");
+    let with = |first: &[&str], last: &[&str]| -> Vec<String> {
+        first
+            .iter()
+            .chain(&settings)
+            .chain(last)
+            .map(|s| s.to_string())
+            .collect()
+    };
+    let ran = sandbox.run(&with(&["run", scene], &["--out", out.to_str().unwrap()]));
+    ran.expect_status(EXIT_UNSTABLE);
+    let graded = sandbox.run(&with(
+        &["grad", scene],
+        &["--wrt", "body[0].mass", "--target-com", "0,0,0"],
+    ));
+    graded.expect_status(EXIT_UNSTABLE);
+    // "unstable at step K (t = …): particle P … energy reached E J, more than 10 energy scales"
+    let at = |stderr: &str| {
+        let from = stderr.find("at step").expect("the step");
+        let to = stderr[from..].find(" above").expect("the guard's words") + from;
+        stderr[from..to].to_owned()
+    };
+    assert!(ran.stderr.contains("energy scales"), "{}", ran.stderr);
+    assert_eq!(at(&graded.stderr), at(&ran.stderr));
+}

@@ -447,7 +447,7 @@ fn the_controls_gradient_is_the_derivative_of_the_computed_run() {
         let options = Options {
             threads: Some(1),
             controls: Some(&controls),
-            stop: None,
+            ..Options::default()
         };
         let back = gradient(&model, &state, &mut Probe::new(n), options).unwrap();
         let what = format!("{integrator:?}, {name}");

@@ -71,8 +71,11 @@ pub enum AdjointError {
     },
 }
 
+/// A check of the forward pass at each frame: the frame's index and the solver at its step.
+pub type FrameCheck<'a> = &'a mut dyn FnMut(u64, &mut dyn Solver) -> Result<(), StepError>;
+
 /// How [`gradient`] runs besides the model, its start and the loss.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Default)]
 pub struct Options<'a> {
     /// Threads (all cores if `None`; the result's bits do not depend on it).
     pub threads: Option<usize>,
@@ -80,6 +83,10 @@ pub struct Options<'a> {
     pub controls: Option<&'a Controls>,
     /// When set, the run ends at the next segment ([`AdjointError::Stopped`]).
     pub stop: Option<&'a AtomicBool>,
+    /// Called at every frame of the forward pass, frame 0 first; its error ends the run
+    /// (`softbody::grad` passes `run`'s energy guard, so that what `run` calls unstable has
+    /// no gradient).
+    pub check: Option<FrameCheck<'a>>,
 }
 
 /// What [`gradient`] computed.
@@ -190,14 +197,29 @@ pub fn gradient(
     // (implicit Euler's warm start and contact flags; nothing for the explicit integrators),
     // so that a segment's recomputation gives the forward's bits.
     let mut checkpoints: Vec<(State, History)> = vec![(start.clone(), solver.history()?)];
+    let mut check = options.check;
+    if let Some(check) = check.as_mut() {
+        check(0, &mut solver)?;
+    }
     let mut done = 0;
+    let mut next_frame = 1;
     while done < steps {
         if stopped() {
             return Err(AdjointError::Stopped);
         }
-        let k = interval.min(steps - done);
-        advance(&mut solver, k, done)?;
-        done += k;
+        let end = done + interval.min(steps - done);
+        // Each frame's step within the segment is checked as it is reached.
+        while let Some(check) = check.as_mut()
+            && let Some(&at) = frame_steps.get(next_frame)
+            && at <= end
+        {
+            advance(&mut solver, at - done, done)?;
+            done = at;
+            check(next_frame as u64, &mut solver)?;
+            next_frame += 1;
+        }
+        advance(&mut solver, end - done, done)?;
+        done = end;
         if done < steps {
             checkpoints.push((solver.state()?.clone(), solver.history()?));
         }
