@@ -7,7 +7,7 @@ use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::Cuboid;
 use softbody_scene::rotation_from_degrees;
 
-use crate::{Contact, eps_for};
+use crate::{Contact, eps_for, nearest_point_jacobian};
 
 #[derive(Debug, Clone)]
 pub(crate) struct BoxGeometry {
@@ -27,6 +27,23 @@ impl BoxGeometry {
             cuboid: Cuboid::new(half_extents),
             eps: eps_for(center.length() + half_extents.length()),
         }
+    }
+
+    /// ∂N/∂x: outside, N = (p − q)/|p − q| with q the clamp of p into the box, so ∂q/∂p keeps
+    /// the axes p is within and the Jacobian turns N only at edges and corners (zero over a
+    /// face); inside and on the surface N is a face's, fixed.
+    pub(crate) fn normal_jacobian(&self, x: DVec3) -> DMat3 {
+        let p = self.rotation.transpose() * (x - self.center);
+        let proj = self.cuboid.project_local_point(p, false);
+        let diff = p - proj.point;
+        let dist = diff.length();
+        if proj.is_inside || dist <= self.eps {
+            return DMat3::ZERO;
+        }
+        let half = self.cuboid.half_extents;
+        let within = DVec3::select(p.abs().cmpgt(half), DVec3::ZERO, DVec3::ONE);
+        let local = nearest_point_jacobian(diff / dist, dist, DMat3::from_diagonal(within), false);
+        self.rotation * local * self.rotation.transpose()
     }
 
     pub(crate) fn contact(&self, x: DVec3) -> Contact {

@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 use parry3d_f64::bounding_volume::Aabb;
-use parry3d_f64::query::PointQuery;
+use parry3d_f64::query::{PointQuery, PointQueryWithLocation};
 use parry3d_f64::shape::{HeightField, Triangle};
 use parry3d_f64::utils::Array2;
 
@@ -80,6 +80,15 @@ pub(crate) struct HeightfieldGeometry {
     eps: f64,
 }
 
+/// The nearest triangle's contact.
+struct Nearest {
+    contact: Contact,
+    /// |x − q|, q the nearest point.
+    dist: f64,
+    inside: bool,
+    triangle: Triangle,
+}
+
 impl HeightfieldGeometry {
     /// None for a grid that validation would refuse.
     pub(crate) fn new(h: &softbody_scene::Heightfield) -> Option<HeightfieldGeometry> {
@@ -124,6 +133,28 @@ impl HeightfieldGeometry {
     }
 
     pub(crate) fn query(&self, x: DVec3, reach: f64) -> Option<Contact> {
+        let nearest = self.nearest(x, reach)?;
+        within(nearest.contact, reach)
+    }
+
+    /// ∂N/∂x ([`crate::nearest_point_jacobian`] at the nearest triangle's nearest feature).
+    pub(crate) fn normal_jacobian(&self, x: DVec3) -> glam::DMat3 {
+        let Some(n) = self.nearest(x, f64::INFINITY) else {
+            return glam::DMat3::ZERO;
+        };
+        if n.dist <= self.eps {
+            return glam::DMat3::ZERO;
+        }
+        let (_, location) = n
+            .triangle
+            .project_local_point_and_get_location(x - self.offset, false);
+        let along = crate::triangle_feature_projector(&n.triangle, &location);
+        crate::nearest_point_jacobian(n.contact.normal, n.dist, along, n.inside)
+    }
+
+    /// The contact with the nearest triangle, and which it is, or `None` where nothing is
+    /// within `reach` (the search stops there).
+    fn nearest(&self, x: DVec3, reach: f64) -> Option<Nearest> {
         let HeightfieldGeometry { field, offset, eps } = self;
         let p = x - *offset;
 
@@ -199,7 +230,12 @@ impl HeightfieldGeometry {
             // Cells have positive width and depth, so every triangle has a normal, pointing up.
             best_triangle.normal().unwrap_or(DVec3::Y)
         };
-        within(Contact { phi, normal }, reach)
+        Some(Nearest {
+            contact: Contact { phi, normal },
+            dist,
+            inside,
+            triangle: best_triangle,
+        })
     }
 }
 

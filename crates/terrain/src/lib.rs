@@ -192,19 +192,19 @@ impl Surface {
 
     /// The Jacobian ∂N/∂x of the outward normal [`Surface::query`] answers at `x` (the Hessian
     /// of φ), where the gradients of a run are built: zero for a plane (and for a ball at its
-    /// centre, where the normal is fixed), ±(I − N Nᵀ)/|x − c| for a sphere (+) or a bowl (−).
-    /// `None` for the shapes whose normal turns at edges and corners (box, heightfield, mesh).
-    pub fn normal_jacobian(&self, x: DVec3) -> Option<glam::DMat3> {
+    /// centre, where the normal is fixed), ±(I − N Nᵀ)/|x − c| for a sphere (+) or a bowl (−);
+    /// for a box, a heightfield and a mesh, whose N points from the nearest point q of a face,
+    /// an edge or a corner, ±(I − N Nᵀ)(I − ∂q/∂x)/|x − q| (zero over a face's interior, where N
+    /// is the face's: N turns only past edges and corners). Within ε of the surface, where N is
+    /// the face's, it is zero.
+    pub fn normal_jacobian(&self, x: DVec3) -> glam::DMat3 {
         match &self.geometry {
-            Geometry::Plane(_) | Geometry::Empty => Some(glam::DMat3::ZERO),
-            Geometry::Ball(ball) => Some(ball.normal_jacobian(x)),
-            Geometry::Box(_) | Geometry::Heightfield(_) | Geometry::Mesh(_) => None,
+            Geometry::Plane(_) | Geometry::Empty => glam::DMat3::ZERO,
+            Geometry::Ball(ball) => ball.normal_jacobian(x),
+            Geometry::Box(cuboid) => cuboid.normal_jacobian(x),
+            Geometry::Heightfield(field) => field.normal_jacobian(x),
+            Geometry::Mesh(mesh) => mesh.normal_jacobian(x),
         }
-    }
-
-    /// Whether [`Surface::normal_jacobian`] answers for this shape.
-    pub fn is_differentiable(&self) -> bool {
-        self.normal_jacobian(DVec3::ZERO).is_some()
     }
 
     /// [`Surface::query`] for every kind of shape.
@@ -225,6 +225,46 @@ impl Surface {
     }
 }
 
+/// ∂N/∂x for N = s (x − q)/|x − q| (s = +1 outside, −1 inside), q(x) the nearest point of a
+/// feature with ∂q/∂x = `along` (a face's plane projector, an edge's line projector, zero at a
+/// corner): s (I − N Nᵀ)(I − along)/|x − q|.
+pub(crate) fn nearest_point_jacobian(
+    normal: DVec3,
+    dist: f64,
+    along: glam::DMat3,
+    inside: bool,
+) -> glam::DMat3 {
+    let nn = glam::DMat3::from_cols(normal * normal.x, normal * normal.y, normal * normal.z);
+    let j = (glam::DMat3::IDENTITY - nn) * (glam::DMat3::IDENTITY - along) / dist;
+    if inside { -j } else { j }
+}
+
+/// ∂q/∂x of the nearest point q of `triangle` at `location`: the projector onto its plane on
+/// the face, onto the edge's line on an edge, zero at a vertex.
+pub(crate) fn triangle_feature_projector(
+    triangle: &parry3d_f64::shape::Triangle,
+    location: &parry3d_f64::shape::TrianglePointLocation,
+) -> glam::DMat3 {
+    use parry3d_f64::shape::TrianglePointLocation as At;
+    let outer = |u: DVec3| glam::DMat3::from_cols(u * u.x, u * u.y, u * u.z);
+    let (a, b, c) = (triangle.a, triangle.b, triangle.c);
+    match location {
+        At::OnVertex(_) => glam::DMat3::ZERO,
+        // Edge 0 is AB, 1 is BC, 2 is AC (parry's numbering for locations).
+        At::OnEdge(i, _) => {
+            let e = match i {
+                0 => b - a,
+                1 => c - b,
+                _ => c - a,
+            };
+            outer(e.normalize_or_zero())
+        }
+        At::OnFace(..) | At::OnSolid => {
+            glam::DMat3::IDENTITY - outer((b - a).cross(c - a).normalize_or_zero())
+        }
+    }
+}
+
 /// The contact if it is within reach (φ < reach), as [`Surface::query`] answers.
 #[inline]
 fn within(contact: Contact, reach: f64) -> Option<Contact> {
@@ -236,6 +276,85 @@ mod tests {
     use super::*;
     use crate::testing::{at, flat_field, surface, terrain};
     use softbody_scene::{Heightfield, TriangleMesh};
+
+    /// ∂N/∂x of the shapes whose normal turns at edges and corners, against central
+    /// differences of the normal, at points outside over a face (zero), past an edge, past a
+    /// corner and inside, each at least 0.05 m from the boundaries of its feature's region, so
+    /// that x ± δ stays in it: the difference's error is O(δ²/d³) ≈ 1e-6 at δ = 1e-5 and
+    /// d ≥ 0.05 m, over a rounding error of 1e-16/δ.
+    #[test]
+    fn normal_jacobians_turn_the_normal_past_edges_and_corners() {
+        let rotation = DVec3::new(30.0, 45.0, 60.0);
+        let (center, r) = (
+            DVec3::new(1.0, 2.0, 3.0),
+            glam::DMat3::from_quat(softbody_scene::rotation_from_degrees(rotation)),
+        );
+        let cuboid = surface(TerrainShape::Box {
+            center,
+            half_extents: DVec3::new(1.0, 0.5, 2.0),
+            rotation,
+        });
+        let in_box = |p: DVec3| center + r * p;
+        // A tent: one raised vertex at (1, 1, 1) over a 3 × 3 grid.
+        let tent = surface(TerrainShape::Heightfield(Heightfield {
+            heights: vec![vec![0.0; 3], vec![0.0, 1.0, 0.0], vec![0.0; 3]],
+            cell_size: [1.0, 1.0],
+            origin: DVec3::ZERO,
+        }));
+        let cube = surface(TerrainShape::Mesh(TriangleMesh::cube(DVec3::ZERO, 1.0)));
+        let cases = [
+            (
+                "box over a face",
+                &cuboid,
+                in_box(DVec3::new(0.2, 0.6, 0.3)),
+                false,
+            ),
+            (
+                "box past an edge",
+                &cuboid,
+                in_box(DVec3::new(1.1, 0.6, 0.3)),
+                true,
+            ),
+            (
+                "box past a corner",
+                &cuboid,
+                in_box(DVec3::new(1.1, 0.6, 2.1)),
+                true,
+            ),
+            (
+                "box inside",
+                &cuboid,
+                in_box(DVec3::new(0.2, 0.1, 0.3)),
+                false,
+            ),
+            ("tent over its peak", &tent, DVec3::new(1.0, 1.3, 1.0), true),
+            ("mesh over a face", &cube, DVec3::new(0.5, 1.2, 0.4), false),
+            ("mesh past an edge", &cube, DVec3::new(1.1, 1.2, 0.4), true),
+            (
+                "mesh past a corner",
+                &cube,
+                DVec3::new(1.1, 1.2, 1.15),
+                true,
+            ),
+            ("mesh inside", &cube, DVec3::new(0.5, 0.7, 0.45), false),
+        ];
+        for (what, s, x, turns) in cases {
+            let j = s.normal_jacobian(x);
+            let delta = 1e-5;
+            for k in 0..3 {
+                let e = DVec3::AXES[k] * delta;
+                let fd = (at(s, x + e).normal - at(s, x - e).normal) / (2.0 * delta);
+                assert!(
+                    (j.col(k) - fd).length() < 1e-5,
+                    "{what} {k}: {} {fd}",
+                    j.col(k)
+                );
+            }
+            // The cases are what they say: N turns past edges and corners only.
+            let size = (0..3).map(|k| j.col(k).length()).sum::<f64>();
+            assert_eq!(size > 1.0, turns, "{what}: |J| = {size}");
+        }
+    }
 
     #[test]
     fn deterministic_and_not_a_number() {

@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 use parry3d_f64::query::PointQueryWithLocation;
-use parry3d_f64::shape::{TriMesh, TriMeshFlags};
+use parry3d_f64::shape::{TriMesh, TriMeshFlags, TrianglePointLocation};
 
 use crate::{Contact, eps_for, within};
 
@@ -15,6 +15,16 @@ pub(crate) struct MeshGeometry {
     /// the mesh's bounding box, so anything outside that box is free space.
     bounded_solid: bool,
     eps: f64,
+}
+
+/// The nearest triangle's contact.
+struct Nearest {
+    contact: Contact,
+    /// |x − q|, q the nearest point.
+    dist: f64,
+    inside: bool,
+    triangle: u32,
+    location: TrianglePointLocation,
 }
 
 impl MeshGeometry {
@@ -53,6 +63,23 @@ impl MeshGeometry {
     }
 
     pub(crate) fn query(&self, x: DVec3, reach: f64) -> Option<Contact> {
+        self.nearest(x, reach).map(|n| n.contact)
+    }
+
+    /// ∂N/∂x ([`crate::nearest_point_jacobian`] at the nearest triangle's nearest feature).
+    pub(crate) fn normal_jacobian(&self, x: DVec3) -> glam::DMat3 {
+        match self.nearest(x, f64::INFINITY) {
+            Some(n) if n.dist > self.eps => {
+                let triangle = self.mesh.triangle(n.triangle);
+                let along = crate::triangle_feature_projector(&triangle, &n.location);
+                crate::nearest_point_jacobian(n.contact.normal, n.dist, along, n.inside)
+            }
+            _ => glam::DMat3::ZERO,
+        }
+    }
+
+    /// The contact within `reach`, and where on the mesh its nearest point lies.
+    fn nearest(&self, x: DVec3, reach: f64) -> Option<Nearest> {
         let MeshGeometry {
             mesh,
             bounded_solid,
@@ -75,7 +102,7 @@ impl MeshGeometry {
                     )?
                 }
             };
-        let (proj, (triangle_id, _)) = hit;
+        let (proj, (triangle_id, location)) = hit;
         let diff = x - proj.point;
         let dist = diff.length();
         let face_normal = mesh.triangle_normal(triangle_id);
@@ -91,7 +118,13 @@ impl MeshGeometry {
             // A zero-area nearest triangle has no normal of its own; +y is as good as any there.
             face_normal.unwrap_or(DVec3::Y)
         };
-        within(Contact { phi, normal }, reach)
+        within(Contact { phi, normal }, reach).map(|contact| Nearest {
+            contact,
+            dist,
+            inside,
+            triangle: triangle_id,
+            location,
+        })
     }
 }
 

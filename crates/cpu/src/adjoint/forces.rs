@@ -16,7 +16,7 @@
 //! Every array is written per particle or per spring by one task, in a fixed order: the same
 //! bits for any thread count.
 
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::{FrictionModel, Model};
 use softbody_terrain::Surface;
@@ -339,15 +339,9 @@ pub fn contact_vjp(
         // press = −n·f.
         bar.f -= press_bar * n;
         n_bar -= press_bar * f;
-        bar.x += jacobian(s, x).transpose() * n_bar;
+        bar.x += s.normal_jacobian(x).transpose() * n_bar;
     }
     bar
-}
-
-/// ∂N/∂x of a surface the gradient's checks admitted.
-fn jacobian(s: &Surface, x: DVec3) -> DMat3 {
-    s.normal_jacobian(x)
-        .expect("gradients admit only surfaces with a normal Jacobian")
 }
 
 /// The cotangents of [`crate::contact::friction`]'s inputs.

@@ -16,9 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
-use softbody_scene::{
-    Controls, History, Integrator, Model, Solver, State, StepError, TerrainShape,
-};
+use softbody_scene::{Controls, History, Integrator, Model, Solver, State, StepError};
 use softbody_terrain::Surface;
 
 use super::Gradient;
@@ -126,22 +124,6 @@ pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
              can touch (several bodies with contact radii, or self_contact)"
                 .into(),
         ));
-    }
-    if let Some((k, t)) = model
-        .terrain
-        .iter()
-        .enumerate()
-        .find(|(_, t)| !Surface::new(t).is_differentiable())
-    {
-        let kind = match t.shape {
-            TerrainShape::Box { .. } => "box",
-            TerrainShape::Heightfield(_) => "heightfield",
-            _ => "mesh",
-        };
-        return Err(AdjointError::Unsupported(format!(
-            "terrain[{k}] is a {kind}: gradients through its contact are not built yet (plane, \
-             sphere and bowl have them)"
-        )));
     }
     Ok(())
 }
