@@ -29,8 +29,9 @@ use crate::output::jsonl;
 use crate::{Setting, load_scene};
 
 /// The keys a gradient can be taken with respect to, as `--set` names them (N: an index).
-pub const DIFFERENTIABLE: [&str; 15] = [
+pub const DIFFERENTIABLE: [&str; 16] = [
     "body[N].mass",
+    "body[N].density",
     "body[N].structural.stiffness",
     "body[N].structural.damping",
     "body[N].shear.stiffness",

@@ -202,3 +202,54 @@ fn other_keys_and_scenes_are_refused_as_bad_input() {
         "{e}"
     );
 }
+
+/// A mesh body weighed by its density, hanging from a pinned particle (in free flight the
+/// centre's path would not depend on the mass): ∂L/∂ρ is the run's derivative (central
+/// differences),
+/// and V·∂L/∂m of the same body weighed by its mass M = ρV (the chain rule through M = ρV; the
+/// two models differ by the rounding of M, so the two agree to ~1e-15).
+#[test]
+fn a_mesh_bodys_density_is_its_mass_over_its_volume() {
+    let dir = tempfile::tempdir().unwrap();
+    let star = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/star.obj");
+    let write = |name: &str, weight: &str| {
+        let text = format!(
+            "[simulation]\nintegrator = \"symplectic-euler\"\ndt = 1e-3\nduration = 0.1\n\
+             frame_rate = 100.0\n[[body]]\nkind = \"mesh\"\nfile = \"{star}\"\n\
+             resolution = 4\ncenter = [0.0, 1.0, 0.0]\nvelocity = [0.4, 0.0, 0.2]\npinned = [0]\n\
+             {weight}\n\
+             structural = {{ stiffness = 375.0, damping = 3.75 }}\n"
+        );
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let by_density = write("density.toml", "density = 400.0");
+    check_keys(&by_density, &[("body[0].density", &[400.0])]);
+    let scene = softbody::load_scene(&by_density, &[]).unwrap();
+    let mass: f64 = Model::build(&scene).0.mass.iter().sum();
+    let by_mass = write("mass.toml", &format!("mass = {mass:?}"));
+    let d = |path: &Path, key: &str| match gradient(&request(path, &[key])).unwrap().gradient[0].1 {
+        Derivative::Scalar(x) => x,
+        Derivative::Vector(_) => unreachable!("a scalar key"),
+    };
+    let (by_rho, by_m) = (
+        d(&by_density, "body[0].density"),
+        d(&by_mass, "body[0].mass"),
+    );
+    let volume = mass / 400.0;
+    // Not a derivative lost in the differences' rounding floor (check_keys's, 1e-13·L/δ): the
+    // hanging body's sag depends on its mass.
+    let loss = gradient(&request(&by_density, &["body[0].density"]))
+        .unwrap()
+        .loss;
+    assert!(
+        by_rho.abs() > 1e3 * 1e-13 * loss / (1e-6 * 400.0),
+        "∂L/∂ρ = {by_rho:e}, L = {loss:e}"
+    );
+    assert!(
+        (by_rho - volume * by_m).abs() <= 1e-12 * by_rho.abs(),
+        "∂L/∂ρ = {by_rho:e}, V ∂L/∂m = {:e}",
+        volume * by_m
+    );
+}
