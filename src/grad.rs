@@ -20,7 +20,7 @@ use glam::DVec3;
 use softbody_cpu::adjoint::run::{
     AdjointError, Backward, FrameBar, Loss, Options, gradient as adjoint,
 };
-use softbody_scene::{Controls, Model, Scene, SceneError, Solver, State, StepError};
+use softbody_scene::{Controls, Instability, Model, Scene, SceneError, Solver, State, StepError};
 
 use crate::guard::EnergyGuard;
 use crate::run::RunError;
@@ -265,7 +265,14 @@ pub fn gradient_until(
         stop,
         check: Some(&mut check),
     };
-    let backward = adjoint(&model, &state, &mut loss, options)?;
+    // An instability says what to try next, as `run`'s does.
+    let integrator = model.simulation.integrator;
+    let backward = adjoint(&model, &state, &mut loss, options).map_err(|e| match e.into() {
+        GradError::Unstable(why) => {
+            GradError::Unstable(format!("{why}; {}", Instability::advice(integrator)))
+        }
+        e => e,
+    })?;
     let values = Values::of(&model, &state);
     let mut gradient = Vec::new();
     for key in &keys {

@@ -376,4 +376,16 @@ fn grad_calls_unstable_what_run_calls_unstable_at_the_same_step() {
     };
     assert!(ran.stderr.contains("energy scales"), "{}", ran.stderr);
     assert_eq!(at(&graded.stderr), at(&ran.stderr));
+    // And the same advice.
+    let advice = |stderr: &str| {
+        let line = stderr.lines().find(|l| l.contains("unstable"))?;
+        line.split_once("; ").map(|(_, advice)| advice.to_owned())
+    };
+    assert!(advice(&ran.stderr).is_some(), "{}", ran.stderr);
+    assert_eq!(
+        advice(&graded.stderr),
+        advice(&ran.stderr),
+        "{}",
+        graded.stderr
+    );
 }
