@@ -227,6 +227,28 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             x0: scattered,
         },
         Case {
+            name: "round a mesh's edge",
+            // As round the box's edge, over a triangle mesh (the unit cube's OBJ): the normal
+            // turns past the edge its two faces' triangles share.
+            toml: sim(0.06, 0.03)
+                + "[[body]]\nkind = \"particles\"\npositions = [[1.01, 1.01, 0.3], [1.012, 1.008, 0.35]]\n\
+                   masses = [0.5, 0.7]\nvelocities = [[0.05, -0.02, 0.3], [0.02, 0.0, 0.25]]\n\
+                   springs = [{ a = 0, b = 1, stiffness = 50.0, damping = 0.1 }]\n\
+                   [[terrain]]\nkind = \"mesh\"\n"
+                + &format!(
+                    "path = {:?}\n",
+                    concat!(
+                        env!("CARGO_MANIFEST_DIR"),
+                        "/../terrain/tests/data/unit_cube.obj"
+                    )
+                )
+                + "friction = 0.2\nfriction_model = \"coulomb\"\nrestitution = 0.3\n",
+            spin: 0.0,
+            strain: 0.0,
+            stretch: 1.0,
+            x0: scattered,
+        },
+        Case {
             name: "held stretched",
             // A 4³ lattice pinned on its faces 20 % out from its centre: the 8 particles
             // inside move, every spring stretched throughout.
@@ -518,7 +540,11 @@ fn the_cases_reach_their_laws() {
         let back = gradient(&model, &state, &mut Probe::new(model.len()), threads(1)).unwrap();
         let g = &back.gradient;
         match case.name {
-            "sliding on a slope" | "in a bowl" | "round a box's edge" | "on a tent's peak" => {
+            "sliding on a slope"
+            | "in a bowl"
+            | "round a box's edge"
+            | "on a tent's peak"
+            | "round a mesh's edge" => {
                 assert!(g.friction_of(0) != 0.0, "{}", case.name)
             }
             "bouncing" => assert!(g.restitution_of(0) != 0.0),
