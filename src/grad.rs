@@ -248,6 +248,7 @@ pub fn gradient_until(
         .map_err(|e| GradError::Input(e.to_string()))?;
     // `run`'s energy guard on the forward pass: what `run` calls unstable has no gradient.
     let mut guard: Option<EnergyGuard> = None;
+    let frames = model.simulation.frame_count();
     let mut check = |k: u64, solver: &mut dyn Solver| -> Result<(), StepError> {
         let step_error = |e: RunError| match e {
             RunError::Unstable(i) => StepError::Unstable(i),
@@ -256,8 +257,17 @@ pub fn gradient_until(
         if k == 0 {
             guard = Some(EnergyGuard::start(solver).map_err(step_error)?);
         }
-        let guard = guard.as_mut().expect("frame 0 is checked first");
-        guard.frame(k, solver).map(|_| ()).map_err(step_error)
+        let checked = guard
+            .as_mut()
+            .expect("frame 0 is checked first")
+            .frame(k, solver)
+            .map(|_| ())
+            .map_err(step_error);
+        // Its copy of the last frame checked is not held into the backward pass.
+        if k + 1 == frames {
+            guard = None;
+        }
+        checked
     };
     let options = Options {
         threads: request.threads,
