@@ -1,7 +1,8 @@
 //! The adjoint against central finite differences of the forward solver, for every explicit
 //! integrator: free flight, a cube sliding down a slope (contact and kinetic Coulomb friction
-//! throughout), a cube in a bowl (viscous friction on a curved surface) and bouncing particles
-//! (fresh impacts and restitution).
+//! throughout), a cube in a bowl (viscous friction on a curved surface), bouncing particles
+//! (fresh impacts and restitution), and particles sliding round a box's edge, off a
+//! heightfield's peak and round a mesh's edge (the normal turning past edges and corners).
 //!
 //! Each group of values θ (initial positions, initial velocities, masses, stiffnesses,
 //! dampings, gravity, drag, friction, restitution) is moved along a fixed pseudo-random
@@ -12,7 +13,8 @@
 //! sign) is off by O(1). Gravity and drag move by 1e-3 and 1e-4 absolute: the held cube's
 //! loss depends on them by ~1e-4 of its size, where 1e-6 would leave the rounding of L over δ
 //! at 1e-6 of their derivatives; L is smooth in both (they enter the forces linearly), so the
-//! truncation error stays ~1e-8.
+//! truncation error stays ~1e-8. Dampings move by 1e-5: the small damping gradients of the
+//! sliding pairs (3e-3) leave the rounding at 1e-6 above the tolerance (see `check_case`).
 
 use std::path::Path;
 
@@ -199,11 +201,11 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             // in the contact band, sliding along it and down round it: the normal turns with
             // them until they pass onto the side face at ~0.05 s, 2 cm out (inside the band).
             toml: sim(0.06, 0.03)
-                + "[[body]]\nkind = \"particles\"\npositions = [[0.51, 0.51, 0.0], [0.512, 0.508, 0.05]]\n\
-                   masses = [0.5, 0.7]\nvelocities = [[0.05, -0.02, 0.3], [0.02, 0.0, 0.25]]\n\
-                   springs = [{ a = 0, b = 1, stiffness = 50.0, damping = 0.1 }]\n\
-                   [[terrain]]\nkind = \"box\"\ncenter = [0.0, 0.0, 0.0]\nhalf_extents = [0.5, 0.5, 1.0]\n\
-                   friction = 0.2\nfriction_model = \"coulomb\"\nrestitution = 0.3\n",
+                + &sliding_pair(
+                    [[0.51, 0.51, 0.0], [0.512, 0.508, 0.05]],
+                    EDGE_VELOCITIES,
+                    "kind = \"box\"\ncenter = [0.0, 0.0, 0.0]\nhalf_extents = [0.5, 0.5, 1.0]\n",
+                ),
             spin: 0.0,
             strain: 0.0,
             stretch: 1.0,
@@ -215,12 +217,12 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             // tent of four 45° slopes), in the contact band, sliding off it: the normal turns
             // round the vertex and its edges.
             toml: sim(0.06, 0.03)
-                + "[[body]]\nkind = \"particles\"\npositions = [[1.0, 1.015, 1.0], [1.01, 1.012, 1.005]]\n\
-                   masses = [0.5, 0.7]\nvelocities = [[0.1, 0.0, 0.05], [0.05, 0.0, 0.1]]\n\
-                   springs = [{ a = 0, b = 1, stiffness = 50.0, damping = 0.1 }]\n\
-                   [[terrain]]\nkind = \"heightfield\"\norigin = [0.0, 0.0, 0.0]\ncell_size = [1.0, 1.0]\n\
-                   heights = [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]\n\
-                   friction = 0.2\nfriction_model = \"coulomb\"\nrestitution = 0.3\n",
+                + &sliding_pair(
+                    [[1.0, 1.015, 1.0], [1.01, 1.012, 1.005]],
+                    [[0.1, 0.0, 0.05], [0.05, 0.0, 0.1]],
+                    "kind = \"heightfield\"\norigin = [0.0, 0.0, 0.0]\ncell_size = [1.0, 1.0]\n\
+                     heights = [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]\n",
+                ),
             spin: 0.0,
             strain: 0.0,
             stretch: 1.0,
@@ -231,18 +233,17 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             // As round the box's edge, over a triangle mesh (the unit cube's OBJ): the normal
             // turns past the edge its two faces' triangles share.
             toml: sim(0.06, 0.03)
-                + "[[body]]\nkind = \"particles\"\npositions = [[1.01, 1.01, 0.3], [1.012, 1.008, 0.35]]\n\
-                   masses = [0.5, 0.7]\nvelocities = [[0.05, -0.02, 0.3], [0.02, 0.0, 0.25]]\n\
-                   springs = [{ a = 0, b = 1, stiffness = 50.0, damping = 0.1 }]\n\
-                   [[terrain]]\nkind = \"mesh\"\n"
-                + &format!(
-                    "path = {:?}\n",
-                    concat!(
-                        env!("CARGO_MANIFEST_DIR"),
-                        "/../terrain/tests/data/unit_cube.obj"
-                    )
-                )
-                + "friction = 0.2\nfriction_model = \"coulomb\"\nrestitution = 0.3\n",
+                + &sliding_pair(
+                    [[1.01, 1.01, 0.3], [1.012, 1.008, 0.35]],
+                    EDGE_VELOCITIES,
+                    &format!(
+                        "kind = \"mesh\"\npath = {:?}\n",
+                        concat!(
+                            env!("CARGO_MANIFEST_DIR"),
+                            "/../terrain/tests/data/unit_cube.obj"
+                        )
+                    ),
+                ),
             spin: 0.0,
             strain: 0.0,
             stretch: 1.0,
@@ -261,6 +262,20 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             x0: scattered,
         },
     ]
+}
+
+/// The velocities of the pairs round an edge: along it, and a little off it.
+const EDGE_VELOCITIES: [[f64; 3]; 2] = [[0.05, -0.02, 0.3], [0.02, 0.0, 0.25]];
+
+/// Two particles on a spring at `positions` with `velocities`, over the terrain `shape` (its
+/// `[[terrain]]` keys) with Coulomb friction and restitution: the cases whose normal turns.
+fn sliding_pair(positions: [[f64; 3]; 2], velocities: [[f64; 3]; 2], shape: &str) -> String {
+    format!(
+        "[[body]]\nkind = \"particles\"\npositions = {positions:?}\nmasses = [0.5, 0.7]\n\
+         velocities = {velocities:?}\n\
+         springs = [{{ a = 0, b = 1, stiffness = 50.0, damping = 0.1 }}]\n\
+         [[terrain]]\n{shape}friction = 0.2\nfriction_model = \"coulomb\"\nrestitution = 0.3\n"
+    )
 }
 
 /// The particles on the faces of an n³ lattice.
