@@ -375,6 +375,10 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
             scene,
         );
     }
+    // Before the device opens: a machine without an adapter says the same.
+    if request.controls.is_some() && request.backend == Backend::Gpu {
+        return Outcome::failed(RunFailure::Request(softbody_gpu::NO_CONTROLS.into()), scene);
+    }
     if request.checkpoint.is_some() && request.controls.is_some() {
         return Outcome::failed(
             RunFailure::Request("checkpoints of a run with control forces are not built".into()),

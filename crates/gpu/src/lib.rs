@@ -73,6 +73,10 @@ pub use solver::GpuSolver;
 /// Steps encoded into one command buffer at most (the check's table of step numbers).
 pub const STEPS_PER_SUBMISSION: u64 = 256;
 
+/// Why [`GpuSolver`] takes no control forces (`Solver::set_controls`), as the run service says
+/// it before the device opens.
+pub const NO_CONTROLS: &str = "control forces are not built on the GPU backend yet; run on the CPU";
+
 /// Threads per workgroup of every kernel (`WORKGROUP_SIZE` in `shaders/shared/common.wgsl`; the
 /// kernels are checked against it when their pipelines are made).
 pub const WORKGROUP_SIZE: u64 = 256;

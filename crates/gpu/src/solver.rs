@@ -538,9 +538,7 @@ impl Solver for GpuSolver {
     fn set_controls(&mut self, controls: Option<Controls>) -> Result<(), StepError> {
         match controls {
             None => Ok(()),
-            Some(_) => Err(StepError::Invalid(
-                "control forces are not built on the GPU backend yet; run on the CPU".into(),
-            )),
+            Some(_) => Err(StepError::Invalid(crate::NO_CONTROLS.into())),
         }
     }
 

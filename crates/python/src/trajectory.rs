@@ -3,7 +3,6 @@
 
 use numpy::IntoPyArray;
 use numpy::ndarray::{Array1, Array3};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use softbody::StepError;
@@ -119,11 +118,6 @@ pub(crate) fn run<'py>(
     let controls = controls
         .map(|u| frame_vectors(Some(u), "controls"))
         .transpose()?;
-    if controls.is_some() && backend != softbody::Backend::Cpu {
-        return Err(PyValueError::new_err(
-            "control forces are not built on the GPU backend yet; run on the CPU",
-        ));
-    }
     let s = scene.get();
     let request = RunRequest {
         scene: SceneSource::Text {

@@ -105,7 +105,7 @@ def test_control_forces_move_the_run_and_backward_gives_their_gradient(cube: sof
     com = softbody.gradient(cube, ["body[0].mass"], target_com=TARGET, controls=u)
     assert com.controls.shape == (frames, n, 3)
     assert softbody.gradient(cube, ["body[0].mass"], target_com=TARGET).controls is None
-    with pytest.raises(ValueError, match="GPU"):
+    with pytest.raises(softbody.SceneError, match="GPU"):
         softbody.run(cube, backend="gpu", controls=u)
     with pytest.raises(softbody.SceneError, match=f"for {frames} frames of {n} particles"):
         softbody.run(cube, controls=u[:-1])
