@@ -180,27 +180,6 @@ fn other_keys_and_scenes_are_refused_as_bad_input() {
     }
     let e = gradient(&request(&path, &["body[1].mass"])).unwrap_err();
     assert!(e.to_string().contains("the scene has 1 bodies"), "{e}");
-    // Implicit Euler in free flight has its gradient; its steps in contact are refused,
-    // naming the first.
-    let implicit = |path: &Path| {
-        let mut request = request(path, &["body[0].mass"]);
-        request.settings = vec![
-            Setting::new(
-                "simulation.integrator",
-                toml::Value::String("implicit-euler".into()),
-            )
-            .unwrap(),
-        ];
-        gradient(&request)
-    };
-    assert!(implicit(&path).is_ok());
-    let e = implicit(&scene(dir.path(), true)).unwrap_err();
-    assert!(
-        matches!(e, GradError::Input(_))
-            && e.to_string().contains("implicit-euler steps in contact")
-            && e.to_string().contains("step 1 "),
-        "{e}"
-    );
 }
 
 /// A mesh body weighed by its density, hanging from a pinned particle (in free flight the

@@ -111,6 +111,7 @@ fn json(report: &GradReport) -> String {
         "peak_memory_bytes": b.peak_memory_bytes,
         "forward_seconds": b.forward_seconds,
         "backward_seconds": b.backward_seconds,
+        "turned_steps": b.turned_steps,
     });
     format!("{value}\n")
 }
@@ -135,5 +136,12 @@ fn text(report: &GradReport) -> String {
         b.backward_seconds,
         b.peak_memory_bytes as f64 / 1e6
     );
+    if b.turned_steps > 0 {
+        out += &format!(
+            "{} steps had a contact turn from sticking to slipping: the gradient holds its \
+             friction direction there (docs/physics.md, \"Kinks\")\n",
+            b.turned_steps
+        );
+    }
     out
 }

@@ -141,10 +141,10 @@ impl CpuSolver {
         })
     }
 
-    /// Implicit Euler's contacts with the terrain in the last step (0 for the explicit
+    /// Implicit Euler's contacts with the terrain in the last step (none for the explicit
     /// integrators, whose contact is not constrained).
-    pub(crate) fn implicit_contacts(&self) -> usize {
-        self.stepper.implicit_contacts(&self.model)
+    pub(crate) fn implicit_contacts(&self) -> &[crate::integrators::implicit_euler::Candidate] {
+        self.stepper.implicit_contacts()
     }
 
     /// The pool the solver steps in.

@@ -74,6 +74,9 @@ const CANDIDATE_VISCOUS: u32 = 32u;
 // The CPU allows |λ_t| to exceed μλ_n by 1e-9 relative before a sticking contact slips; in f32
 // the solve's λ is good to about the CG tolerance, so the slack is 1e-5.
 const STICK_SLACK: f32 = 1e-5;
+// A slipping contact's friction follows its solve's λ_n while it moves by more than this,
+// relative: its f32 solve's tolerance (the CPU's twin refreshes to 1e-6).
+const FRICTION_REFRESH: f32 = 1e-5;
 
 @group(0) @binding(1) var<storage, read_write> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> v: array<vec4<f32>>;
@@ -276,7 +279,7 @@ fn implicit_active_set(id: Invocation) {
             c.state |= CANDIDATE_SETTLED;
             change = true;
         } else if c.friction > 0.0
-            && abs(lambda_n - c.lambda_n) > 1e-3 * max(abs(lambda_n), c.lambda_n) {
+            && abs(lambda_n - c.lambda_n) > FRICTION_REFRESH * max(abs(lambda_n), c.lambda_n) {
             c.lambda_n = lambda_n;
             change = true;
         }

@@ -90,6 +90,7 @@ fn report_dict<'py>(
     d.set_item("peak_memory_bytes", b.peak_memory_bytes)?;
     d.set_item("forward_seconds", b.forward_seconds)?;
     d.set_item("backward_seconds", b.backward_seconds)?;
+    d.set_item("turned_steps", b.turned_steps)?;
     Ok(d)
 }
 

@@ -1,5 +1,4 @@
-//! The transpose of one implicit Euler step, twin of [`crate::integrators::implicit_euler`],
-//! for steps without terrain contact (pinned particles are its constraints).
+//! The transpose of one implicit Euler step, twin of [`crate::integrators::implicit_euler`].
 //!
 //! The step solves A Δv = b with A = M(1 + h·drag) + Σ_s B_s and b = h(m g − drag·m v +
 //! Σ± (f_s − h K_s w_s)), Δv prescribed (−v) on pinned particles; then v' = v + Δv,
@@ -21,6 +20,14 @@
 //!   forward's signs. Where α is clamped at 0 (a compressed spring) its derivative is 0, the
 //!   branch the forward took.
 //!
+//! In contact with the terrain, the step's final solve holds its active set: a slipping contact
+//! on N with target t solves A Δv − b − λ_n (N + c) = 0, N·(v + Δv) = t (its friction impulse
+//! λ_n c, c ⊥ N), a sticking one A Δv − b − λ = 0, v + Δv = t N. Then μ also satisfies μ = 0 on
+//! sticking contacts and μ·(N + c) = 0 on slipping ones (μ's normal part prescribed from its
+//! tangential one, solved again until it settles), ν = ṽ − A μ is each constraint's multiplier,
+//! and the constraints' targets, normals and friction take their cotangents from ν, λ_n and μ
+//! (docs/physics.md, "Gradients: the discrete adjoint").
+//!
 //! The forward's CG stops at the scene's relative residual τ (`simulation.cg_tolerance`): its
 //! Δv, and so the run, is the exact step's to O(τ), and this transpose, solved to the same τ,
 //! is the exact step's, which the computed run's derivative matches to the same order.
@@ -28,7 +35,8 @@
 use glam::DVec3;
 use rayon::prelude::*;
 use softbody_scene::implicit::Constraint;
-use softbody_scene::{Model, State};
+use softbody_scene::{FrictionModel, Model, State};
+use softbody_terrain::Surface;
 
 use super::Gradient;
 use super::forces::springs_transpose;
@@ -36,6 +44,7 @@ use crate::forces::PARTICLE_CHUNK;
 use crate::integrators::implicit_euler::cg::{self, CgProblem, Preconditioner};
 use crate::integrators::implicit_euler::multigrid::Multigrid;
 use crate::integrators::implicit_euler::system::System;
+use crate::integrators::implicit_euler::{Candidate, Mode};
 use crate::vec_bytes;
 
 /// The transpose of one implicit Euler step and its scratch, sized for one model.
@@ -53,7 +62,11 @@ pub struct ImplicitAdjoint {
     a_mu: Vec<DVec3>,
     /// μ, warm started from the last step's.
     mu: Vec<DVec3>,
-    zeros: Vec<DVec3>,
+    /// The step's b, and μ's prescribed part (its normal part where a contact slips).
+    b: Vec<DVec3>,
+    z: Vec<DVec3>,
+    /// The step's contacts as the transpose holds them.
+    held: Vec<Held>,
     /// Each spring's cotangents of d and w.
     d_bar: Vec<DVec3>,
     w_bar: Vec<DVec3>,
@@ -84,7 +97,9 @@ impl ImplicitAdjoint {
             dv_bar: vec![DVec3::ZERO; n],
             a_mu: vec![DVec3::ZERO; n],
             mu: vec![DVec3::ZERO; n],
-            zeros: vec![DVec3::ZERO; n],
+            b: vec![DVec3::ZERO; n],
+            z: vec![DVec3::ZERO; n],
+            held: Vec::new(),
             d_bar: vec![DVec3::ZERO; s],
             w_bar: vec![DVec3::ZERO; s],
         }
@@ -96,12 +111,14 @@ impl ImplicitAdjoint {
             + self.multigrid.as_ref().map_or(0, Multigrid::memory_bytes)
             + self.scratch.memory_bytes()
             + vec_bytes(&self.constraints)
+            + vec_bytes(&self.held)
             + [
                 &self.dv,
                 &self.dv_bar,
                 &self.a_mu,
                 &self.mu,
-                &self.zeros,
+                &self.b,
+                &self.z,
                 &self.d_bar,
                 &self.w_bar,
             ]
@@ -111,13 +128,16 @@ impl ImplicitAdjoint {
     }
 
     /// Turns `(x_bar, v_bar)`, the cotangent of `end`, the state after the step from `start`,
-    /// into the cotangent of `start`, adding the model's values' to `grad`; with `external`
-    /// forces on the particles in the step (which enter b as h f_ext, so their cotangent is
-    /// h μ), their cotangents are added to the second of the pair.
-    pub fn step(
+    /// into the cotangent of `start`, adding the model's values' to `grad`; `contacts` are the
+    /// step's contacts with `surfaces` as its final solve held them
+    /// ([`crate::integrators::implicit_euler`]); with `external` forces on the particles in
+    /// the step (which enter b as h f_ext, so their cotangent is h μ), their cotangents are
+    /// added to the second of the pair.
+    pub(crate) fn step(
         &mut self,
         model: &Model,
         (start, end): (&State, &State),
+        (surfaces, contacts): (&[Surface], &[Candidate]),
         external: Option<(&[DVec3], &mut [DVec3])>,
         (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
         grad: &mut Gradient,
@@ -125,9 +145,8 @@ impl ImplicitAdjoint {
         let sim = &model.simulation;
         let h = sim.dt;
         let (x, v) = (&start.x[..], &start.v[..]);
-        // The step's linearisation (its right-hand side is not needed: `dv_bar` is scratch
-        // until ṽ is written).
-        (self.system).assemble(model, (None, None), x, v, &mut self.dv_bar);
+        let forces = external.as_ref().map(|(f, _)| *f);
+        (self.system).assemble(model, (None, forces), x, v, &mut self.b);
         (&mut self.dv, &mut self.dv_bar, &mut *v_bar)
             .into_par_iter()
             .enumerate()
@@ -137,30 +156,161 @@ impl ImplicitAdjoint {
                 *vt = *vb + h * x_bar[i];
                 *vb = *vt;
             });
-        CgProblem {
-            preconditioner: match self.multigrid.as_mut() {
-                Some(mg) => Preconditioner::Multigrid(mg),
-                None => Preconditioner::BlockJacobi,
-            },
-            tolerance: model.simulation.cg_tolerance,
-            ..CgProblem::new(
-                &mut self.system,
-                model,
-                &self.constraints,
-                &self.dv_bar,
-                &self.zeros,
-            )
+        for c in &self.held {
+            self.constraints[c.particle as usize] = Constraint::Free;
+            self.z[c.particle as usize] = DVec3::ZERO;
         }
-        .solve(&mut self.mu, &mut self.scratch);
+        self.held.clear();
+        if !contacts.is_empty() {
+            self.system.apply(model, &self.dv, &mut self.a_mu);
+        }
+        for c in contacts {
+            let i = c.particle as usize;
+            let s = &surfaces[c.surface as usize];
+            let n = c.normal;
+            let lambda_n = n.dot(self.a_mu[i] - self.b[i]);
+            let vt = v[i] - v[i].dot(n) * n;
+            // The friction impulse j = λ_n c (c ⊥ n), or a constant where the viscous cap holds.
+            let (friction, capped) = match (c.mode, s.friction_model) {
+                (Mode::Slip, FrictionModel::Coulomb) => (s.friction * c.friction_dir, false),
+                (Mode::Slip, FrictionModel::Viscous) => {
+                    let capped =
+                        s.friction * c.lambda_n * vt.length() > model.mass[i] * vt.length();
+                    (
+                        if capped {
+                            DVec3::ZERO
+                        } else {
+                            -s.friction * vt
+                        },
+                        capped,
+                    )
+                }
+                _ => (DVec3::ZERO, false),
+            };
+            self.constraints[i] = match c.mode {
+                Mode::Slip => Constraint::Normal(n),
+                _ => Constraint::Fixed,
+            };
+            self.held.push(Held {
+                particle: c.particle,
+                lambda_n,
+                friction,
+                capped,
+            });
+        }
+        // μ solves the transpose with the friction's coupling: S(A μ − ṽ) = 0, μ = 0 where
+        // the contact sticks and μ·(N + c) = 0 where it slips, the normal part prescribed
+        // from the tangential one, round by round until it settles.
+        for round in 0..=ADJOINT_ROUNDS {
+            let mut moved = 0.0f64;
+            let mut size = 0.0f64;
+            for c in &self.held {
+                let i = c.particle as usize;
+                let z = match self.constraints[i] {
+                    Constraint::Normal(n) => -c.friction.dot(self.mu[i]) * n,
+                    _ => DVec3::ZERO,
+                };
+                moved = moved.max((z - self.z[i]).length());
+                size = size.max(z.length());
+                self.z[i] = z;
+            }
+            if round > 0 && moved <= 1e-12 * size {
+                break;
+            }
+            CgProblem {
+                preconditioner: match self.multigrid.as_mut() {
+                    Some(mg) => Preconditioner::Multigrid(mg),
+                    None => Preconditioner::BlockJacobi,
+                },
+                tolerance: model.simulation.cg_tolerance,
+                ..CgProblem::new(
+                    &mut self.system,
+                    model,
+                    &self.constraints,
+                    &self.dv_bar,
+                    &self.z,
+                )
+            }
+            .solve(&mut self.mu, &mut self.scratch);
+            if self.held.iter().all(|c| c.friction == DVec3::ZERO) {
+                break;
+            }
+        }
 
-        // Pinned particles: v̄ −= ṽ − (A μ).
-        if self.constraints.contains(&Constraint::Fixed) {
+        // Constrained particles: ν = ṽ − A μ, the multipliers of their velocity constraints.
+        if self.constraints.iter().any(|s| *s != Constraint::Free) {
             self.system.apply(model, &self.mu, &mut self.a_mu);
             for (i, s) in self.constraints.iter().enumerate() {
-                if *s == Constraint::Fixed {
+                if *s == Constraint::Fixed && model.is_pinned(i) {
                     v_bar[i] -= self.dv_bar[i] - self.a_mu[i];
                 }
             }
+        }
+        for (c, held) in contacts.iter().zip(&self.held) {
+            let i = c.particle as usize;
+            let k = c.surface as usize;
+            let s = &surfaces[k];
+            let n = c.normal;
+            let nu = self.dv_bar[i] - self.a_mu[i];
+            let (mu, at) = (self.mu[i], k + i * grad.surfaces);
+            let vn = v[i].dot(n);
+            let vt = v[i] - vn * n;
+            let (mut n_bar, mut vt_bar, t_bar);
+            match c.mode {
+                // v + Δv = t N.
+                Mode::Stick => {
+                    v_bar[i] -= nu;
+                    t_bar = nu.dot(n);
+                    n_bar = c.vn_target * nu;
+                    vt_bar = DVec3::ZERO;
+                }
+                // N·(v + Δv) = t, and A Δv − b − λ_n (N + c) = 0.
+                _ => {
+                    let nu = n.dot(nu);
+                    v_bar[i] -= nu * n;
+                    t_bar = nu;
+                    n_bar = held.lambda_n * mu - nu * (v[i] + self.dv[i]);
+                    vt_bar = DVec3::ZERO;
+                    match s.friction_model {
+                        FrictionModel::Coulomb => {
+                            grad.friction[at] += held.lambda_n * mu.dot(c.friction_dir);
+                            let speed = vt.length();
+                            if !c.held_direction() && speed > 0.0 {
+                                // d = −v_t/|v_t|.
+                                let d = c.friction_dir;
+                                let d_bar = s.friction * held.lambda_n * mu;
+                                vt_bar = -(d_bar - d * d.dot(d_bar)) / speed;
+                            }
+                        }
+                        FrictionModel::Viscous if held.capped => {
+                            // j = −m v_t.
+                            grad.mass[i] -= mu.dot(vt);
+                            vt_bar = -model.mass[i] * mu;
+                        }
+                        FrictionModel::Viscous => {
+                            grad.friction[at] -= held.lambda_n * mu.dot(vt);
+                            vt_bar = -s.friction * held.lambda_n * mu;
+                        }
+                    }
+                }
+            }
+            // t = −φ/h, or on a fresh impact max(−φ/h, k_r max(−v·N, 0)).
+            let rebound = s.restitution * (-vn).max(0.0);
+            let mut phi_bar = 0.0;
+            if c.fresh && rebound > -c.phi / h {
+                grad.restitution[at] += t_bar * (-vn).max(0.0);
+                if vn < 0.0 {
+                    v_bar[i] -= t_bar * s.restitution * n;
+                    n_bar -= t_bar * s.restitution * v[i];
+                }
+            } else {
+                phi_bar = -t_bar / h;
+            }
+            // v_t = v − (v·N) N.
+            v_bar[i] += vt_bar - n * n.dot(vt_bar);
+            n_bar -= n.dot(vt_bar) * v[i] + vn * vt_bar;
+            // ∇φ = N, ∂N/∂x = J.
+            x_bar[i] += phi_bar * n + s.normal_jacobian(x[i]).transpose() * n_bar;
         }
 
         if let Some((_, bar)) = external {
@@ -201,6 +351,23 @@ impl ImplicitAdjoint {
             spring_residual_vjp(at, h, mu[a] - mu[b])
         });
     }
+}
+
+/// Solves of the transpose per step at most while a slipping contact's friction coupling
+/// moves μ's prescribed part: it contracts as the forward's refresh of λ_n does, whose rounds
+/// are [`softbody_scene::implicit::ACTIVE_SET_ROUNDS`] at most.
+const ADJOINT_ROUNDS: u32 = 32;
+
+/// A contact of the step as the transpose holds it.
+#[derive(Debug, Clone, Copy)]
+struct Held {
+    particle: u32,
+    /// λ_n = N·(A Δv − b), the final solve's normal impulse.
+    lambda_n: f64,
+    /// c of the friction impulse λ_n c (zero where it does not scale with λ_n).
+    friction: DVec3,
+    /// The viscous friction's cap holds: the impulse is −m v_t.
+    capped: bool,
 }
 
 /// A spring at the start of a step: its ends' difference d and relative velocity w, the

@@ -23,6 +23,7 @@ use super::Gradient;
 use super::implicit_euler::ImplicitAdjoint;
 use super::integrators::StepAdjoint;
 use crate::CpuSolver;
+use crate::integrators::implicit_euler::Candidate;
 
 /// A loss made of one term per frame, ℓ_f(x_f, v_f; m).
 pub trait Loss {
@@ -113,10 +114,13 @@ pub struct Backward {
     pub forward_seconds: f64,
     /// Seconds of the backward pass, recomputation included.
     pub backward_seconds: f64,
+    /// Implicit Euler's steps in which a contact turned from sticking to slipping, whose
+    /// friction direction (the sticking solve's tangential impulse) the transpose holds: the
+    /// gradient there lacks that direction's derivative (docs/physics.md, "Kinks").
+    pub turned_steps: u64,
 }
 
-/// Refuses a model whose run has no adjoint yet, saying what it holds. (Implicit Euler's
-/// steps in contact with the terrain are refused as the run meets them, by [`gradient`].)
+/// Refuses a model whose run has no adjoint yet, saying what it holds.
 pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
     if model.contact.enabled() {
         return Err(AdjointError::Unsupported(
@@ -153,27 +157,6 @@ pub fn gradient(
     solver.set_controls(options.controls.cloned())?;
     let state_bytes = 2 * crate::vec_bytes(&start.x);
     let implicit = sim.integrator == Integrator::ImplicitEuler;
-    // Implicit Euler's steps one at a time, each asked whether it met the terrain.
-    let advance = |solver: &mut CpuSolver, count: u64, done: u64| -> Result<(), AdjointError> {
-        if !implicit {
-            return Ok(solver.advance(count)?);
-        }
-        for k in done..done + count {
-            solver.advance(1)?;
-            let contacts = solver.implicit_contacts();
-            if contacts > 0 {
-                return Err(AdjointError::Unsupported(format!(
-                    "gradients of implicit-euler steps in contact with the terrain are not built \
-                     yet: step {} (t = {} s) has {contacts} particle{} in contact; the explicit \
-                     integrators have them",
-                    k + 1,
-                    (k + 1) as f64 * sim.dt,
-                    if contacts == 1 { "" } else { "s" },
-                )));
-            }
-        }
-        Ok(())
-    };
     let clock = Instant::now();
     // Each checkpoint with what the solver's next step starts from besides the state
     // (implicit Euler's warm start and contact flags; nothing for the explicit integrators),
@@ -195,12 +178,12 @@ pub fn gradient(
             && let Some(&at) = frame_steps.get(next_frame)
             && at <= end
         {
-            advance(&mut solver, at - done, done)?;
+            solver.advance(at - done)?;
             done = at;
             check(next_frame as u64, &mut solver)?;
             next_frame += 1;
         }
-        advance(&mut solver, end - done, done)?;
+        solver.advance(end - done)?;
         done = end;
         if done < steps {
             checkpoints.push((solver.state()?.clone(), solver.history()?));
@@ -234,6 +217,9 @@ pub fn gradient(
         total += loss.frame(f, &last, bar);
     }
     let mut segment: Vec<State> = Vec::with_capacity(interval as usize + 1);
+    // Implicit Euler's contacts in each step of the segment, as its final solve held them.
+    let mut held: Vec<Vec<Candidate>> = Vec::new();
+    let mut turned_steps = 0;
     let (mut peak_states, mut peak_bytes) = (0, 0);
     // In the solver's pool throughout: its steps and the transposes run there without a
     // hand-over between threads at every step.
@@ -248,9 +234,15 @@ pub fn gradient(
             solver.restore(from, checkpoint, history)?;
             segment.truncate(0);
             segment.push(checkpoint.clone());
-            for k in from..to {
-                advance(&mut solver, 1, k)?;
+            held.truncate(0);
+            for _ in from..to {
+                solver.advance(1)?;
                 segment.push(solver.state()?.clone());
+                if implicit {
+                    let contacts = solver.implicit_contacts();
+                    turned_steps += u64::from(contacts.iter().any(Candidate::held_direction));
+                    held.push(contacts.to_vec());
+                }
             }
             let expected = checkpoints.get(j + 1).map_or(&last, |(state, _)| state);
             if !same_bits(segment.last().expect("the segment's start"), expected) {
@@ -260,7 +252,8 @@ pub fn gradient(
             peak_states = peak_states.max(checkpoints.len() as u64 + 1 + segment.len() as u64);
             peak_bytes = peak_bytes.max(
                 checkpoints.len() as u64 * checkpoint_bytes
-                    + (1 + segment.len() as u64) * state_bytes,
+                    + (1 + segment.len() as u64) * state_bytes
+                    + held.iter().map(crate::vec_bytes).sum::<u64>(),
             );
             for k in (from..to).rev() {
                 let i = (k - from) as usize;
@@ -276,6 +269,7 @@ pub fn gradient(
                     Transpose::Implicit(t) => t.step(
                         model,
                         (&segment[i], &segment[i + 1]),
+                        (&surfaces, &held[i]),
                         external,
                         bars,
                         &mut grad,
@@ -313,6 +307,7 @@ pub fn gradient(
         peak_memory_bytes,
         forward_seconds,
         backward_seconds,
+        turned_steps,
     })
 }
 

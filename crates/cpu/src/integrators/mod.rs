@@ -123,12 +123,12 @@ impl Stepper {
         bad.map(|i| (i, crate::non_finite_what(state, i)))
     }
 
-    /// Implicit Euler's contacts with the terrain in its last step ([`implicit_euler`]'s
-    /// constrained particles besides the pinned ones); 0 for the others.
-    pub(crate) fn implicit_contacts(&self, model: &Model) -> usize {
+    /// Implicit Euler's contacts with the terrain in its last step, as its final solve held
+    /// them; none for the others.
+    pub(crate) fn implicit_contacts(&self) -> &[implicit_euler::Candidate] {
         match self {
-            Stepper::ImplicitEuler(s) => s.contacts(model),
-            _ => 0,
+            Stepper::ImplicitEuler(s) => s.contacts(),
+            _ => &[],
         }
     }
 

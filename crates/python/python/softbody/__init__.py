@@ -177,6 +177,9 @@ class Gradient:
     forward_seconds: float
     backward_seconds: float
     controls: Optional[np.ndarray] = None  #: [F, N, 3] ∂L/∂ each control force (None without)
+    #: implicit Euler's steps where a contact turned from sticking to slipping, whose friction
+    #: direction the gradient holds (docs/physics.md, "Kinks")
+    turned_steps: int = 0
 
     def __repr__(self) -> str:
         keys = ", ".join(self.gradient)

@@ -58,6 +58,13 @@ use crate::body_contact::Partners;
 use crate::forces::PARTICLE_CHUNK;
 use softbody_terrain::Surface;
 
+/// A slipping contact's friction impulse μλ_n takes the normal impulse λ_n of the solve before
+/// (the solve is linear only with it fixed), and the step solves again while λ_n moves by more
+/// than this, relative: the friction then matches its own solve's normal impulse to the
+/// gradient tests' 1e-6, which the step's transpose assumes ([`crate::adjoint::implicit_euler`];
+/// 1e-3 left the gradient 1e-4 off; the GPU's f32 twin refreshes to 1e-5).
+pub(crate) const FRICTION_REFRESH: f64 = 1e-6;
+
 /// `multigrid-kept` of a history whose multigrid had no values.
 const NOTHING_KEPT: u32 = u32::MAX;
 
@@ -92,8 +99,9 @@ fn decode(bytes: &[u8]) -> Result<Constraint, StepError> {
     }
 }
 
+/// What a contact does in the step's solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Mode {
+pub(crate) enum Mode {
     Inactive,
     Stick,
     Slip,
@@ -101,22 +109,35 @@ enum Mode {
 
 /// A particle near a surface this step.
 #[derive(Debug, Clone, Copy)]
-struct Candidate {
-    particle: u32,
-    surface: u32,
-    phi: f64,
-    normal: DVec3,
-    mode: Mode,
+pub(crate) struct Candidate {
+    pub(crate) particle: u32,
+    pub(crate) surface: u32,
+    /// The surface's distance and normal at the particle's start-of-step position.
+    pub(crate) phi: f64,
+    pub(crate) normal: DVec3,
+    pub(crate) mode: Mode,
+    /// Not touching at the end of the last step: a contact is a fresh impact.
+    pub(crate) fresh: bool,
     /// Target normal velocity at the end of the step.
-    vn_target: f64,
+    pub(crate) vn_target: f64,
     /// Normal impulse the friction uses (estimated, then from the last solve).
-    lambda_n: f64,
+    pub(crate) lambda_n: f64,
     /// Unit direction of the kinetic friction impulse.
-    friction_dir: DVec3,
+    pub(crate) friction_dir: DVec3,
+    /// The friction's direction is the tangential impulse of a solve that held the contact
+    /// sticking (it switched to slipping), not the one against the start's slip.
+    pub(crate) turned: bool,
     /// Released as pulling this step: stays free.
     released: bool,
     /// Switched from slipping to sticking this step: may not switch again.
     settled: bool,
+}
+
+impl Candidate {
+    /// A slipping contact with Coulomb friction whose direction came from a sticking solve.
+    pub(crate) fn held_direction(&self) -> bool {
+        self.mode == Mode::Slip && self.turned
+    }
 }
 
 /// Implicit Euler's state between steps and its scratch.
@@ -139,6 +160,9 @@ pub struct ImplicitEuler {
     touching: Vec<bool>,
     /// Sticking at the end of the last step.
     sticking: Vec<bool>,
+    /// The last step's contacts (sticking or slipping) as its final solve held them: what its
+    /// transpose ([`crate::adjoint::implicit_euler`]) needs besides the states.
+    contacts: Vec<Candidate>,
     /// The positions the multigrid's values were computed at (empty without a multigrid):
     /// with the constraints, what a resumed run needs to compute the values a run kept.
     prepared_x: Vec<DVec3>,
@@ -177,6 +201,7 @@ impl ImplicitEuler {
             constraints: vec![Constraint::Free; n],
             touching: vec![false; n],
             sticking: vec![false; n],
+            contacts: Vec::new(),
             prepared_x: match multigrid {
                 Some(_) => zeros(),
                 None => Vec::new(),
@@ -207,6 +232,7 @@ impl ImplicitEuler {
             + vec_bytes(&self.constraints)
             + vec_bytes(&self.touching)
             + vec_bytes(&self.sticking)
+            + vec_bytes(&self.contacts)
             + vec_bytes(&self.prepared_x)
     }
 
@@ -386,21 +412,22 @@ impl ImplicitEuler {
         timings.time("update", || self.finish(&candidates, h, state));
     }
 
-    /// The particles the last step's final solve constrained besides the pinned ones: its
-    /// contacts with the terrain.
-    pub(crate) fn contacts(&self, model: &Model) -> usize {
-        (self.constraints.iter().enumerate())
-            .filter(|&(i, s)| *s != Constraint::Free && !model.is_pinned(i))
-            .count()
+    /// The last step's contacts with the terrain as its final solve held them, by particle.
+    pub(crate) fn contacts(&self) -> &[Candidate] {
+        &self.contacts
     }
 
     /// Records who touches and sticks, then v ← v + Δv, x ← x + h v.
     fn finish(&mut self, candidates: &[Candidate], h: f64, state: &mut State) {
         self.touching.fill(false);
         self.sticking.fill(false);
+        self.contacts.clear();
         for c in candidates {
             self.touching[c.particle as usize] = c.mode != Mode::Inactive;
             self.sticking[c.particle as usize] = c.mode == Mode::Stick;
+            if c.mode != Mode::Inactive {
+                self.contacts.push(*c);
+            }
         }
         let dv = &self.dv;
         state
@@ -454,9 +481,11 @@ impl ImplicitEuler {
                     phi: contact.phi,
                     normal: contact.normal,
                     mode: Mode::Inactive,
+                    fresh: !self.touching[i],
                     vn_target: 0.0,
                     lambda_n: 0.0,
                     friction_dir: DVec3::ZERO,
+                    turned: false,
                     released: false,
                     settled: false,
                 };
@@ -498,7 +527,7 @@ impl ImplicitEuler {
         // its approach speed instead, unless landing needs more (a particle that has sunk in):
         // adding the two would eat the rebound by up to φ/h, which does not shrink with h.
         c.vn_target = -c.phi / h;
-        if !self.touching[i] {
+        if c.fresh {
             c.vn_target = c.vn_target.max(surface.restitution * (-vn).max(0.0));
         }
         // Impulse to reach the target normal velocity against the applied force, ignoring the
@@ -506,6 +535,7 @@ impl ImplicitEuler {
         c.lambda_n = (m * (c.vn_target - vn) - self.b[i].dot(n)).max(0.0);
         let vt = v - vn * n;
         let speed = vt.length();
+        c.turned = false;
         c.friction_dir = if speed > 0.0 {
             -vt / speed
         } else {
@@ -617,6 +647,7 @@ impl ImplicitEuler {
                     if !c.settled && t > s.friction * lambda_n * (1.0 + 1e-9) {
                         c.mode = Mode::Slip;
                         c.friction_dir = lambda_t / t;
+                        c.turned = true;
                         changed = true;
                     }
                 }
@@ -629,7 +660,8 @@ impl ImplicitEuler {
                         c.settled = true;
                         changed = true;
                     } else if s.friction > 0.0
-                        && (lambda_n - c.lambda_n).abs() > 1e-3 * lambda_n.abs().max(c.lambda_n)
+                        && (lambda_n - c.lambda_n).abs()
+                            > FRICTION_REFRESH * lambda_n.abs().max(c.lambda_n)
                     {
                         c.lambda_n = lambda_n;
                         changed = true;
