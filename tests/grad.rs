@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use softbody::grad::{Derivative, GradError, GradRequest, Target, gradient};
+use softbody::grad::{Derivative, GradRequest, Target, gradient};
 use softbody::{CpuSolver, Model, Setting, Solver};
 
 const TARGET: DVec3 = DVec3::new(0.4, 0.3, -0.1);
