@@ -20,6 +20,7 @@
 //! shapes whose normals turn at edges (box, heightfield, mesh) have no adjoint yet;
 //! [`run::gradient`] refuses them.
 
+pub mod body_contact;
 pub mod collision_response;
 pub mod forces;
 pub mod implicit_euler;
@@ -32,7 +33,7 @@ use softbody_scene::Model;
 /// The gradient of a loss with respect to the values of a model, accumulated step by step.
 ///
 /// Values that are global in the model (gravity, drag, each surface's friction and
-/// restitution) are accumulated per particle, each particle's by one task, and summed in
+/// restitution, those of contact between bodies) are accumulated per particle, each particle's by one task, and summed in
 /// particle order at the end ([`Gradient::gravity_total`] and the others): the same bits for any
 /// thread count.
 #[derive(Debug, Clone, PartialEq)]
@@ -54,6 +55,11 @@ pub struct Gradient {
     pub friction: Vec<f64>,
     /// Each particle's part of ∂L/∂k_r,k, laid out as `friction`.
     pub restitution: Vec<f64>,
+    /// Each particle's part of ∂L/∂μ of contact between bodies (a pair's, its first
+    /// particle's).
+    pub body_friction: Vec<f64>,
+    /// Each particle's part of ∂L/∂k_r of contact between bodies, as `body_friction`.
+    pub body_restitution: Vec<f64>,
     /// The number of terrain surfaces.
     pub surfaces: usize,
 }
@@ -71,6 +77,8 @@ impl Gradient {
             drag: vec![0.0; n],
             friction: vec![0.0; n * k.max(1)],
             restitution: vec![0.0; n * k.max(1)],
+            body_friction: vec![0.0; n],
+            body_restitution: vec![0.0; n],
             surfaces: k,
         }
     }
@@ -83,6 +91,16 @@ impl Gradient {
     /// ∂L/∂drag.
     pub fn drag_total(&self) -> f64 {
         self.drag.iter().fold(0.0, |s, d| s + d)
+    }
+
+    /// ∂L/∂μ of contact between bodies.
+    pub fn body_friction_total(&self) -> f64 {
+        self.body_friction.iter().fold(0.0, |s, d| s + d)
+    }
+
+    /// ∂L/∂k_r of contact between bodies.
+    pub fn body_restitution_total(&self) -> f64 {
+        self.body_restitution.iter().fold(0.0, |s, d| s + d)
     }
 
     /// ∂L/∂μ of surface `k`.
@@ -114,5 +132,7 @@ impl Gradient {
             + f(&self.drag)
             + f(&self.friction)
             + f(&self.restitution)
+            + f(&self.body_friction)
+            + f(&self.body_restitution)
     }
 }
