@@ -211,7 +211,8 @@ fn offset_vjp(n: DVec3, d: f64, n_bar: DVec3, d_bar: f64) -> DVec3 {
 }
 
 /// The cotangents of the penalty force P on a of the pair [a, b] (a < b) at (x, v)
-/// ([`penalty_law`] with κ = [`PENALTY`]) for its cotangent `g`; zero where it does not push.
+/// (the law of [`crate::body_contact`] with κ = [`PENALTY`]) for its cotangent `g`; zero where
+/// it does not push.
 pub fn penalty_vjp(
     model: &Model,
     [a, b]: [usize; 2],
@@ -236,9 +237,10 @@ pub fn penalty_vjp(
     }
 }
 
-/// The cotangents of [`pair`]'s inputs for the cotangents `(p_bar, d_bar)` of its impulse P
-/// and push Δ, on the forward's branches; the start state decides only branches (whether the
-/// impact is fresh).
+/// The cotangents of the inputs of a pair's response (its impulse P and push Δ per unit of
+/// inverse mass, [`crate::body_contact`]) for the cotangents `(p_bar, d_bar)` of P and Δ, on
+/// the forward's branches; the start state decides only branches (whether the impact is
+/// fresh).
 pub fn pair_vjp(
     model: &Model,
     [i, j]: [usize; 2],

@@ -1,8 +1,11 @@
 //! The transpose of one step of each explicit integrator, twin of [`crate::integrators`].
 //!
 //! Each step is recomputed from its start (x, v) with [`Stage::evaluate`] (the
-//! stage states and the state before the collision response R), and swept back, with ā the
-//! cotangent handed to [`super::forces::accelerations_vjp`] at the stage state named:
+//! stage states and the state before the collision response R, and where bodies can touch the
+//! pairs and the state before the pair response after it), and swept back through the pair
+//! response, R and the stages, with ā the cotangent handed to
+//! [`super::forces::accelerations_vjp`] (and the penalty's share of each particle's force
+//! cotangent to [`BodyAdjoint::penalty_vjp`]) at the stage state named:
 //!
 //! - explicit Euler, x' = x + h v, v' = v + h a: after R, ā = h v̄' at (x, v), x̄ = x̄',
 //!   v̄ = v̄' + h x̄';

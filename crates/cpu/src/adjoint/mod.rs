@@ -7,7 +7,7 @@
 //! (∂Φ/∂(x, v))ᵀ (x̄, v̄), plus the frame's own ∂ℓ/∂(x, v), and the model's values θ gather
 //! (∂Φ/∂θ)ᵀ (x̄, v̄) on the way ([`integrators`] for each explicit method's transpose,
 //! [`implicit_euler`] for implicit Euler's, [`forces`] for the accelerations',
-//! [`collision_response`] for the response's). The states the sweep needs come
+//! [`collision_response`] for the response's, [`body_contact`] for contact between bodies'). The states the sweep needs come
 //! from checkpoints every ⌈√T⌉ steps and a recomputation of each segment by the forward solver
 //! itself ([`run`]): the forward is deterministic, so the recomputed states are the forward's
 //! bits (checked at every segment's end).
@@ -16,9 +16,8 @@
 //! contact starting or ending, stick ↔ slip, a cap on friction reached — the gradient is the
 //! one-sided derivative of the branch the forward run took at that step (docs/physics.md).
 //!
-//! Implicit Euler's steps in contact with the terrain, contact between bodies and the terrain
-//! shapes whose normals turn at edges (box, heightfield, mesh) have no adjoint yet;
-//! [`run::gradient`] refuses them.
+//! Implicit Euler's steps in contact with the terrain and implicit Euler through contact
+//! between bodies have no adjoint yet; [`run::gradient`] refuses them.
 
 pub mod body_contact;
 pub mod collision_response;
