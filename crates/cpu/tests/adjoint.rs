@@ -258,11 +258,12 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             // Two particles on a spring falling at 3 m/s onto two corners of a cube, 5 and
             // 1.5 mm to their side: both meet their corner in the 11th step, fresh impacts at
             // d = 0.80 R, past the slop's 0.9 R (pushed apart), the tilted normal sliding the
-            // first (|u_t|/W 0.14 against μJ 0.078: kinetic) and not the second (0.045 against
-            // 0.10: static); the second comes back at 0.3–0.4 m/s while still in contact (an
-            // impulse that is not fresh, kinetic, pressed by the penalty). Every branch holds
-            // by far more than the differences' moves (1e-6 m, 1e-6 m/s): a pair meets its
-            // corner 2 mm past R, goes 1 mm past the slop, approaches at ≥ 0.29 m/s.
+            // first (|u_t|/W 0.14 N·s against μJ 0.078 N·s: kinetic) and not the second (0.045
+            // against 0.10: static); the second comes back at 0.3–0.4 m/s while still in
+            // contact (an impulse that is not fresh, kinetic: 0.15–0.19 against 0.008–0.012,
+            // pressed by the penalty). Every branch holds by far more than the differences'
+            // moves (1e-6 m, 1e-6 m/s): a pair meets its corner 2 mm past R, goes 1 mm past the
+            // slop, approaches at ≥ 0.29 m/s.
             toml: sim(0.03, 0.01)
                 + "body_restitution = 0.5\nbody_friction = 0.2\n"
                 + &corners()
@@ -282,9 +283,10 @@ fn cases(integrator: Integrator) -> Vec<Case> {
             // pressing on it at 0.3 m/s and sliding across it at 0.5 m/s: the penalty at every
             // stage, an impulse in the first step that is not a fresh impact (u_n −0.05 to
             // −0.12 m/s, d 0.94–0.96 R: within R and the slop by far) with viscous friction,
-            // pressed by it and the penalty, under its cap (k_f J|u_t| 0.003–0.005 against
-            // |u_t|/W 0.038), then the penalty pushing the pair apart; the pair leaves contact
-            // moving apart (F = max(0, −c u_n) = 0 there, no jump) as the particle slides off.
+            // pressed by it and the penalty, under its cap (k_f J|u_t| 0.002–0.005 N·s against
+            // |u_t|/W 0.038 N·s), then the penalty pushing the pair apart; the pair leaves
+            // contact moving apart (F = max(0, −c u_n) = 0 there, no jump) as the particle
+            // slides off.
             toml: sim(0.03, 0.01)
                 + "body_restitution = 0.5\nbody_friction = 0.5\nbody_friction_model = \"viscous\"\n"
                 + &corners()
