@@ -12,7 +12,7 @@
 //! - the response, v_a += w_a P, v_b −= w_b P, x_a += w_a Δ, x_b −= w_b Δ, every pair's from
 //!   the state before any is applied: P̄ = w_a v̄_a − w_b v̄_b, Δ̄ = w_a x̄_a − w_b x̄_b,
 //!   w̄_a += P·v̄_a + Δ·x̄_a, w̄_b −= P·v̄_b + Δ·x̄_b, and P̄, Δ̄ back through the pair's law
-//!   ([`pair_vjp`]): the push Δ = ((1 − s)R − d)/W n, the normal impulse
+//!   ([`pair_vjp`]): the push Δ = ((1 − SLOP)R − d)/W n, the normal impulse
 //!   J_n = (−k_r u_n − u_n)/W (k_r = 0 unless fresh), the tangential one −j_t t̂ with
 //!   t̂ = u_t/|u_t|, j_t = |u_t|/W (stick, or the viscous cap), μ J (kinetic) or μ J |u_t|
 //!   (viscous), J = J_n + h max(0, k max(0, R − d) − c u_n);
@@ -33,8 +33,8 @@ use super::forces::unit_vjp;
 use crate::body_contact::{
     BodyContact, PENALTY, Partners, SLOP, pair, penalty_coefficients, penalty_law,
 };
-use crate::collision_response::respond_one;
 use crate::forces::PARTICLE_CHUNK;
+use crate::integrators::finish;
 use crate::vec_bytes;
 
 /// The cotangents of one pair's inputs.
@@ -89,7 +89,7 @@ impl BodyAdjoint {
     }
 
     /// The state after the terrain's response of the state `pre` at the end of the step from
-    /// `start`, as the last stage's pass computes it, and the pairs in contact there.
+    /// `start`, by the last stage's own function, and the pairs in contact there.
     pub fn forward(
         &mut self,
         model: &Model,
@@ -97,8 +97,6 @@ impl BodyAdjoint {
         start: &State,
         (pre_x, pre_v): (&[DVec3], &[DVec3]),
     ) {
-        let sim = &model.simulation;
-        let (eps, h) = (sim.contact_distance, sim.dt);
         let (x, v) = (&mut self.after.0, &mut self.after.1);
         x.copy_from_slice(pre_x);
         v.copy_from_slice(pre_v);
@@ -107,9 +105,8 @@ impl BodyAdjoint {
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, (x, v))| {
-                if !surfaces.iter().all(|s| s.clear_of(*x, eps)) && model.inv_mass[i] != 0.0 {
-                    respond_one(surfaces, eps, h, (start.x[i], start.v[i]), x, v);
-                }
+                // Whether the result is finite was the forward's to check.
+                finish(model, surfaces, i, (start.x[i], start.v[i]), x, v);
             });
         let pairs = self.contact.touching(model, &self.after.0);
         self.pairs.clear();
