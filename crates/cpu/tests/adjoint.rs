@@ -586,15 +586,22 @@ fn the_adjoint_is_the_derivative_of_the_computed_run() {
 
 /// The gradient of external forces held over each frame's steps (a control input) against
 /// central differences of the run, as the other groups' (δ = 1e-6 N on forces of 0.05 N):
-/// free flight and the slope for every explicit integrator (on the slope, forces and their
-/// change along it, which keep every contact's branch), implicit Euler held stretched.
+/// free flight, the slope and the pressed pair between bodies for every explicit integrator
+/// (on the slope, forces and their change along it, which keep every contact's branch; between
+/// bodies the forces beside the penalty), implicit Euler held stretched.
 #[test]
 fn the_controls_gradient_is_the_derivative_of_the_computed_run() {
     let slope = DVec3::new(0.9397, -0.3420, 0.0);
     let mut failures = Vec::new();
     let runs = EXPLICIT
         .iter()
-        .flat_map(|&i| [(i, "free flight"), (i, "sliding on a slope")])
+        .flat_map(|&i| {
+            [
+                (i, "free flight"),
+                (i, "sliding on a slope"),
+                (i, "bodies pressed, sliding"),
+            ]
+        })
         .chain([(Integrator::ImplicitEuler, "held stretched")]);
     for (integrator, name) in runs {
         let case = cases(integrator)
