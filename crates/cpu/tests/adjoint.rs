@@ -676,8 +676,8 @@ fn the_cases_reach_their_laws() {
 }
 
 /// The gradient's bits do not depend on the thread count (RK4 in contact with the terrain and
-/// between bodies, implicit Euler held stretched); the states the backward pass recomputes are the forward run's (the loss sees
-/// the bits a plain run has at each frame).
+/// between bodies, implicit Euler held stretched); the states the backward pass recomputes are
+/// the forward run's (the loss sees the bits a plain run has at each frame).
 #[test]
 fn the_same_bits_on_any_thread_count_and_recomputed_states_are_the_forward_ones() {
     for (integrator, name) in [

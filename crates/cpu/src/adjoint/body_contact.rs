@@ -16,8 +16,8 @@
 //!   J_n = (−k_r u_n − u_n)/W (k_r = 0 unless fresh), the tangential one −j_t t̂ with
 //!   t̂ = u_t/|u_t|, j_t = |u_t|/W (stick, or the viscous cap), μ J (kinetic) or μ J |u_t|
 //!   (viscous), J = J_n + h max(0, k max(0, R − d) − c u_n);
-//! - then x̄_a += d̄_x, x̄_b −= d̄_x with d̄_x = (n̄ − n (n·n̄))/d + d̄ n, v̄_a += ū, v̄_b −= ū, and
-//!   W̄ to w̄_a and w̄_b (pinned particles, w = 0, keep theirs).
+//! - then x̄_a += d̄_x, x̄_b −= d̄_x with d̄_x = (n̄ − n (n·n̄))/d + d̄ n, v̄_a += ū, v̄_b −= ū,
+//!   and W̄ to w̄_a and w̄_b (pinned particles, w = 0, keep theirs).
 //!
 //! The pairs' cotangents are computed side by side and scattered in pair order, the friction's
 //! and restitution's onto the pair's first particle: the same bits for any thread count.

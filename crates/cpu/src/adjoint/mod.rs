@@ -7,10 +7,10 @@
 //! (∂Φ/∂(x, v))ᵀ (x̄, v̄), plus the frame's own ∂ℓ/∂(x, v), and the model's values θ gather
 //! (∂Φ/∂θ)ᵀ (x̄, v̄) on the way ([`integrators`] for each explicit method's transpose,
 //! [`implicit_euler`] for implicit Euler's, [`forces`] for the accelerations',
-//! [`collision_response`] for the response's, [`body_contact`] for contact between bodies'). The states the sweep needs come
-//! from checkpoints every ⌈√T⌉ steps and a recomputation of each segment by the forward solver
-//! itself ([`run`]): the forward is deterministic, so the recomputed states are the forward's
-//! bits (checked at every segment's end).
+//! [`collision_response`] for the response's, [`body_contact`] for contact between bodies').
+//! The states the sweep needs come from checkpoints every ⌈√T⌉ steps and a recomputation of
+//! each segment by the forward solver itself ([`run`]): the forward is deterministic, so the
+//! recomputed states are the forward's bits (checked at every segment's end).
 //!
 //! Contact is differentiated along the branch the forward took. Where a law has a kink — a
 //! contact starting or ending, stick ↔ slip, a cap on friction reached — the gradient is the
@@ -32,9 +32,10 @@ use softbody_scene::Model;
 /// The gradient of a loss with respect to the values of a model, accumulated step by step.
 ///
 /// Values that are global in the model (gravity, drag, each surface's friction and
-/// restitution, those of contact between bodies) are accumulated per particle, each particle's by one task, and summed in
-/// particle order at the end ([`Gradient::gravity_total`] and the others): the same bits for any
-/// thread count.
+/// restitution, those of contact between bodies) are accumulated per particle, each particle's
+/// by one task (contact between bodies': each pair's onto its first particle, in pair order),
+/// and summed in particle order at the end ([`Gradient::gravity_total`] and the others): the
+/// same bits for any thread count.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gradient {
     /// ∂L/∂m_i, through m g, the drag m v and the stopping force m/h of friction.
