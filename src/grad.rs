@@ -5,12 +5,13 @@
 //! `--set`: [`DIFFERENTIABLE`]) and a loss ([`Target`]). The run's adjoint
 //! ([`softbody_cpu::adjoint`]) gives the loss's gradient with respect to the model's values
 //! (each particle's initial position, velocity and mass, each spring's stiffness and damping,
-//! gravity, drag, each terrain's friction and restitution); the chain rule to a key goes
-//! through the scene's own building: the model is affine in each of these keys (a body's
-//! masses scale with its mass, its positions move with its centre, …), so building it with
-//! the key at three values, t = ¼, ½, ¾, gives the model's derivative B along the key as the
-//! difference of two builds, checked against the second difference (the build must be affine
-//! in the key, and change nothing the adjoint does not reach). Then ∂L/∂θ = Σ ⟨∂L/∂model, B⟩.
+//! gravity, drag, each terrain's friction and restitution, the friction and restitution of
+//! contact between bodies); the chain rule to a key goes through the scene's own building: the
+//! model is affine in each of these keys (a body's masses scale with its mass, its positions
+//! move with its centre, …), so building it with the key at three values, t = ¼, ½, ¾, gives
+//! the model's derivative B along the key as the difference of two builds, checked against the
+//! second difference (the build must be affine in the key, and change nothing the adjoint does
+//! not reach). Then ∂L/∂θ = Σ ⟨∂L/∂model, B⟩.
 
 use std::collections::BTreeMap;
 use std::io::Read;
@@ -359,7 +360,10 @@ struct Values {
     drag: f64,
     friction: Vec<f64>,
     restitution: Vec<f64>,
-    /// Rest lengths, step, contact distance, pinned particles: fixed along every key.
+    /// μ and k_r of contact between bodies.
+    body_laws: [f64; 2],
+    /// Rest lengths, step, contact distance, pinned particles, contact radii: fixed along every
+    /// key.
     fixed: Vec<f64>,
 }
 
@@ -376,6 +380,7 @@ impl Values {
                 .map(|&w| f64::from(u8::from(w == 0.0))),
         );
         fixed.extend(springs.a.iter().chain(&springs.b).map(|&p| f64::from(p)));
+        fixed.extend(&model.contact.radius);
         Values {
             x: state.x.clone(),
             v: state.v.clone(),
@@ -386,6 +391,7 @@ impl Values {
             drag: sim.drag,
             friction: model.terrain.iter().map(|t| t.friction).collect(),
             restitution: model.terrain.iter().map(|t| t.restitution).collect(),
+            body_laws: [model.contact.laws.friction, model.contact.laws.restitution],
             fixed,
         }
     }
@@ -404,6 +410,7 @@ impl Values {
             drag: (self.drag - other.drag) / by,
             friction: d1(&self.friction, &other.friction),
             restitution: d1(&self.restitution, &other.restitution),
+            body_laws: [0, 1].map(|k| (self.body_laws[k] - other.body_laws[k]) / by),
             fixed: self.fixed.clone(),
         }
     }
@@ -423,6 +430,7 @@ impl Values {
         out.push(self.drag);
         out.extend(&self.friction);
         out.extend(&self.restitution);
+        out.extend(self.body_laws);
         out
     }
 
@@ -444,6 +452,8 @@ impl Values {
         for k in 0..self.friction.len() {
             sum += g.friction_of(k) * self.friction[k] + g.restitution_of(k) * self.restitution[k];
         }
+        sum += g.body_friction_total() * self.body_laws[0]
+            + g.body_restitution_total() * self.body_laws[1];
         sum
     }
 }

@@ -142,6 +142,36 @@ fn every_key_in_free_flight_is_the_derivative_of_the_run() {
     );
 }
 
+/// Two particles falling at 3 m/s onto the top corners of a cube held by its bottom ones
+/// (crates/cpu/tests/adjoint.rs's impact between bodies): fresh impacts with restitution and
+/// friction, whose impulses reach the loss through the pinned particles (between free bodies
+/// they would leave the centre of mass where it is).
+#[test]
+fn the_body_contact_keys_are_the_derivative_of_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("impact.toml");
+    let text = "[simulation]\nintegrator = \"rk4\"\ndt = 1e-3\nduration = 0.03\n\
+                frame_rate = 100.0\ndrag = 0.2\nbody_restitution = 0.5\nbody_friction = 0.2\n\
+                [[body]]\nkind = \"cuboid\"\nsize = [0.06, 0.06, 0.06]\nresolution = [2, 2, 2]\n\
+                center = [0.0, 0.0, 0.0]\nmass = 0.8\ncontact_radius = 0.005\n\
+                pinned = [0, 1, 4, 5]\nstructural = { stiffness = 900.0, damping = 2.0 }\n\
+                [[body]]\nkind = \"particles\"\n\
+                positions = [[-0.025, 0.06624, -0.03], [0.03, 0.06786, -0.0285]]\n\
+                masses = [0.3, 0.4]\nvelocities = [[0.0, -3.0, 0.0], [0.0, -3.0, 0.0]]\n\
+                contact_radius = 0.005\n\
+                springs = [{ a = 0, b = 1, stiffness = 200.0, damping = 0.1 }]\n";
+    std::fs::write(&path, text).unwrap();
+    check_keys(
+        &path,
+        &[
+            ("simulation.body_friction", &[0.2]),
+            ("simulation.body_restitution", &[0.5]),
+            ("body[0].mass", &[0.8]),
+            ("body[0].structural.stiffness", &[900.0]),
+        ],
+    );
+}
+
 #[test]
 fn the_terrain_keys_on_a_slope_are_the_derivative_of_the_run() {
     let dir = tempfile::tempdir().unwrap();

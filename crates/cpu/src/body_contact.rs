@@ -178,7 +178,7 @@ pub(crate) fn penalty_law(
 
 /// (k, c) of a penalty of stiffness κ for a pair of reduced mass `m_red` at step `h`:
 /// k = κ m_red/h², critically damped.
-fn penalty_coefficients(kappa: f64, h: f64, m_red: f64) -> (f64, f64) {
+pub(crate) fn penalty_coefficients(kappa: f64, h: f64, m_red: f64) -> (f64, f64) {
     let k = kappa * m_red / (h * h);
     (k, 2.0 * (k * m_red).sqrt())
 }
@@ -207,6 +207,13 @@ impl BodyContact {
             .broad
             .pairs(&state.x, &c.radius, |i, j| model.admits(i, j));
         self.partners.rebuild(model.len(), pairs);
+    }
+
+    /// The admitted pairs in contact at the positions `x`, sorted by (i, j): those the response
+    /// at `x` takes.
+    pub(crate) fn touching(&mut self, model: &Model, x: &[DVec3]) -> &[[u32; 2]] {
+        self.broad
+            .pairs(x, &model.contact.radius, |i, j| model.admits(i, j))
     }
 
     /// The partners the stages' penalty forces act between.
@@ -259,7 +266,7 @@ impl BodyContact {
 }
 
 /// The impulse P and push Δ of one pair, per unit of inverse mass (see the module doc).
-fn pair(
+pub(crate) fn pair(
     model: &Model,
     [i, j]: [usize; 2],
     (x, v): (&[DVec3], &[DVec3]),

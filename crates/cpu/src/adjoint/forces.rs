@@ -22,6 +22,7 @@ use softbody_scene::{FrictionModel, Model};
 use softbody_terrain::Surface;
 
 use super::Gradient;
+use crate::body_contact::{PairForces, Partners};
 use crate::contact::contact_force;
 use crate::forces::{PARTICLE_CHUNK, acceleration_with};
 use crate::spring_forces;
@@ -43,15 +44,16 @@ impl Stage {
         }
     }
 
-    /// Writes a(x, v) of every particle into `a`, as [`crate::forces::accelerations`] does
-    /// (the same functions), keeping the springs' forces and each particle's sum of them and
-    /// of its `external` force (whose cotangent is then the sum's, [`Scratch::sum_bar`]).
+    /// Writes a(x, v) of every particle into `a`, as the explicit stages do (the same
+    /// functions), keeping the springs' forces and each particle's sum of them, of the penalty
+    /// forces between the `partners` and of its `external` force (whose cotangents are then the
+    /// sum's, [`Scratch::sum_bar`]).
     pub fn evaluate(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
         (x, v): (&[DVec3], &[DVec3]),
-        external: Option<&[DVec3]>,
+        (partners, external): (Option<&Partners>, Option<&[DVec3]>),
         a: &mut [DVec3],
     ) {
         spring_forces::compute(model.springs(), x, v, &mut self.per_spring);
@@ -62,10 +64,12 @@ impl Stage {
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, (sum, a))| {
-                *sum = spring_forces::gather(adjacency, per_spring, i);
+                // springs + (pairs + external), the stages' order.
+                let mut besides = partners.map_or(DVec3::ZERO, |p| p.force(model, i, x, v));
                 if let Some(external) = external {
-                    *sum += external[i];
+                    besides += external[i];
                 }
+                *sum = spring_forces::gather(adjacency, per_spring, i) + besides;
                 *a = if model.inv_mass[i] == 0.0 {
                     DVec3::ZERO
                 } else {
@@ -100,8 +104,8 @@ impl Scratch {
         }
     }
 
-    /// S̄_i of the last [`accelerations_vjp`]: the cotangent of each particle's sum of spring
-    /// and external forces, and so of its external force (0 where pinned).
+    /// S̄_i of the last [`accelerations_vjp`]: the cotangent of each particle's sum of spring,
+    /// penalty and external forces, and so of its penalty and external forces (0 where pinned).
     pub fn sum_bar(&self) -> &[DVec3] {
         &self.sum_bar
     }
@@ -428,6 +432,6 @@ fn clamp_vjp(g: DVec3, limit: f64, bar: DVec3) -> (DVec3, f64) {
 
 /// The cotangent of s for the cotangent `bar` of ŝ = s/|s| (ŝ = `unit`, |s| = `len`).
 #[inline]
-fn unit_vjp(unit: DVec3, len: f64, bar: DVec3) -> DVec3 {
+pub(crate) fn unit_vjp(unit: DVec3, len: f64, bar: DVec3) -> DVec3 {
     (bar - unit * unit.dot(bar)) / len
 }

@@ -1,8 +1,11 @@
 //! The transpose of one step of each explicit integrator, twin of [`crate::integrators`].
 //!
 //! Each step is recomputed from its start (x, v) with [`Stage::evaluate`] (the
-//! stage states and the state before the collision response R), and swept back, with ā the
-//! cotangent handed to [`super::forces::accelerations_vjp`] at the stage state named:
+//! stage states and the state before the collision response R, and where bodies can touch the
+//! pairs and the state before the pair response after it), and swept back through the pair
+//! response, R and the stages, with ā the cotangent handed to
+//! [`super::forces::accelerations_vjp`] (and the penalty's share of each particle's force
+//! cotangent to [`BodyAdjoint::penalty_vjp`]) at the stage state named:
 //!
 //! - explicit Euler, x' = x + h v, v' = v + h a: after R, ā = h v̄' at (x, v), x̄ = x̄',
 //!   v̄ = v̄' + h x̄';
@@ -20,13 +23,14 @@ use softbody_scene::{Integrator, Model, State};
 use softbody_terrain::Surface;
 
 use super::Gradient;
+use super::body_contact::BodyAdjoint;
 use super::collision_response::respond_one_vjp;
 use super::forces::{Scratch, Stage, accelerations_vjp};
 use crate::forces::PARTICLE_CHUNK;
 use crate::vec_bytes;
 
 /// The transpose of one explicit step and its scratch, sized for one model.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct StepAdjoint {
     integrator: Integrator,
     scratch: Scratch,
@@ -38,6 +42,8 @@ pub struct StepAdjoint {
     accs: Vec<Vec<DVec3>>,
     /// The state before the collision response.
     pre: (Vec<DVec3>, Vec<DVec3>),
+    /// Contact between bodies, where they can touch.
+    bodies: Option<BodyAdjoint>,
     /// Cotangents: of a stage's acceleration, of a stage state, of the k's.
     a_bar: Vec<DVec3>,
     stage_bar: (Vec<DVec3>, Vec<DVec3>),
@@ -62,6 +68,7 @@ impl StepAdjoint {
             vs: (0..stages).map(|_| zeros()).collect(),
             accs: (0..stages).map(|_| zeros()).collect(),
             pre: (zeros(), zeros()),
+            bodies: model.contact.enabled().then(|| BodyAdjoint::new(model)),
             a_bar: zeros(),
             stage_bar: (zeros(), zeros()),
             k_bar: (zeros(), zeros()),
@@ -72,6 +79,7 @@ impl StepAdjoint {
     pub fn memory_bytes(&self) -> u64 {
         let all = |v: &[Vec<DVec3>]| v.iter().map(vec_bytes).sum::<u64>();
         self.scratch.memory_bytes()
+            + self.bodies.as_ref().map_or(0, BodyAdjoint::memory_bytes)
             + self.stages.iter().map(Stage::memory_bytes).sum::<u64>()
             + all(&self.xs)
             + all(&self.vs)
@@ -104,26 +112,33 @@ impl StepAdjoint {
         grad: &mut Gradient,
     ) {
         let h = model.simulation.dt;
-        let (x, v) = (&start.x[..], &start.v[..]);
         let (forces, mut forces_bar) = external.unzip();
-        self.forward(model, surfaces, x, v, forces);
+        self.forward(model, surfaces, start, forces);
+        if let Some(bodies) = self.bodies.as_mut() {
+            bodies.respond_vjp(model, start, (x_bar, v_bar), grad);
+        }
         self.respond_vjp(model, surfaces, start, (x_bar, v_bar), grad);
         let mut vjp = |s: &mut Self,
                        j: usize,
                        a_bar: Option<&[DVec3]>,
-                       out: (&mut [DVec3], &mut [DVec3]),
+                       (ox, ov): (&mut [DVec3], &mut [DVec3]),
                        grad: &mut Gradient| {
             let a_bar = a_bar.unwrap_or(&s.a_bar);
+            let at = (&s.xs[j][..], &s.vs[j][..]);
+            let out = (&mut *ox, &mut *ov);
             accelerations_vjp(
                 model,
                 surfaces,
-                (&s.xs[j], &s.vs[j]),
+                at,
                 &s.stages[j],
                 a_bar,
                 &mut s.scratch,
                 out,
                 grad,
             );
+            if let Some(bodies) = s.bodies.as_mut() {
+                bodies.penalty_vjp(model, at, s.scratch.sum_bar(), (ox, ov), grad);
+            }
             if let Some(bar) = forces_bar.as_deref_mut() {
                 axpy(bar, 1.0, s.scratch.sum_bar());
             }
@@ -193,22 +208,28 @@ impl StepAdjoint {
         }
     }
 
-    /// The stage states and accelerations of the step from (x, v) with the `external` forces,
-    /// and the state before the collision response, by the forward's formulas.
+    /// The stage states and accelerations of the step from `start` with the `external` forces,
+    /// the state before the collision response, and that before the pair response, by the
+    /// forward's formulas.
     fn forward(
         &mut self,
         model: &Model,
         surfaces: &[Surface],
-        x: &[DVec3],
-        v: &[DVec3],
+        start: &State,
         external: Option<&[DVec3]>,
     ) {
         let h = model.simulation.dt;
+        let (x, v) = (&start.x[..], &start.v[..]);
         self.xs[0].copy_from_slice(x);
         self.vs[0].copy_from_slice(v);
+        if let Some(bodies) = self.bodies.as_mut() {
+            bodies.prepare(model, start);
+        }
         let accel = |s: &mut Self, j: usize| {
             let at = (&s.xs[j][..], &s.vs[j][..]);
-            s.stages[j].evaluate(model, surfaces, at, external, &mut s.accs[j]);
+            let partners = s.bodies.as_ref().map(BodyAdjoint::partners);
+            let besides = (partners, external);
+            s.stages[j].evaluate(model, surfaces, at, besides, &mut s.accs[j]);
         };
         accel(self, 0);
         let stages = self.xs.len();
@@ -252,10 +273,13 @@ impl StepAdjoint {
                     }
                 };
             });
+        if let Some(bodies) = self.bodies.as_mut() {
+            bodies.forward(model, surfaces, start, (&self.pre.0, &self.pre.1));
+        }
     }
 
-    /// Turns the cotangent of the state after the collision response into the cotangent of the
-    /// state before it (pinned particles take no response).
+    /// Turns the cotangent of the state after the terrain's collision response into the
+    /// cotangent of the state before it (pinned particles take no response).
     fn respond_vjp(
         &mut self,
         model: &Model,

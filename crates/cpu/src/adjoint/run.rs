@@ -122,10 +122,11 @@ pub struct Backward {
 
 /// Refuses a model whose run has no adjoint yet, saying what it holds.
 pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
-    if model.contact.enabled() {
+    if model.contact.enabled() && model.simulation.integrator == Integrator::ImplicitEuler {
         return Err(AdjointError::Unsupported(
-            "gradients through contact between bodies are not built yet; this scene's bodies \
-             can touch (several bodies with contact radii, or self_contact)"
+            "gradients of implicit-euler through contact between bodies are not built yet; \
+             this scene's bodies can touch (several bodies with contact radii, or \
+             self_contact); the explicit integrators have them"
                 .into(),
         ));
     }
