@@ -5,7 +5,7 @@
 //! difference's truncation error (δ²/6·|L'''|) is below 1e-9 of the derivatives here, and its
 //! rounding error is ~1e-13·|L|/δ (a run's loss is good to ~1e-13 of itself); the tolerance is
 //! 1e-6 relative over that floor (see
-//! crates/cpu/tests/adjoint.rs for the cases' choice: away from the contact laws' jumps).
+//! crates/cpu/tests/adjoint/ for the cases' choice: away from the contact laws' jumps).
 
 use std::path::{Path, PathBuf};
 
@@ -143,7 +143,7 @@ fn every_key_in_free_flight_is_the_derivative_of_the_run() {
 }
 
 /// Two particles falling at 3 m/s onto the top corners of a cube held by its bottom ones
-/// (crates/cpu/tests/adjoint.rs's impact between bodies): fresh impacts with restitution and
+/// (the impact between bodies of crates/cpu/tests/adjoint/): fresh impacts with restitution and
 /// friction, whose impulses reach the loss through the pinned particles (between free bodies
 /// they would leave the centre of mass where it is).
 #[test]
