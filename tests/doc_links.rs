@@ -5,7 +5,8 @@
 //! that exists, relative to the Markdown file (or to the repository's root for `/…`). An
 //! `#anchor` into a Markdown file must name one of its headings, slugged as GitHub does
 //! (lowercase, punctuation dropped, spaces to hyphens, `-1`, `-2`, … for repeats). Links inside
-//! code blocks and code spans are not links and are skipped.
+//! code blocks and code spans are not links and are skipped. No Markdown file holds a merge's
+//! conflict markers.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs;
@@ -53,6 +54,27 @@ fn every_relative_link_in_the_docs_resolves() {
 
 /// Collects the Markdown files under `dir`, skipping build output, VCS data and hidden
 /// directories.
+/// A merge that left `<<<<<<<` … `>>>>>>>` in a page reads as prose (a heading's anchor can even
+/// survive it), so the links' check alone misses it.
+#[test]
+fn no_markdown_file_holds_conflict_markers() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    markdown_files(root, root, &mut files);
+    let mut found = Vec::new();
+    for file in &files {
+        let text = fs::read_to_string(file)
+            .unwrap_or_else(|e| panic!("cannot read {}: {e}", file.display()));
+        for (k, line) in text.lines().enumerate() {
+            if line.starts_with("<<<<<<< ") || line.starts_with(">>>>>>> ") {
+                let shown = file.strip_prefix(root).unwrap_or(file);
+                found.push(format!("{}:{}", shown.display(), k + 1));
+            }
+        }
+    }
+    assert!(found.is_empty(), "conflict markers at {}", found.join(", "));
+}
+
 fn markdown_files(root: &Path, dir: &Path, out: &mut Vec<PathBuf>) {
     let entries =
         fs::read_dir(dir).unwrap_or_else(|e| panic!("cannot list {}: {e}", dir.display()));
