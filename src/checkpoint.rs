@@ -59,10 +59,12 @@ const CHECKSUM: usize = 4;
 /// Why checkpoints cannot be written or resumed.
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
-    /// The checkpoint belongs to another run: the scene, an override or the backend changed.
+    /// The checkpoint belongs to another run: the scene, an override, the control forces or the
+    /// backend changed.
     #[error(
-        "{}: the checkpoint is of another run (the scene, its overrides or the backend \
-         changed since it was written); run without --resume to start again, or remove it",
+        "{}: the checkpoint is of another run (the scene, its overrides, its control forces or \
+         the backend changed since it was written); run without --resume to start again, or \
+         remove it",
         .0.display()
     )]
     Mismatch(PathBuf),
@@ -570,12 +572,16 @@ impl<'a> Cursor<'a> {
     }
 }
 
-/// The fingerprint of what `solver` runs: its backend, its model and its current (initial)
-/// state.
+/// The fingerprint of what `solver` runs: its backend, its model, its control forces and its
+/// current (initial) state.
 fn fingerprint(solver: &mut dyn Solver) -> Result<u64, StepError> {
     let mut hash = Fingerprint::default();
     let backend = solver.backend();
     let _ = write!(hash, "{backend} {:?}", solver.model());
+    // A run without controls hashes as it did before they existed: its checkpoints stay valid.
+    if let Some(controls) = solver.controls() {
+        let _ = write!(hash, "{:?}", controls.forces());
+    }
     let _ = write!(hash, "{:?}", solver.state()?);
     Ok(hash.finish())
 }

@@ -332,9 +332,8 @@ pub(crate) mod tests {
     /// stay at rest) with v = a t₀ after frame 1, the same after frame 2, and a t₀ + b t₀ after
     /// frame 3 (t₀ a frame's time; symplectic Euler adds h a exactly each step, to rounding).
     /// Without gravity the energy scale is 0, so the kinetic energy the pushes give would be
-    /// called an instability but for the controls' work, which the guard subtracts. The GPU
-    /// (before its device opens: with or without an adapter) and checkpoints refuse controls
-    /// as bad input.
+    /// called an instability but for the controls' work, which the guard subtracts. A
+    /// checkpointed run resumes them (the guard's work counted over the replayed frames).
     #[test]
     fn control_forces_push_over_their_frames_and_their_work_is_not_an_instability() {
         use crate::service::{self, Hooks, RunFailure, RunRequest, SceneSource};
@@ -393,30 +392,51 @@ pub(crate) mod tests {
                 );
             }
         }
-        for (backend, checkpoint) in [
-            (crate::Backend::Gpu, None),
-            (
-                crate::Backend::Cpu,
-                Some(service::CheckpointPlan {
-                    every: Some(1),
-                    resume: false,
-                }),
-            ),
-        ] {
-            let mut r = request(backend, checkpoint);
-            if checkpoint.is_some() {
-                // Refused before anything is written there.
-                r.destination = service::Destination::File {
-                    format: Format::Jsonl,
-                    path: std::env::temp_dir().join("softbody-controls-refused/run.jsonl"),
-                };
-            }
-            let outcome = service::execute(&r, Hooks::default());
-            match outcome.result {
-                Err(RunFailure::Request(why)) => assert!(why.contains("control forces"), "{why}"),
-                other => panic!("{backend:?}: {other:?}"),
-            }
+        // The GPU refuses them as bad input, before its device opens.
+        match service::execute(&request(crate::Backend::Gpu, None), Hooks::default()).result {
+            Err(RunFailure::Request(why)) => assert!(why.contains("control forces"), "{why}"),
+            other => panic!("the GPU: {other:?}"),
         }
+        // Checkpointed, stopped after frame 1 and resumed, the run is the uninterrupted one,
+        // byte for byte; other forces are another run, whose resume is refused.
+        let dir = tempfile::tempdir().unwrap();
+        let to = |name: &str, checkpoint| RunRequest {
+            destination: service::Destination::File {
+                format: Format::Jsonl,
+                path: dir.path().join(name),
+            },
+            ..request(crate::Backend::Cpu, checkpoint)
+        };
+        let plan = |resume| service::CheckpointPlan {
+            every: Some(1),
+            resume,
+        };
+        let whole = service::execute(&to("whole.jsonl", None), Hooks::default());
+        assert_eq!(whole.result.unwrap().frames, 4);
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        let stopped = service::execute(
+            &to("resumed.jsonl", Some(plan(false))),
+            Hooks {
+                progress: Some(&mut |done, _| {
+                    stop.store(done >= 10, std::sync::atomic::Ordering::Relaxed)
+                }),
+                stop: Some(&stop),
+                ..Hooks::default()
+            },
+        );
+        assert_eq!(stopped.frames, 2, "{:?}", stopped.result);
+        let mut other = to("resumed.jsonl", Some(plan(true)));
+        let mut pushed = controls.clone();
+        pushed[0].x += 1.0;
+        other.controls = Some(pushed.into());
+        match service::execute(&other, Hooks::default()).result {
+            Err(e) => assert!(e.to_string().contains("another run"), "{e}"),
+            Ok(s) => panic!("resumed with other forces: {s:?}"),
+        }
+        let resumed = service::execute(&to("resumed.jsonl", Some(plan(true))), Hooks::default());
+        assert_eq!(resumed.result.unwrap().frames, 4);
+        let read = |name: &str| std::fs::read(dir.path().join(name)).unwrap();
+        assert!(read("resumed.jsonl") == read("whole.jsonl"));
     }
 
     /// The header's spring arrays are built for a sink that reads them and left empty for one

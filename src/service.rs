@@ -111,7 +111,7 @@ pub struct RunRequest {
     /// Checkpointing, if any (needs a file destination).
     pub checkpoint: Option<CheckpointPlan>,
     /// Control forces, F × N (frame-major) for the run's F frames and N particles
-    /// ([`softbody_scene::controls`]; the CPU backend; not with checkpoints).
+    /// ([`softbody_scene::controls`]; the CPU backend; a checkpoint's fingerprint holds them).
     pub controls: Option<Arc<[DVec3]>>,
 }
 
@@ -378,12 +378,6 @@ pub fn execute(request: &RunRequest, hooks: Hooks<'_>) -> Outcome {
     // Before the device opens: a machine without an adapter says the same.
     if request.controls.is_some() && request.backend == Backend::Gpu {
         return Outcome::failed(RunFailure::Request(softbody_gpu::NO_CONTROLS.into()), scene);
-    }
-    if request.checkpoint.is_some() && request.controls.is_some() {
-        return Outcome::failed(
-            RunFailure::Request("checkpoints of a run with control forces are not built".into()),
-            scene,
-        );
     }
     if request.checkpoint.is_some()
         && let Some(path) = path
