@@ -6,7 +6,7 @@
 //! last to the first: it restores the segment's checkpoint, recomputes its S states with the
 //! same solver (the same bits: the segment's last state must equal the next checkpoint, or the
 //! run is refused as [`AdjointError::Recompute`]), and sweeps the segment's steps back with
-//! [`StepAdjoint::step`] or [`ImplicitAdjoint::step`], adding each frame's loss cotangent as it
+//! `StepAdjoint::step` or `ImplicitAdjoint::step`, adding each frame's loss cotangent as it
 //! passes the frame. At most ⌈T/S⌉ checkpoints and S + 2 states are held at once, besides the
 //! model and O(N) scratch: 2√T + 2 states for the explicit integrators, whose checkpoints are
 //! states; implicit Euler's also hold its warm start (three Δv, and the positions and
