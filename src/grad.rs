@@ -161,7 +161,6 @@ impl GradError {
 impl From<AdjointError> for GradError {
     fn from(e: AdjointError) -> GradError {
         match e {
-            AdjointError::Unsupported(m) => GradError::Input(m),
             AdjointError::Step(StepError::Unstable(i)) => GradError::Unstable(i.to_string()),
             AdjointError::Stopped => GradError::Stopped,
             e => GradError::Other(e.to_string()),
@@ -233,7 +232,6 @@ pub fn gradient_until(
         check_index(&scene, &key.name)?;
     }
     let (model, state) = Model::build(&scene);
-    softbody_cpu::adjoint::run::check_differentiable(&model)?;
     let mut loss = TargetLoss::new(&request.target, &model)?;
     if let TargetLoss::Frames { matched: 0, .. } = loss {
         return Err(GradError::Input(format!(

@@ -141,10 +141,13 @@ impl CpuSolver {
         })
     }
 
-    /// Implicit Euler's contacts with the terrain in the last step (none for the explicit
-    /// integrators, whose contact is not constrained).
-    pub(crate) fn implicit_contacts(&self) -> &[crate::integrators::implicit_euler::Candidate] {
-        self.stepper.implicit_contacts()
+    /// Implicit Euler's contacts with the terrain in the last step as its final solve held
+    /// them, and the step's Δv = v' − v before the response between bodies (nothing for the
+    /// explicit integrators, whose contact is not constrained).
+    pub(crate) fn implicit_step(
+        &self,
+    ) -> (&[crate::integrators::implicit_euler::Candidate], &[DVec3]) {
+        self.stepper.implicit_step()
     }
 
     /// The pool the solver steps in.

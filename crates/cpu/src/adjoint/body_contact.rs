@@ -1,7 +1,8 @@
-//! The adjoint of [`crate::body_contact`] in the explicit integrators' steps, on the forward's
-//! branches: the pairs the broad phase found (at the step's start for the stages' penalty, at
-//! the state after the terrain's response for the pair response), which of them push, approach,
-//! are fresh impacts, stick or slip, and whether a push or a cap applies.
+//! The adjoint of [`crate::body_contact`], on the forward's branches: the pairs the broad phase
+//! found (at the step's start for the explicit stages' penalty and implicit Euler's pair blocks,
+//! at the state after the terrain's response, or implicit Euler's update, for the pair
+//! response), which of them push, approach, are fresh impacts, stick or slip, and whether a push
+//! or a cap applies.
 //!
 //! A pair (a, b) with W = w_a + w_b, m = 1/W, n = (x_a − x_b)/d, u = v_a − v_b:
 //!
@@ -31,7 +32,7 @@ use softbody_terrain::Surface;
 use super::Gradient;
 use super::forces::unit_vjp;
 use crate::body_contact::{
-    BodyContact, PENALTY, Partners, SLOP, pair, penalty_coefficients, penalty_law,
+    BodyContact, PENALTY, PENALTY_IMPLICIT, Partners, SLOP, pair, penalty_coefficients, penalty_law,
 };
 use crate::forces::PARTICLE_CHUNK;
 use crate::integrators::finish;
@@ -108,6 +109,27 @@ impl BodyAdjoint {
                 // Whether the result is finite was the forward's to check.
                 finish(model, surfaces, i, (start.x[i], start.v[i]), x, v);
             });
+        self.find_pairs(model);
+    }
+
+    /// The state after implicit Euler's step from `start` with velocity change `dv` (the step's
+    /// own update, v' = v + Δv, x' = x + h v': the same bits), which the pair response starts
+    /// from, and the pairs in contact there.
+    pub fn implicit_forward(&mut self, model: &Model, start: &State, dv: &[DVec3]) {
+        let h = model.simulation.dt;
+        (&mut self.after.0, &mut self.after.1, dv)
+            .into_par_iter()
+            .enumerate()
+            .with_min_len(PARTICLE_CHUNK)
+            .for_each(|(i, (x, v, dv))| {
+                *v = start.v[i] + *dv;
+                *x = start.x[i] + h * *v;
+            });
+        self.find_pairs(model);
+    }
+
+    /// The pairs the response takes: those touching after the step.
+    fn find_pairs(&mut self, model: &Model) {
         let pairs = self.contact.touching(model, &self.after.0);
         self.pairs.clear();
         self.pairs.extend_from_slice(pairs);
@@ -161,6 +183,31 @@ impl BodyAdjoint {
                 let (a, b) = (a as usize, b as usize);
                 let bar = penalty_vjp(model, [a, b], (x, v), force_bar[a] - force_bar[b]);
                 (bar, [0.0; 2])
+            })
+            .collect_into_vec(&mut self.bars);
+        for (&[a, b], bar) in pairs.iter().zip(&self.bars) {
+            scatter(model, [a as usize, b as usize], bar, (x_bar, v_bar), grad);
+        }
+    }
+
+    /// Adds μᵀ ∂r/∂(x, v, w) of the pairs' share of implicit Euler's residual at the step's
+    /// start (x, v) to `(x_bar, v_bar)` and `grad`, for the transpose's solution `mu` and the
+    /// step's `dv` ([`pair_residual_vjp`]); the pairs are the [`BodyAdjoint::prepare`]d ones.
+    pub fn implicit_vjp(
+        &mut self,
+        model: &Model,
+        (x, v): (&[DVec3], &[DVec3]),
+        (mu, dv): (&[DVec3], &[DVec3]),
+        (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
+        grad: &mut Gradient,
+    ) {
+        let pairs = self.contact.partners().pairs();
+        pairs
+            .par_iter()
+            .map(|&[a, b]| {
+                let (a, b) = (a as usize, b as usize);
+                let along = (mu[a] - mu[b], dv[a] - dv[b]);
+                (pair_residual_vjp(model, [a, b], (x, v), along), [0.0; 2])
             })
             .collect_into_vec(&mut self.bars);
         for (&[a, b], bar) in pairs.iter().zip(&self.bars) {
@@ -230,6 +277,40 @@ pub fn penalty_vjp(
         x: offset_vjp(n, d, p.force * g - f_bar * c * u, -f_bar * k),
         v: -f_bar * c * n,
         w: -m * (k * k_bar + c * c_bar),
+        ..PairBar::default()
+    }
+}
+
+/// The cotangents of the inputs of pair (a, b)'s share of implicit Euler's residual at the
+/// step's start (x, v) along m = μ_a − μ_b with the step's δ = Δv_a − Δv_b: the scalar
+///
+/// φ = (m·n) [h k (R − d) − β n·(u + δ)],  β = h c + h² k,
+///
+/// ([`crate::integrators::implicit_euler::system`]: the pair's h(F − h k u_n) n in b and its
+/// block β nnᵀ) with κ = [`PENALTY_IMPLICIT`], on the branch the step assembled: zero where the
+/// penalty did not push at the start, the pair then left out of the system.
+pub fn pair_residual_vjp(
+    model: &Model,
+    [a, b]: [usize; 2],
+    (x, v): (&[DVec3], &[DVec3]),
+    (m, delta): (DVec3, DVec3),
+) -> PairBar {
+    let Some(p) = penalty_law(model, PENALTY_IMPLICIT, [a, b], x, v) else {
+        return PairBar::default();
+    };
+    let h = model.simulation.dt;
+    let (n, k, c) = (p.normal, p.stiffness, p.damping);
+    let reach = model.contact.radius[a] + model.contact.radius[b];
+    let d = (x[a] - x[b]).length();
+    let q = v[a] - v[b] + delta;
+    let beta = h * c + h * h * k;
+    let (s, e) = (m.dot(n), n.dot(q));
+    let inner = h * k * (reach - d) - beta * e;
+    let (k_bar, c_bar) = (s * (h * (reach - d) - h * h * e), -s * h * e);
+    PairBar {
+        x: offset_vjp(n, d, inner * m - s * beta * q, -s * h * k),
+        v: -s * beta * n,
+        w: -(k * k_bar + c * c_bar) / (model.inv_mass[a] + model.inv_mass[b]),
         ..PairBar::default()
     }
 }
@@ -342,8 +423,8 @@ mod tests {
     use glam::DVec3;
     use softbody_scene::{Model, Scene, State};
 
-    use super::{pair_vjp, penalty_vjp};
-    use crate::body_contact::{PENALTY, pair, penalty_law};
+    use super::{pair_residual_vjp, pair_vjp, penalty_vjp};
+    use crate::body_contact::{PENALTY, PENALTY_IMPLICIT, pair, penalty_law};
 
     /// Two one-particle bodies of radius 5 cm (R = 0.1 m), 0.5 and 0.7 kg, at h = 1e-3 s.
     fn model(friction_model: &str, friction: f64) -> Model {
@@ -498,6 +579,36 @@ mod tests {
             let bar = penalty_vjp(&at.model, [0, 1], (x, v), g);
             check(&at, bar, &|m, x, v| {
                 penalty_law(m, PENALTY, [0, 1], x, v).map_or(0.0, |p| p.force * p.normal.dot(g))
+            });
+        }
+    }
+
+    /// Implicit Euler's pair residual's cotangents against differences of φ written out from
+    /// the system's assembly (the pair's h(F − h k u_n) n in b, its block β nnᵀ), pressing and
+    /// moving apart with the penalty still pushing.
+    #[test]
+    fn the_pair_residuals_derivatives_are_its_differences() {
+        let (m, delta) = (DVec3::new(0.3, -1.1, 0.7), DVec3::new(0.02, -0.05, 0.01));
+        let x = [
+            DVec3::new(0.01, 0.0945, -0.004),
+            DVec3::new(0.0, 0.0, 0.002),
+        ];
+        for (name, va) in [
+            ("approaching", DVec3::new(0.3, -0.2, 0.1)),
+            ("moving apart", DVec3::new(0.3, 0.002, 0.1)),
+        ] {
+            let at = at(name, model("coulomb", 0.3), x, [va, DVec3::ZERO], false);
+            let (x, v) = (&at.x[..], &at.v[..]);
+            assert!(penalty_law(&at.model, PENALTY_IMPLICIT, [0, 1], x, v).is_some());
+            let bar = pair_residual_vjp(&at.model, [0, 1], (x, v), (m, delta));
+            check(&at, bar, &|model, x, v| {
+                let h = model.simulation.dt;
+                penalty_law(model, PENALTY_IMPLICIT, [0, 1], x, v).map_or(0.0, |p| {
+                    let (n, k) = (p.normal, p.stiffness);
+                    let un = (v[0] - v[1]).dot(n);
+                    let beta = h * p.damping + h * h * k;
+                    m.dot(h * (p.force - h * k * un) * n - beta * n.dot(delta) * n)
+                })
             });
         }
     }

@@ -39,6 +39,7 @@ use softbody_scene::{FrictionModel, Model, State};
 use softbody_terrain::Surface;
 
 use super::Gradient;
+use super::body_contact::BodyAdjoint;
 use super::forces::springs_transpose;
 use crate::forces::PARTICLE_CHUNK;
 use crate::integrators::implicit_euler::cg::{self, CgProblem, Preconditioner};
@@ -70,6 +71,9 @@ pub struct ImplicitAdjoint {
     /// Each spring's cotangents of d and w.
     d_bar: Vec<DVec3>,
     w_bar: Vec<DVec3>,
+    /// The pairs of bodies of the step (its system's and its response's), when bodies can
+    /// touch.
+    bodies: Option<BodyAdjoint>,
 }
 
 impl ImplicitAdjoint {
@@ -102,6 +106,7 @@ impl ImplicitAdjoint {
             held: Vec::new(),
             d_bar: vec![DVec3::ZERO; s],
             w_bar: vec![DVec3::ZERO; s],
+            bodies: model.contact.enabled().then(|| BodyAdjoint::new(model)),
         }
     }
 
@@ -112,6 +117,7 @@ impl ImplicitAdjoint {
             + self.scratch.memory_bytes()
             + vec_bytes(&self.constraints)
             + vec_bytes(&self.held)
+            + self.bodies.as_ref().map_or(0, BodyAdjoint::memory_bytes)
             + [
                 &self.dv,
                 &self.dv_bar,
@@ -128,16 +134,20 @@ impl ImplicitAdjoint {
     }
 
     /// Turns `(x_bar, v_bar)`, the cotangent of `end`, the state after the step from `start`,
-    /// into the cotangent of `start`, adding the model's values' to `grad`; `contacts` are the
-    /// step's contacts with `surfaces` as its final solve held them
-    /// ([`crate::integrators::implicit_euler`]); with `external` forces on the particles in
-    /// the step (which enter b as h f_ext, so their cotangent is h μ), their cotangents are
-    /// added to the second of the pair.
+    /// into the cotangent of `start`, adding the model's values' to `grad`; `recorded` is what
+    /// the forward's step held besides the states ([`Recorded`]), its contacts on `surfaces`;
+    /// with `external` forces on the particles in the step (which enter b as h f_ext, so their
+    /// cotangent is h μ), their cotangents are added to the second of the pair.
+    ///
+    /// Where bodies can touch, the step ends with their pair response
+    /// ([`crate::body_contact`]), whose transpose comes first, from the state before it (the
+    /// step's own update of `start` by the recorded Δv), and the pairs in contact at the start
+    /// are springs of the system ([`BodyAdjoint::implicit_vjp`]).
     pub(crate) fn step(
         &mut self,
         model: &Model,
         (start, end): (&State, &State),
-        (surfaces, contacts): (&[Surface], &[Candidate]),
+        (surfaces, recorded): (&[Surface], &Recorded),
         external: Option<(&[DVec3], &mut [DVec3])>,
         (x_bar, v_bar): (&mut [DVec3], &mut [DVec3]),
         grad: &mut Gradient,
@@ -145,17 +155,25 @@ impl ImplicitAdjoint {
         let sim = &model.simulation;
         let h = sim.dt;
         let (x, v) = (&start.x[..], &start.v[..]);
+        if let Some(bodies) = self.bodies.as_mut() {
+            bodies.prepare(model, start);
+            bodies.implicit_forward(model, start, &recorded.dv);
+            bodies.respond_vjp(model, start, (&mut *x_bar, &mut *v_bar), grad);
+        }
         let forces = external.as_ref().map(|(f, _)| *f);
-        (self.system).assemble(model, (None, forces), x, v, &mut self.b);
+        let partners = self.bodies.as_ref().map(BodyAdjoint::partners);
+        (self.system).assemble(model, (partners, forces), x, v, &mut self.b);
+        let held_dv = (!recorded.dv.is_empty()).then_some(&recorded.dv[..]);
         (&mut self.dv, &mut self.dv_bar, &mut *v_bar)
             .into_par_iter()
             .enumerate()
             .with_min_len(PARTICLE_CHUNK)
             .for_each(|(i, (dv, vt, vb))| {
-                *dv = end.v[i] - v[i];
+                *dv = held_dv.map_or(end.v[i] - v[i], |held| held[i]);
                 *vt = *vb + h * x_bar[i];
                 *vb = *vt;
             });
+        let contacts = &recorded.contacts[..];
         for c in &self.held {
             self.constraints[c.particle as usize] = Constraint::Free;
             self.z[c.particle as usize] = DVec3::ZERO;
@@ -350,6 +368,37 @@ impl ImplicitAdjoint {
             };
             spring_residual_vjp(at, h, mu[a] - mu[b])
         });
+        if let Some(bodies) = self.bodies.as_mut() {
+            bodies.implicit_vjp(model, (x, v), (mu, dv), (x_bar, v_bar), grad);
+        }
+    }
+}
+
+/// What the transpose of a forward step takes besides its start and end states: its contacts
+/// with the terrain as its final solve held them, and where bodies can touch, its Δv (the end
+/// state is then the pair response's, which the step's own update does not give back).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Recorded {
+    pub(crate) contacts: Vec<Candidate>,
+    pub(crate) dv: Vec<DVec3>,
+}
+
+impl Recorded {
+    /// The solver's last step's.
+    pub(crate) fn of(solver: &crate::CpuSolver, model: &Model) -> Recorded {
+        let (contacts, dv) = solver.implicit_step();
+        Recorded {
+            contacts: contacts.to_vec(),
+            dv: match model.contact.enabled() {
+                true => dv.to_vec(),
+                false => Vec::new(),
+            },
+        }
+    }
+
+    /// Bytes held on the heap.
+    pub(crate) fn memory_bytes(&self) -> u64 {
+        vec_bytes(&self.contacts) + vec_bytes(&self.dv)
     }
 }
 

@@ -15,9 +15,6 @@
 //! Contact is differentiated along the branch the forward took. Where a law has a kink — a
 //! contact starting or ending, stick ↔ slip, a cap on friction reached — the gradient is the
 //! one-sided derivative of the branch the forward run took at that step (docs/physics.md).
-//!
-//! Implicit Euler's steps in contact with the terrain and implicit Euler through contact
-//! between bodies have no adjoint yet; [`run::gradient`] refuses them.
 
 pub mod body_contact;
 pub mod collision_response;

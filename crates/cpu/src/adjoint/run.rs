@@ -20,7 +20,7 @@ use softbody_scene::{Controls, History, Integrator, Model, Solver, State, StepEr
 use softbody_terrain::Surface;
 
 use super::Gradient;
-use super::implicit_euler::ImplicitAdjoint;
+use super::implicit_euler::{ImplicitAdjoint, Recorded};
 use super::integrators::StepAdjoint;
 use crate::CpuSolver;
 use crate::integrators::implicit_euler::Candidate;
@@ -46,9 +46,6 @@ pub struct FrameBar<'a> {
 /// Why a gradient could not be computed.
 #[derive(Debug, thiserror::Error)]
 pub enum AdjointError {
-    /// The scene holds something without an adjoint yet.
-    #[error("{0}")]
-    Unsupported(String),
     /// A step of the forward run failed (it went unstable).
     #[error(transparent)]
     Step(#[from] StepError),
@@ -120,19 +117,6 @@ pub struct Backward {
     pub turned_steps: u64,
 }
 
-/// Refuses a model whose run has no adjoint yet, saying what it holds.
-pub fn check_differentiable(model: &Model) -> Result<(), AdjointError> {
-    if model.contact.enabled() && model.simulation.integrator == Integrator::ImplicitEuler {
-        return Err(AdjointError::Unsupported(
-            "gradients of implicit-euler through contact between bodies are not built yet; \
-             this scene's bodies can touch (several bodies with contact radii, or \
-             self_contact); the explicit integrators have them"
-                .into(),
-        ));
-    }
-    Ok(())
-}
-
 /// The loss of the run of `model` from `start` over `model.simulation.steps()` steps and its
 /// gradient, run as `options` say.
 pub fn gradient(
@@ -142,7 +126,6 @@ pub fn gradient(
     options: Options<'_>,
 ) -> Result<Backward, AdjointError> {
     let stopped = || options.stop.is_some_and(|s| s.load(Ordering::Relaxed));
-    check_differentiable(model)?;
     let sim = &model.simulation;
     let steps = sim.steps();
     let interval = ((steps as f64).sqrt().ceil() as u64).max(1);
@@ -218,8 +201,8 @@ pub fn gradient(
         total += loss.frame(f, &last, bar);
     }
     let mut segment: Vec<State> = Vec::with_capacity(interval as usize + 1);
-    // Implicit Euler's contacts in each step of the segment, as its final solve held them.
-    let mut held: Vec<Vec<Candidate>> = Vec::new();
+    // What implicit Euler's transpose takes of each step of the segment besides its states.
+    let mut held: Vec<Recorded> = Vec::new();
     let mut turned_steps = 0;
     let (mut peak_states, mut peak_bytes) = (0, 0);
     // In the solver's pool throughout: its steps and the transposes run there without a
@@ -240,9 +223,9 @@ pub fn gradient(
                 solver.advance(1)?;
                 segment.push(solver.state()?.clone());
                 if implicit {
-                    let contacts = solver.implicit_contacts();
-                    turned_steps += u64::from(contacts.iter().any(Candidate::held_direction));
-                    held.push(contacts.to_vec());
+                    let step = Recorded::of(&solver, model);
+                    turned_steps += u64::from(step.contacts.iter().any(Candidate::held_direction));
+                    held.push(step);
                 }
             }
             let expected = checkpoints.get(j + 1).map_or(&last, |(state, _)| state);
@@ -254,7 +237,7 @@ pub fn gradient(
             peak_bytes = peak_bytes.max(
                 checkpoints.len() as u64 * checkpoint_bytes
                     + (1 + segment.len() as u64) * state_bytes
-                    + held.iter().map(crate::vec_bytes).sum::<u64>(),
+                    + held.iter().map(Recorded::memory_bytes).sum::<u64>(),
             );
             for k in (from..to).rev() {
                 let i = (k - from) as usize;

@@ -124,11 +124,11 @@ impl Stepper {
     }
 
     /// Implicit Euler's contacts with the terrain in its last step, as its final solve held
-    /// them; none for the others.
-    pub(crate) fn implicit_contacts(&self) -> &[implicit_euler::Candidate] {
+    /// them, and the step's Δv; nothing for the others.
+    pub(crate) fn implicit_step(&self) -> (&[implicit_euler::Candidate], &[DVec3]) {
         match self {
-            Stepper::ImplicitEuler(s) => s.contacts(),
-            _ => &[],
+            Stepper::ImplicitEuler(s) => (s.contacts(), s.dv()),
+            _ => (&[], &[]),
         }
     }
 

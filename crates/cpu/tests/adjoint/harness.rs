@@ -260,7 +260,7 @@ pub fn check_case(integrator: Integrator, case: &Case, failures: &mut Vec<String
             fd,
             failures,
         );
-        let fd = central(&model, &state, 1.0, &|m, _, s| {
+        let fd = central(&model, &state, 100.0, &|m, _, s| {
             m.contact.laws.restitution += s
         });
         check(

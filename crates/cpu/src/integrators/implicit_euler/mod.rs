@@ -417,6 +417,11 @@ impl ImplicitEuler {
         &self.contacts
     }
 
+    /// The last step's Δv.
+    pub(crate) fn dv(&self) -> &[DVec3] {
+        &self.dv
+    }
+
     /// Records who touches and sticks, then v ← v + Δv, x ← x + h v.
     fn finish(&mut self, candidates: &[Candidate], h: f64, state: &mut State) {
         self.touching.fill(false);
