@@ -8,7 +8,7 @@
 //! (∂Φ/∂θ)ᵀ (x̄, v̄) on the way ([`integrators`] for each explicit method's transpose,
 //! [`implicit_euler`] for implicit Euler's, [`forces`] for the accelerations',
 //! [`collision_response`] for the response's, [`body_contact`] for contact between bodies').
-//! The states the sweep needs come from checkpoints every ⌈√T⌉ steps and a recomputation of
+//! The states the sweep needs come from checkpoints every √T steps or so and a recomputation of
 //! each segment by the forward solver itself ([`run`]): the forward is deterministic, so the
 //! recomputed states are the forward's bits (checked at every segment's end).
 //!

@@ -1,6 +1,6 @@
 //! The gradient of a loss over a whole run, in memory that grows as √T.
 //!
-//! The forward pass steps the [`CpuSolver`] and keeps its state every S = ⌈√T⌉ steps (⌈T/S⌉
+//! The forward pass steps the [`CpuSolver`] and keeps its state every S steps (⌈T/S⌉
 //! checkpoints), each with the solver's history (implicit Euler's warm start and contact
 //! flags; nothing for the explicit integrators). The backward pass takes the segments from the
 //! last to the first: it restores the segment's checkpoint, recomputes its S states with the
@@ -8,9 +8,11 @@
 //! run is refused as [`AdjointError::Recompute`]), and sweeps the segment's steps back with
 //! `StepAdjoint::step` or `ImplicitAdjoint::step`, adding each frame's loss cotangent as it
 //! passes the frame. At most ⌈T/S⌉ checkpoints and S + 2 states are held at once, besides the
-//! model and O(N) scratch: 2√T + 2 states for the explicit integrators, whose checkpoints are
-//! states; implicit Euler's also hold its warm start (three Δv, and the positions and
-//! constraints its multigrid was computed for), 3.6 states' bytes each.
+//! model and O(N) scratch. S = √(cT/s) for checkpoints of c states' bytes and s states' bytes
+//! a recomputed step, which makes the peak 2√(csT) states: 2√T + 2 for the explicit
+//! integrators (c = s = 1); implicit Euler's checkpoints also hold its warm start (three Δv,
+//! and the positions and constraints its multigrid was computed for: c ≈ 3.6), and where
+//! bodies can touch its recomputed steps their Δv (s = 1.5).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -128,7 +130,6 @@ pub fn gradient(
     let stopped = || options.stop.is_some_and(|s| s.load(Ordering::Relaxed));
     let sim = &model.simulation;
     let steps = sim.steps();
-    let interval = ((steps as f64).sqrt().ceil() as u64).max(1);
     let frames = sim.frame_count();
     let n = model.len();
     let frame_steps: Vec<u64> = (0..frames).map(|f| sim.frame_step(f)).collect();
@@ -146,6 +147,15 @@ pub fn gradient(
     // (implicit Euler's warm start and contact flags; nothing for the explicit integrators),
     // so that a segment's recomputation gives the forward's bits.
     let mut checkpoints: Vec<(State, History)> = vec![(start.clone(), solver.history()?)];
+    let history_bytes = |h: &History| h.parts.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
+    let interval = checkpoint_interval(
+        steps,
+        (state_bytes + history_bytes(&checkpoints[0].1)) as f64 / state_bytes.max(1) as f64,
+        match implicit && model.contact.enabled() {
+            true => 1.5,
+            false => 1.0,
+        },
+    );
     let mut check = options.check;
     if let Some(check) = check.as_mut() {
         check(0, &mut solver)?;
@@ -175,7 +185,6 @@ pub fn gradient(
     }
     let last = solver.state()?.clone();
     let forward_seconds = clock.elapsed().as_secs_f64();
-    let history_bytes = |h: &History| h.parts.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
     let checkpoint_bytes = checkpoints
         .iter()
         .map(|(_, h)| history_bytes(h))
@@ -293,6 +302,14 @@ pub fn gradient(
         backward_seconds,
         turned_steps,
     })
+}
+
+/// Steps between checkpoints, S, for a run of `steps` steps whose checkpoints take `checkpoint`
+/// states' bytes and whose recomputed segment `per_step` states' bytes a step: the peak
+/// c T/S + s S is least at S = √(c T/s), where it is 2√(c s T) (2√T states for the explicit
+/// integrators, whose checkpoints are states; implicit Euler's hold its warm start too).
+fn checkpoint_interval(steps: u64, checkpoint: f64, per_step: f64) -> u64 {
+    ((checkpoint * steps as f64 / per_step).sqrt().ceil() as u64).clamp(1, steps.max(1))
 }
 
 /// The transpose of a step of the run's integrator.
