@@ -15,6 +15,10 @@
 //! fourth-order problem the reference's error is about 1/15 of it; contacts make the motion
 //! non-smooth, and the difference is then the honest figure).
 //!
+//! Whether the reference is converged, and so whether each run's error measures anything, is
+//! judged in `convergence.rs`: a run is [`Standing::Comparable`] when stable, against a converged
+//! reference, with an error of at least [`RESOLVED`] times the reference's bound.
+//!
 //! # Comparing at frame times
 //!
 //! Frame k of a run is taken at step round(k / (frame_rate·dt)), time step·dt, so frames fall at
@@ -87,9 +91,12 @@ use crate::output::{Frame, FrameSink, Header};
 use crate::run::{self, RunError};
 use crate::{Backend, OpenError};
 
+mod convergence;
 mod reference;
 mod report;
 
+use convergence::{Evidence, standing, suggested_refinement, unconverged};
+pub use convergence::{RESOLVED, SIZE_FRACTION, Standing};
 use reference::{ReferenceStates, frame_times, reference_states};
 
 /// The reference's default refinement: dt_ref = min(dts) / 16.
@@ -160,6 +167,23 @@ pub struct Reference {
     /// Max over frames and particles of |x_check − x_ref|, metres: an upper estimate of the
     /// reference's own error.
     pub error_estimate: f64,
+    /// The explicit integrators' stable step estimate of the scene (`softbody check`'s),
+    /// seconds; None without springs.
+    pub stable_dt: Option<f64>,
+    /// The bodies' size: the diagonal of their initial bounding box, metres.
+    pub size: f64,
+    /// Why the reference is not converged (the criteria of the module doc); empty when it is.
+    pub unconverged: Vec<String>,
+    /// A refinement to try when it is not: its check step below the stable estimate, and at
+    /// least twice the study's.
+    pub suggested_refinement: u32,
+}
+
+impl Reference {
+    /// Whether the runs can be measured against it.
+    pub fn converged(&self) -> bool {
+        self.unconverged.is_empty()
+    }
 }
 
 /// One frame of a run.
@@ -206,6 +230,8 @@ pub struct RunReport {
     /// Whether the run completed with `final_max_speed` below the study's rest speed; None when
     /// unstable.
     pub at_rest: Option<bool>,
+    /// Whether its error measures its integrator at its step, and if not, why.
+    pub standing: Standing,
     /// One sample per frame written.
     pub samples: Vec<Sample>,
 }
@@ -398,6 +424,33 @@ impl Study {
         {
             energy_scale = run::energy_scale(s.as_mut(), &e0).unwrap_or(f64::NAN);
         }
+        let (model, start) = softbody_scene::Model::build(&reference_scene);
+        let stable_dt = softbody_cpu::stable_step::stable_dt_estimate(&model, &start.x);
+        let (lo, hi) = start.x.iter().fold(
+            (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
+            |(lo, hi), x| (lo.min(*x), hi.max(*x)),
+        );
+        let size = if start.x.is_empty() {
+            0.0
+        } else {
+            (hi - lo).length()
+        };
+        let errors: Vec<Option<f64>> = runs
+            .iter()
+            .map(|r| r.instability.is_none().then_some(r.max_error))
+            .collect();
+        let bound = check.max_error;
+        let reasons = unconverged(Evidence {
+            check_dt,
+            stable_dt,
+            bound,
+            size,
+            errors: &errors,
+        });
+        for (run, error) in runs.iter_mut().zip(errors) {
+            run.standing = standing(error, bound, reasons.is_empty());
+        }
+        let min_dt = dts.iter().copied().fold(f64::INFINITY, f64::min);
 
         Ok(Report {
             particles: lookup.states.first().map_or(0, Vec::len),
@@ -413,7 +466,11 @@ impl Study {
                 steps: reference_steps,
                 seconds: reference_seconds,
                 check_dt,
-                error_estimate: check.max_error,
+                error_estimate: bound,
+                stable_dt,
+                size,
+                unconverged: reasons,
+                suggested_refinement: suggested_refinement(self.refinement, min_dt, stable_dt),
             },
             runs,
         })
@@ -486,6 +543,8 @@ fn measure_run(
         at_rest: instability
             .is_none()
             .then_some(sink.final_max_speed < rest_speed),
+        // Judged once the reference's bound is known ([`Study::run`]).
+        standing: Standing::Comparable,
         instability,
         max_error,
         max_error_time,

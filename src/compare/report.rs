@@ -2,7 +2,7 @@
 
 use serde_json::{Value, json};
 
-use super::Report;
+use super::{RESOLVED, Report, Standing};
 
 /// The table's error and drift of an unstable run: measured only over the frames before its
 /// blow-up, they would look better than those of a stable run.
@@ -27,6 +27,11 @@ impl Report {
                 "seconds": self.reference.seconds,
                 "check_dt": self.reference.check_dt,
                 "error_estimate": self.reference.error_estimate,
+                "stable_dt_estimate": self.reference.stable_dt,
+                "size": self.reference.size,
+                "converged": self.reference.converged(),
+                "not_converged_because": self.reference.unconverged,
+                "suggested_refinement": self.reference.suggested_refinement,
             },
             "runs": self.runs.iter().map(|r| json!({
                 "integrator": r.integrator.name(),
@@ -41,9 +46,11 @@ impl Report {
                     "particle": i.particle,
                     "what": i.what,
                 })),
-                // An unstable run's frames stop before its blow-up: its error over them is
-                // no measure of the integrator at that step.
-                "comparable": r.instability.is_none(),
+                // An unstable run's frames stop before its blow-up, and an error against an
+                // unconverged reference, or within its bound, is no measure of the integrator
+                // at that step.
+                "comparable": r.standing == Standing::Comparable,
+                "not_comparable": r.standing.reason(),
                 "max_error": r.max_error,
                 "max_error_time": r.max_error_time,
                 "energy_drift": r.energy_drift,
@@ -70,9 +77,19 @@ impl Report {
         let r = &self.reference;
         out.push_str(&format!(
             "reference: {} at dt = {:.4e} s ({} steps, {:.2} s)\n\
-             reference error: at most {:.2e} m ({} at dt = {:.4e} s differs from it by that much)\n\n",
+             reference error: at most {:.2e} m ({} at dt = {:.4e} s differs from it by that much)\n",
             r.integrator, r.dt, r.steps, r.seconds, r.error_estimate, r.integrator, r.check_dt
         ));
+        if !r.converged() {
+            out.push_str(&format!(
+                "reference NOT converged: {}.\n  No run is comparable against it: try --refinement {} \
+                 (a finer reference), or a shorter\n  --duration (contact makes a long run chaotic: \
+                 its differences grow to the bodies' size\n  whatever the step).\n",
+                r.unconverged.join("; "),
+                r.suggested_refinement
+            ));
+        }
+        out.push('\n');
         let header = [
             "integrator",
             "dt [s]",
@@ -99,10 +116,10 @@ impl Report {
                     r.instability.as_ref().map_or("-".to_owned(), |i| {
                         format!("step {} ({:.4} s)", i.step, i.time)
                     }),
-                    if r.instability.is_some() {
-                        NOT_COMPARABLE.to_owned()
-                    } else {
-                        format!("{:.3e}", r.max_error)
+                    match r.standing {
+                        Standing::Unstable => NOT_COMPARABLE.to_owned(),
+                        Standing::Comparable => format!("{:.3e}", r.max_error),
+                        _ => format!("{:.3e}*", r.max_error),
                     },
                     if r.instability.is_some() {
                         NOT_COMPARABLE.to_owned()
@@ -153,7 +170,8 @@ impl Report {
         }
         out.push_str(&format!(
             "\nmax error: max over frames and particles of |x - x_ref| (`unstable`: the run blew up, and\n  \
-             its error before that is not comparable with the others).\n\
+             its error before that is not comparable with the others; `*`: not comparable, the\n  \
+             reference is not converged or the error is below {RESOLVED} times its bound).\n\
              energy drift: max |E - E0| / E_s over the frames, E_s = {:.4e} J (the energy scale of the\n  \
              instability guard); it measures the integrator only in undamped scenes: damping,\n  \
              friction and contacts remove energy on purpose.\n\

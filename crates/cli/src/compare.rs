@@ -137,6 +137,19 @@ pub fn compare(args: CompareArgs) -> Result<(), Failure> {
                 .map_or(String::new(), |p| format!("; plot in {}", p.display()))
         );
     }
+    let r = &report.reference;
+    if !r.converged() {
+        return Err(Failure {
+            status: status::UNCONVERGED,
+            error: anyhow::anyhow!(
+                "the reference (rk4 at dt = {:.4e} s) is not converged: {}; no run is comparable \
+                 against it: try --refinement {}, or a shorter --duration",
+                r.dt,
+                r.unconverged.join("; "),
+                r.suggested_refinement
+            ),
+        });
+    }
     Ok(())
 }
 

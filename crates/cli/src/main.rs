@@ -52,6 +52,9 @@ mod status {
     /// 128 + SIGTERM's number, as a shell reports a process the signal ended (a SIGINT's is
     /// `ExitClass::Stopped`'s 130).
     pub const TERMINATED: u8 = 143;
+    /// `compare`: the reference is not converged, so no run's error is a measure (the report is
+    /// printed all the same).
+    pub const UNCONVERGED: u8 = 5;
 }
 
 #[derive(Parser)]

@@ -15,7 +15,7 @@ fn cube() -> Cube {
     }
 }
 
-const RUN_KEYS: [&str; 16] = [
+const RUN_KEYS: [&str; 17] = [
     "integrator",
     "dt",
     "steps",
@@ -24,6 +24,7 @@ const RUN_KEYS: [&str; 16] = [
     "steps_per_second",
     "unstable",
     "comparable",
+    "not_comparable",
     "max_error",
     "max_error_time",
     "energy_drift",
@@ -322,4 +323,85 @@ fn unstable_reference_exits_3() {
         "{}",
         out.stderr
     );
+}
+
+/// A reference whose check step is past the stable estimate is no reference: on the stiff pair
+/// (ω₀ = 1414 rad/s, stable estimate ≈ 2/ω₀ = 1.41e-3 s), steps of 3.6 ms with refinement 4
+/// put the reference at 0.9 ms (ω₀h = 1.27) and its check at 1.8 ms (ω₀h = 2.55, inside RK4's
+/// stability interval ω₀h < 2√2, so nothing diverges). The study still reports, every run is
+/// marked not comparable, the reference says why and what to try, and the exit status is 5.
+#[test]
+fn an_unconverged_reference_marks_every_run_and_exits_5() {
+    let sandbox = Sandbox::new();
+    let scene = sandbox.write("stiff.toml", STIFF);
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "compare",
+            scene.to_str().unwrap(),
+            "--integrators",
+            "symplectic-euler,implicit-euler",
+            "--dt",
+            "0.0036",
+            "--refinement",
+            "4",
+            "--duration",
+            "0.5",
+            "--quiet",
+        ];
+        a.extend_from_slice(extra);
+        a.into_iter().map(str::to_owned).collect::<Vec<_>>()
+    };
+    let json = args(&["--json"]);
+    let out = sandbox.run(&json.iter().map(String::as_str).collect::<Vec<_>>());
+    out.expect_status(5);
+    let v: Value = serde_json::from_slice(&out.stdout).expect("the report all the same");
+    let reference = &v["reference"];
+    assert_eq!(reference["converged"], false);
+    let stable = reference["stable_dt_estimate"].as_f64().unwrap();
+    assert!(
+        (stable - 2.0 / 1e6f64.sqrt() / 2f64.sqrt()).abs() < 0.02 * stable,
+        "{stable}"
+    );
+    let because = reference["not_converged_because"].as_array().unwrap();
+    assert!(
+        because[0]
+            .as_str()
+            .unwrap()
+            .contains("past the stable step estimate"),
+        "{because:?}"
+    );
+    // 2 · 3.6 ms / 1.41 ms = 5.1: refinement 6 clears it, but at least twice 4.
+    assert_eq!(reference["suggested_refinement"], 8);
+    for run in v["runs"].as_array().unwrap() {
+        assert_eq!(run["comparable"], false, "{run}");
+        if run["unstable"].is_null() {
+            assert_eq!(run["not_comparable"], "reference-not-converged", "{run}");
+        }
+    }
+    assert!(out.stderr.contains("try --refinement 8"), "{}", out.stderr);
+    let table = args(&[]);
+    let out = sandbox.run(&table.iter().map(String::as_str).collect::<Vec<_>>());
+    out.expect_status(5);
+    assert!(
+        out.stdout_text().contains("reference NOT converged"),
+        "{}",
+        out.stdout_text()
+    );
+
+    // A finer reference converges: at refinement 32 (ω₀h = 0.16) RK4's phase error over the
+    // 0.5 s is 8⁴ times smaller than at 4 (bound 3e-2 m at refinement 8, so ~1e-4 m here,
+    // below 1 % of the pair's 1.1 m); exit 0.
+    let fine = args(&["--json"]);
+    let fine: Vec<&str> = fine
+        .iter()
+        .map(|a| if a == "4" { "32" } else { a.as_str() })
+        .collect();
+    let out = sandbox.run(&fine);
+    out.expect_status(EXIT_OK);
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["reference"]["converged"], true, "{}", v["reference"]);
+    let implicit = &v["runs"][1];
+    assert_eq!(implicit["integrator"], "implicit-euler");
+    assert_eq!(implicit["comparable"], true, "{implicit}");
+    assert!(implicit["not_comparable"].is_null());
 }
